@@ -1,0 +1,93 @@
+"""The whole hardware file: :class:`HwConfig` and :func:`load_config`.
+
+One file decides the telescope (``docs/architecture.md`` rule 1). ``load_config`` reads the
+TOML, validates every section and raises :class:`~tcs.errors.ConfigErrors` listing each problem
+as ``file: key.path: problem``; the command-line tools print that and exit with status 2 —
+never a traceback. Paths inside the file (EDS files, state directory) are relative to the
+file's own directory.
+
+Hardware sections are added here as single fields, one per concern, each defined in its own
+module.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from tcs.config.schema import build, setting
+from tcs.config.sections import (CabinetSection, MountSection, ServerSection, SiteSection,
+                                 StateSection, TimeSection, UserSection)
+from tcs.errors import ConfigError, ConfigErrors
+
+PACKAGE_ROOT = Path(__file__).resolve().parent.parent.parent
+DEFAULT_CONFIG = PACKAGE_ROOT / "hwconfig" / "sim.toml"
+
+
+@dataclass(frozen=True)
+class HwConfig:
+    server: ServerSection = setting(factory=ServerSection)
+    users: list[UserSection] = setting(factory=tuple)
+    site: SiteSection = setting(factory=SiteSection)
+    time: TimeSection = setting(factory=TimeSection)
+    mount: MountSection = setting(factory=MountSection)
+    state: StateSection = setting(factory=StateSection)
+    cabinet: CabinetSection = setting(factory=CabinetSection)
+    # Set by load_config, not by the file.
+    source: Path = field(default=Path("<memory>"), init=False, compare=False)
+
+    def check(self):
+        problems = []
+        names = [u.name for u in self.users]
+        for i, name in enumerate(names):
+            if name in names[:i]:
+                problems.append((f"users[{i}].name", f"duplicate user {name!r}"))
+        if self.server.implicit_auth and self.server.implicit_user not in names:
+            problems.append(("server.implicit_user",
+                             f"implicit_auth needs implicit_user to name one of the users {names}"))
+        return problems
+
+    @property
+    def mount_options(self) -> tuple[str, ...]:
+        return tuple(self.mount.options) or (self.mount.type,)
+
+    def resolve(self, path: str) -> Path:
+        """A path written in the file, relative to the file's directory."""
+        p = Path(os.path.expanduser(path))
+        return p if p.is_absolute() else (self.source.parent / p)
+
+    def state_dir(self) -> Path:
+        """Directory for persistent state (created on first use by the state store)."""
+        if self.state.path:
+            return self.resolve(self.state.path)
+        if os.environ.get("STATE_DIRECTORY"):  # systemd StateDirectory=
+            return Path(os.environ["STATE_DIRECTORY"].split(":")[0])
+        base = os.environ.get("XDG_STATE_HOME") or os.path.expanduser("~/.local/state")
+        return Path(base) / "tcs" / self.source.stem
+
+
+def parse_config(text: str, file: str = "<memory>") -> HwConfig:
+    """Validate TOML ``text``; raise ConfigErrors naming ``file`` on any problem."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigErrors([ConfigError(file, "", f"not valid TOML: {exc}")]) from None
+    config, errors = build(HwConfig, data, file)
+    if errors:
+        raise ConfigErrors(errors)
+    object.__setattr__(config, "source", Path(file).resolve() if file != "<memory>" else Path(file))
+    return config
+
+
+def load_config(path: str | os.PathLike | None = None) -> HwConfig:
+    """Read and validate a hardware file (default: the simulated telescope ``hwconfig/sim.toml``)."""
+    path = Path(path) if path is not None else DEFAULT_CONFIG
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigErrors([ConfigError(str(path), "", f"cannot read: {exc.strerror or exc}")]) from None
+    except UnicodeDecodeError:
+        raise ConfigErrors([ConfigError(str(path), "", "not UTF-8 text")]) from None
+    return parse_config(text, str(path))

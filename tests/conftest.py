@@ -1,0 +1,48 @@
+"""Fixtures shared by every test.
+
+``_no_leaks`` (autouse) fails any test that leaves threads or asyncio tasks behind: servers,
+buses, notifiers and simulators must be stopped by the test that started them.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+
+import pytest
+
+
+def _extra_threads(before: set[int]) -> list[threading.Thread]:
+    return [t for t in threading.enumerate() if t.ident not in before and t.is_alive()]
+
+
+@pytest.fixture(autouse=True)
+def _no_leaked_threads():
+    before = {t.ident for t in threading.enumerate()}
+    yield
+    deadline = time.monotonic() + 3.0
+    while _extra_threads(before) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    leaked = _extra_threads(before)
+    assert not leaked, f"test leaked threads: {[t.name for t in leaked]}"
+
+
+@pytest.fixture(autouse=True)
+async def _no_leaked_tasks():
+    yield
+    current = asyncio.current_task()
+    for _ in range(50):
+        others = [t for t in asyncio.all_tasks() if t is not current and not t.done()]
+        if not others:
+            return
+        await asyncio.sleep(0.02)
+    assert not others, f"test leaked asyncio tasks: {others}"
+
+
+@pytest.fixture
+def state_dir(tmp_path, monkeypatch):
+    """A fresh persistent-state directory for the service under test."""
+    d = tmp_path / "state"
+    monkeypatch.setenv("XDG_STATE_HOME", str(d))
+    return d
