@@ -1,0 +1,271 @@
+"""The simulator's side of one CAN bus: receive dispatch, sending and one timer thread.
+
+Every simulated node on a bus shares one :class:`SimCanPort`, so a bus with N drives costs
+one receive thread (a python-can ``Notifier``, or the notifier of a canopen ``Network`` the
+port was given) and one timer thread, whatever N is.
+
+* ``subscribe(cob_id, callback)`` — ``callback(cob_id, data: bytes)`` runs in the receive
+  thread for every frame with that identifier.
+* ``send(cob_id, data)`` — thread-safe.
+* ``call_later(delay, callback)`` / ``call_every(period, callback)`` — run ``callback()`` in
+  the timer thread (real time: heartbeats, event timers, periodic polls); they return a handle
+  whose ``cancel()`` stops it.
+* ``lock`` — one re-entrant lock held around every callback (received frames and timers), so
+  the nodes' state is only ever touched by one thread at a time; code outside the port that
+  touches a node (tests, fault injection) takes it too.
+
+Ports are made by :func:`open_port` from a python-can bus, a canopen ``Network``, an existing
+port, or a dict of ``can.Bus`` keyword arguments; ports made for the same bus object are
+shared and reference-counted (``release`` closes what the port opened when the last user is
+gone; a bus or network handed in by the caller is never shut down).
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import threading
+import time
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import can
+
+log = logging.getLogger(__name__)
+
+FrameCallback = Callable[[int, bytes], None]
+
+#: Seconds the receive thread waits for a frame before checking whether it must stop.
+RECEIVE_CYCLE = 0.05
+
+
+class TimerHandle:
+    """A scheduled timer callback; ``cancel()`` makes sure it never runs again."""
+
+    __slots__ = ("callback", "period", "cancelled")
+
+    def __init__(self, callback: Callable[[], None], period: float | None):
+        self.callback = callback
+        self.period = period
+        self.cancelled = False
+
+    def cancel(self) -> None:
+        self.cancelled = True
+
+
+class SimCanPort:
+    """One simulated bus attachment shared by every simulated node on it.
+
+    Use :func:`open_port` rather than the constructor.
+    """
+
+    def __init__(self, bus: can.BusABC | None = None, network: Any = None, owns_bus: bool = False):
+        self.lock = threading.RLock()
+        self._bus = bus
+        self._network = network
+        self._owns_bus = owns_bus
+        self._subscribers: dict[int, list[FrameCallback]] = {}
+        self._heap: list[tuple[float, int, TimerHandle]] = []
+        self._seq = itertools.count()
+        self._cond = threading.Condition()
+        self._closed = False
+        self._users = 0
+        self._send_lock = threading.Lock()
+        self._notifier: can.Notifier | None = None
+        if network is not None:
+            self._bus = None
+        elif bus is not None:
+            self._notifier = can.Notifier(bus, [self._on_message], timeout=RECEIVE_CYCLE)
+        name = getattr(bus, "channel_info", None) or "network"
+        self._timer = threading.Thread(target=self._timer_loop, name=f"sim-can-timer {name}", daemon=True)
+        self._timer.start()
+        self.frames_sent = 0
+        self.send_errors = 0
+
+    # -- receive -----------------------------------------------------------------------------
+    def subscribe(self, cob_id: int, callback: FrameCallback) -> None:
+        """Call ``callback(cob_id, data)`` in the receive thread for frames with ``cob_id``."""
+        with self.lock:
+            callbacks = self._subscribers.setdefault(cob_id, [])
+            if callback not in callbacks:
+                callbacks.append(callback)
+                if self._network is not None:
+                    self._network.subscribe(cob_id, self._on_network_frame)
+
+    def unsubscribe(self, cob_id: int, callback: FrameCallback) -> None:
+        with self.lock:
+            callbacks = self._subscribers.get(cob_id, [])
+            if callback in callbacks:
+                callbacks.remove(callback)
+            if not callbacks:
+                self._subscribers.pop(cob_id, None)
+                if self._network is not None:
+                    try:
+                        self._network.unsubscribe(cob_id, self._on_network_frame)
+                    except (KeyError, ValueError):
+                        pass
+
+    def _on_message(self, msg: can.Message) -> None:
+        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+            return
+        self._dispatch(msg.arbitration_id, bytes(msg.data))
+
+    def _on_network_frame(self, cob_id: int, data: bytearray, timestamp: float) -> None:
+        self._dispatch(cob_id, bytes(data))
+
+    def _dispatch(self, cob_id: int, data: bytes) -> None:
+        with self.lock:
+            if self._closed:
+                return
+            for callback in list(self._subscribers.get(cob_id, ())):
+                try:
+                    callback(cob_id, data)
+                except Exception:  # a simulator bug must not kill the receive thread
+                    log.exception("simulated node failed handling frame 0x%03X", cob_id)
+
+    # -- send --------------------------------------------------------------------------------
+    def send(self, cob_id: int, data: bytes | bytearray) -> None:
+        """Put one standard frame on the bus (never raises: a full queue is logged)."""
+        try:
+            if self._network is not None:
+                self._network.send_message(cob_id, bytes(data))
+            elif self._bus is not None:
+                msg = can.Message(arbitration_id=cob_id, data=bytes(data), is_extended_id=False)
+                with self._send_lock:
+                    self._bus.send(msg)
+            self.frames_sent += 1
+        except (can.CanError, RuntimeError, OSError) as exc:
+            self.send_errors += 1
+            log.warning("simulated node could not send 0x%03X: %s", cob_id, exc)
+
+    # -- timers ------------------------------------------------------------------------------
+    def call_later(self, delay: float, callback: Callable[[], None]) -> TimerHandle:
+        """Run ``callback()`` once in the timer thread after ``delay`` seconds (real time)."""
+        return self._schedule(time.monotonic() + max(0.0, delay), TimerHandle(callback, None))
+
+    def call_every(self, period: float, callback: Callable[[], None], first: float | None = None) -> TimerHandle:
+        """Run ``callback()`` every ``period`` seconds (real time) until cancelled."""
+        if period <= 0:
+            raise ValueError("timer period must be positive")
+        start = time.monotonic() + (period if first is None else max(0.0, first))
+        return self._schedule(start, TimerHandle(callback, period))
+
+    def _schedule(self, when: float, handle: TimerHandle) -> TimerHandle:
+        with self._cond:
+            heapq.heappush(self._heap, (when, next(self._seq), handle))
+            self._cond.notify()
+        return handle
+
+    def _timer_loop(self) -> None:
+        while True:
+            with self._cond:
+                while not self._closed:
+                    now = time.monotonic()
+                    while self._heap and self._heap[0][2].cancelled:
+                        heapq.heappop(self._heap)
+                    if self._heap and self._heap[0][0] <= now:
+                        when, _, handle = heapq.heappop(self._heap)
+                        break
+                    self._cond.wait(None if not self._heap else self._heap[0][0] - now)
+                else:
+                    return
+            with self.lock:
+                if handle.cancelled or self._closed:
+                    continue
+                try:
+                    handle.callback()
+                except Exception:
+                    log.exception("simulated node timer failed")
+            if handle.period is not None and not handle.cancelled:
+                # Keep the phase, but never try to catch up on a backlog of missed periods.
+                nxt = when + handle.period
+                now = time.monotonic()
+                if nxt < now:
+                    nxt = now + handle.period - ((now - when) % handle.period)
+                self._schedule(nxt, handle)
+
+    # -- life cycle --------------------------------------------------------------------------
+    def close(self) -> None:
+        """Stop the threads; shut down the bus if the port opened it. Idempotent."""
+        with self.lock:
+            if self._closed:
+                return
+            self._closed = True
+            subscribed = list(self._subscribers)
+            self._subscribers.clear()
+        with self._cond:
+            self._cond.notify_all()
+        if threading.current_thread() is not self._timer:
+            self._timer.join(5.0)
+        if self._network is not None:
+            for cob_id in subscribed:
+                try:
+                    self._network.unsubscribe(cob_id, self._on_network_frame)
+                except (KeyError, ValueError):
+                    pass
+        if self._notifier is not None:
+            self._notifier.stop(RECEIVE_CYCLE * 4)
+        if self._owns_bus and self._bus is not None:
+            self._bus.shutdown()
+        _forget(self)
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def acquire_user(self) -> None:
+        with self.lock:
+            self._users += 1
+
+    def release(self) -> None:
+        """One user is done with the port; the last one closes it."""
+        with self.lock:
+            self._users -= 1
+            last = self._users <= 0
+        if last:
+            self.close()
+
+
+_registry: dict[int, SimCanPort] = {}
+_registry_lock = threading.Lock()
+
+
+def _forget(port: SimCanPort) -> None:
+    with _registry_lock:
+        for key, value in list(_registry.items()):
+            if value is port:
+                del _registry[key]
+
+
+def open_port(bus_or_network: Any) -> SimCanPort:
+    """The shared port for a bus; the caller must ``release()`` it when done.
+
+    Parameters
+    ----------
+    bus_or_network:
+        A :class:`SimCanPort`, a ``can.BusABC`` (the port reads it: nobody else may), a
+        connected ``canopen.Network`` (the port uses its notifier and send lock), or a mapping
+        of ``can.Bus`` keyword arguments (the port opens and later shuts down its own bus).
+    """
+    if isinstance(bus_or_network, SimCanPort):
+        port = bus_or_network
+        if port.closed:
+            raise ValueError("the simulated CAN port is closed")
+    elif isinstance(bus_or_network, Mapping):
+        port = SimCanPort(bus=can.Bus(**dict(bus_or_network)), owns_bus=True)
+    else:
+        with _registry_lock:
+            port = _registry.get(id(bus_or_network))
+            if port is None or port.closed:
+                if isinstance(bus_or_network, can.BusABC):
+                    port = SimCanPort(bus=bus_or_network)
+                elif hasattr(bus_or_network, "subscribe") and hasattr(bus_or_network, "send_message"):
+                    port = SimCanPort(network=bus_or_network)
+                else:
+                    raise TypeError(
+                        f"simulated drive needs a can.BusABC, canopen.Network, SimCanPort or bus "
+                        f"arguments, not {type(bus_or_network).__name__}")
+                _registry[id(bus_or_network)] = port
+    port.acquire_user()
+    return port
