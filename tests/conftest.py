@@ -46,3 +46,15 @@ def state_dir(tmp_path, monkeypatch):
     d = tmp_path / "state"
     monkeypatch.setenv("XDG_STATE_HOME", str(d))
     return d
+
+
+@pytest.fixture
+async def service(tmp_path):
+    """The default simulated telescope served on a free port; yields (service, port)."""
+    from support.service import start_service
+
+    svc, port = await start_service(tmp_path / "state")
+    try:
+        yield svc, port
+    finally:
+        await svc.stop()

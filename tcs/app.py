@@ -1,0 +1,67 @@
+"""The service: telescope model + TPL2 server, started and stopped together.
+
+:class:`Service` is what ``tcs-server`` runs and what the end-to-end tests start in-process:
+``await service.start()`` builds the telescope from the hardware file, brings the hardware
+(or simulators) up, builds the OpenTCI tree and listens; ``await service.stop()`` ends
+pending commands with ``COMMAND FAILED``, stops all motion, leaves the hardware safe and
+closes every socket.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+
+from tcs.config import HwConfig
+from tcs.model.telescope import Telescope
+from tcs.opentci_server.opentci import build_tree
+from tcs.opentci_server.server import Tpl2Server
+
+log = logging.getLogger(__name__)
+
+
+class Service:
+    """One running TCS."""
+
+    def __init__(self, config: HwConfig, host: str | None = None, port: int | None = None):
+        self.config = config
+        self.host = host
+        self.port = port
+        self.telescope: Telescope | None = None
+        self.server: Tpl2Server | None = None
+
+    async def start(self) -> int:
+        """Start everything; returns the TPL2 port."""
+        self.telescope = Telescope(self.config)
+        await self.telescope.start()
+        self.server = Tpl2Server(self.config.server, self.config.users, self.telescope.events,
+                                 manufacturer=self.config.cabinet.manufacturer)
+        self.server.tree = build_tree(self.telescope, self.server)
+        try:
+            return await self.server.start(self.host, self.port)
+        except BaseException:
+            await self.telescope.stop()
+            raise
+
+    async def stop(self) -> None:
+        if self.server is not None:
+            await self.server.stop()
+        if self.telescope is not None:
+            await self.telescope.stop()
+
+    async def __aenter__(self) -> "Service":
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        await self.stop()
+
+
+async def serve_until_signalled(service: Service, stop: asyncio.Event) -> None:
+    """Run ``service`` until ``stop`` is set (by SIGINT/SIGTERM)."""
+    await service.start()
+    try:
+        await stop.wait()
+    finally:
+        log.info("stopping")
+        await service.stop()

@@ -1,0 +1,1 @@
+"""Console scripts: ``tcs-server``, ``tcs-passwd``."""

@@ -1,0 +1,62 @@
+"""``tcs-server``: run the TCS.
+
+No arguments: the simulated telescope of ``hwconfig/sim.toml`` on 127.0.0.1:65432.
+``--config FILE`` runs whatever the file describes; ``--host``/``--port`` override the file.
+Logs go to stderr as ``LEVEL name: message`` (journald adds the time). A bad hardware file is
+reported key by key and the exit status is 2. SIGINT and SIGTERM stop cleanly (status 0).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import signal
+import sys
+
+from tcs.config import DEFAULT_CONFIG, load_config
+from tcs.errors import ConfigErrors
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="tcs-server", description=__doc__.splitlines()[0])
+    p.add_argument("--config", default=str(DEFAULT_CONFIG), help="hardware file (default: %(default)s)")
+    p.add_argument("--host", help="bind address (overrides [server] host)")
+    p.add_argument("--port", type=int, help="TCP port (overrides [server] port)")
+    p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    return p.parse_args(argv)
+
+
+def setup_logging(level: str) -> None:
+    logging.basicConfig(stream=sys.stderr, level=getattr(logging, level),
+                        format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger("can.interfaces.socketcand").setLevel(logging.ERROR)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    setup_logging(args.log_level)
+    try:
+        config = load_config(args.config)
+    except ConfigErrors as exc:
+        print(f"tcs-server: the hardware file is not valid:\n{exc}", file=sys.stderr)
+        return 2
+    from tcs.app import Service, serve_until_signalled
+
+    async def run() -> None:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+        await serve_until_signalled(Service(config, args.host, args.port), stop)
+
+    try:
+        asyncio.run(run())
+    except OSError as exc:
+        print(f"tcs-server: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

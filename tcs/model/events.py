@@ -1,0 +1,83 @@
+"""Events of the telescope model and who caused them.
+
+Domain code (axes, cabinet, LOCAL, …) announces state changes and errors with
+``events.emit(level, source, number, text)``; it never knows about connections. The TPL2
+server subscribes and turns each event into ``<id> EVENT <LEVEL> <source>:<number> <text>``
+lines for every authenticated connection whose event mask lets it through.
+
+Which command caused an event is carried implicitly: the server runs each command with the
+context variable :data:`current_cause` set to ``(connection id, command id)``; tasks started
+from it inherit the value, so an event emitted while a long SET runs names that SET. Events
+from the control-loop thread or timers have no cause (id 0).
+
+``emit`` may be called from any thread: events from other threads are handed to the event
+loop with ``call_soon_threadsafe`` so subscribers always run on the loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextvars
+import logging
+import threading
+from dataclasses import dataclass
+from typing import Callable
+
+log = logging.getLogger(__name__)
+
+ERROR, WARN, INFO, DEBUG = "ERROR", "WARN", "INFO", "DEBUG"
+LEVEL_BITS = {ERROR: 1, WARN: 2, INFO: 4, DEBUG: 8}
+
+#: (connection id, command id) of the command being executed, or None.
+current_cause: contextvars.ContextVar[tuple[int, int] | None] = contextvars.ContextVar(
+    "current_cause", default=None)
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    level: str
+    source: str
+    number: int
+    text: str
+    cause: tuple[int, int] | None
+
+
+class EventHub:
+    """Fan-out of :class:`Event` to subscribers on one asyncio loop."""
+
+    def __init__(self) -> None:
+        self._subscribers: list[Callable[[Event], None]] = []
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._loop_thread: int | None = None
+
+    def bind_loop(self, loop: asyncio.AbstractEventLoop | None = None) -> None:
+        """Deliver events on ``loop`` (the running loop by default)."""
+        self._loop = loop or asyncio.get_running_loop()
+        self._loop_thread = threading.get_ident()
+
+    def subscribe(self, callback: Callable[[Event], None]) -> Callable[[], None]:
+        """Call ``callback(event)`` for every event; returns the unsubscribe function."""
+        self._subscribers.append(callback)
+        return lambda: self._subscribers.remove(callback) if callback in self._subscribers else None
+
+    def emit(self, level: str, source: str, number: int, text: str = "",
+             cause: tuple[int, int] | None = None) -> None:
+        """Announce an event; ``cause`` defaults to the command being executed."""
+        event = Event(level, source, int(number), text, cause if cause is not None else current_cause.get())
+        log.log(logging.WARNING if level in (ERROR, WARN) else logging.INFO,
+                "event %s %s:%d %s", level, source, event.number, text)
+        loop = self._loop
+        if loop is not None and threading.get_ident() != self._loop_thread:
+            try:
+                loop.call_soon_threadsafe(self._deliver, event)
+            except RuntimeError:  # loop closed during shutdown
+                pass
+        else:
+            self._deliver(event)
+
+    def _deliver(self, event: Event) -> None:
+        for callback in list(self._subscribers):
+            try:
+                callback(event)
+            except Exception:  # a broken subscriber must not silence the others
+                log.exception("event subscriber failed")

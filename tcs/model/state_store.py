@@ -1,0 +1,91 @@
+"""Persistent state that must survive a restart of the service (values written by clients,
+the operator's status list, …), kept as one JSON document per store in the state directory.
+
+Writes are atomic: the new document goes to a temporary file in the same directory, is
+flushed and fsync'ed, then renamed over the old one, so a kill at any moment leaves either
+the old or the new file, never a broken one. A file that cannot be parsed at start is moved
+aside (``name.json.corrupt-<time>``) and reported in the log; the service starts with defaults
+rather than refusing to run.
+
+Owners (LOCAL, CABINET.STATUS, …) call :meth:`StateStore.get` at start and
+:meth:`StateStore.update` when a value changes; nothing else touches the files.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+
+class StateStore:
+    """A small JSON key/value document at ``directory/name.json``."""
+
+    def __init__(self, directory: Path, name: str = "state"):
+        self.path = Path(directory) / f"{name}.json"
+        self._lock = threading.Lock()
+        self._data: dict[str, Any] = self._load()
+
+    def _load(self) -> dict[str, Any]:
+        try:
+            text = self.path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            return {}
+        except OSError as exc:
+            log.error("cannot read state file %s: %s; starting with defaults", self.path, exc)
+            return {}
+        try:
+            data = json.loads(text)
+            if not isinstance(data, dict):
+                raise ValueError("not a JSON object")
+            return data
+        except ValueError as exc:
+            aside = self.path.with_name(f"{self.path.name}.corrupt-{int(time.time())}")
+            log.error("state file %s is unreadable (%s); moved to %s, starting with defaults",
+                      self.path, exc, aside)
+            try:
+                os.replace(self.path, aside)
+            except OSError:
+                pass
+            return {}
+
+    def get(self, key: str, default: Any = None) -> Any:
+        with self._lock:
+            return self._data.get(key, default)
+
+    def update(self, **values: Any) -> None:
+        """Set keys and write the document atomically."""
+        with self._lock:
+            self._data.update(values)
+            self._write()
+
+    def _write(self) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", dir=self.path.parent)
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                json.dump(self._data, f, indent=1, sort_keys=True)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, self.path)
+        except BaseException:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+            raise
+        try:  # make the rename itself durable
+            dfd = os.open(self.path.parent, os.O_DIRECTORY)
+            try:
+                os.fsync(dfd)
+            finally:
+                os.close(dfd)
+        except OSError:
+            pass

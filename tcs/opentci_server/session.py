@@ -1,0 +1,423 @@
+"""One TPL2 connection: the command lifecycle over a pure protocol core and the variable tree.
+
+How it works
+------------
+:class:`Session` is an ``asyncio.Protocol``. Bytes go into the pure
+:class:`~tcs.opentci_server.protocol.Tpl2Connection`, which yields parsed messages; each is
+handled **in order**. ``GET`` is answered synchronously (reads never wait). ``SET`` applies its
+assignments in order; a setter that returns an awaitable (a long-running action) turns the rest
+of the command into a task, so the connection goes on reading and answering other commands.
+``ABORT`` cancels such tasks. ``AUTH`` verifies the password off the event loop; lines that
+arrive meanwhile wait in a queue so that ``AUTH`` + ``GET`` sent back to back (UNAM) work.
+
+The command lifecycle (protocol doc §4), one final line per command:
+
+=========================  =============================================================
+situation                  lines
+=========================  =============================================================
+not logged in              ``<id> COMMAND ERROR UNAUTHENTICATED``, ``<id> COMMAND FAILED``
+id still running           ``0 COMMAND ERROR IDBUSY <id>`` (the running command is untouched)
+id out of range            ``0 COMMAND ERROR IDRANGE <id>``
+unparseable line           ``<id> COMMAND ERROR SYNTAX``, ``<id> COMMAND FAILED`` (id 0: first line only)
+unknown verb               ``<id> COMMAND ERROR UNKNOWN [unknown command X]``, ``<id> COMMAND FAILED``
+too many in flight         ``<id> COMMAND ERROR TOOMANY``, ``<id> COMMAND FAILED``
+GET / SET                  ``COMMAND OK``, one ``DATA`` line per object, ``COMMAND COMPLETE``
+aborted long SET           ``<id> COMMAND ABORTEDBY <abort id>``
+server shutting down       ``<id> COMMAND FAILED``
+=========================  =============================================================
+
+Errors raised by the domain (:class:`~tcs.errors.TcsError`) become reply text here and only
+here (``DATA ERROR <obj> FAILED n`` / keyword). Output is flow-controlled: a client that stops
+reading is paused, and dropped when its backlog passes a hard limit, so it cannot slow others.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections import deque
+from typing import TYPE_CHECKING
+
+from tcs.errors import TcsError
+from tcs.model.events import LEVEL_BITS, Event, current_cause
+from tcs.opentci_server import messages as m
+from tcs.opentci_server.protocol import Tpl2Connection
+
+if TYPE_CHECKING:  # pragma: no cover
+    from tcs.opentci_server.server import Tpl2Server
+
+log = logging.getLogger(__name__)
+
+MAX_BACKLOG = 8 * 1024 * 1024  # bytes of unsent output before a client is dropped
+NO_ACCESS = 99
+
+
+class _Command:
+    """A running long command: its task and how it was ended from outside."""
+
+    __slots__ = ("cmd_id", "task", "aborted_by", "shutdown")
+
+    def __init__(self, cmd_id: int):
+        self.cmd_id = cmd_id
+        self.task: asyncio.Task | None = None
+        self.aborted_by: int | None = None
+        self.shutdown = False
+
+
+class Session(asyncio.Protocol):
+    """The server side of one TPL2 connection (also the object behind SERVER.CONNECTION.*)."""
+
+    def __init__(self, server: "Tpl2Server", conn_id: int):
+        self.server = server
+        self.id = conn_id
+        cfg = server.settings
+        self.proto = Tpl2Connection(line_ending=b"\r\n" if cfg.line_ending == "CRLF" else b"\n",
+                                    max_line_length=cfg.max_line_length)
+        self.transport: asyncio.Transport | None = None
+        self.address = ""
+        self.username = ""
+        self.rlevel = self.wlevel = NO_ACCESS
+        self.authenticated = False
+        self.eventmask = 15
+        self.abort_on_disconnect = 0
+        self.starttime = time.time()
+        self._start_mono = time.monotonic()
+        self.commands: dict[int, _Command] = {}
+        self._queue: deque = deque()
+        self._auth_task: asyncio.Task | None = None
+        self._auth_failures = 0
+        self._closed = False
+        self._paused = False
+
+    # -- SERVER.CONNECTION.* ---------------------------------------------------------------------
+    @property
+    def uptime(self) -> float:
+        return time.monotonic() - self._start_mono
+
+    def set_eventmask(self, value: int) -> None:
+        self.eventmask = int(value)
+
+    def set_abort_on_disconnect(self, value: int) -> None:
+        self.abort_on_disconnect = int(value)
+
+    # -- asyncio.Protocol --------------------------------------------------------------------------
+    def connection_made(self, transport) -> None:
+        self.transport = transport
+        peer = transport.get_extra_info("peername")
+        self.address = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer or "")
+        cfg = self.server.settings
+        if not self.server.admit(self):
+            self.send(m.Greeting("2.1", self.id, (), (), "too many connections"))
+            transport.close()
+            self._closed = True
+            return
+        implicit = cfg.implicit_auth
+        self.send(m.Greeting("2.1", self.id, () if implicit else ("PLAIN",), (), cfg.greeting))
+        if implicit:
+            user = self.server.users[cfg.implicit_user]
+            self._login(user.name, user.rlevel, user.wlevel)
+
+    def data_received(self, data: bytes) -> None:
+        self._handle_all(self.proto.receive(data))
+
+    def eof_received(self) -> bool:
+        self._handle_all(self.proto.eof())
+        return False
+
+    def connection_lost(self, exc) -> None:
+        self._closed = True
+        if self._auth_task is not None:
+            self._auth_task.cancel()
+        if self.abort_on_disconnect:
+            for cmd in list(self.commands.values()):
+                if cmd.task is not None:
+                    cmd.task.cancel()
+        self.server.forget(self)
+
+    def pause_writing(self) -> None:
+        self._paused = True
+        if self.transport is not None:
+            self.transport.pause_reading()
+
+    def resume_writing(self) -> None:
+        self._paused = False
+        if self.transport is not None and not self._closed:
+            self.transport.resume_reading()
+
+    # -- output ----------------------------------------------------------------------------------
+    def send(self, msg) -> None:
+        self.write(self.proto.send(msg))
+
+    def write(self, data: bytes) -> None:
+        t = self.transport
+        if t is None or self._closed or t.is_closing():
+            return
+        t.write(data)
+        if self._paused and t.get_write_buffer_size() > MAX_BACKLOG:
+            log.warning("connection %d (%s) does not read its replies; dropping it", self.id, self.address)
+            self._closed = True
+            t.abort()
+
+    def deliver_event(self, event: Event) -> None:
+        """Send ``event`` if this connection is logged in and its mask lets it through."""
+        if not self.authenticated or not (self.eventmask & LEVEL_BITS.get(event.level, 0)):
+            return
+        cause = event.cause
+        if cause is None:
+            cid = 0
+        elif cause[0] == self.id:
+            cid = cause[1]
+        else:
+            cid = (cause[0] << 32) | cause[1]
+        self.send(m.Event(cid, event.level, event.source, event.number, event.text))
+
+    def close(self) -> None:
+        if self.transport is not None and not self.transport.is_closing():
+            self.transport.close()
+
+    # -- dispatch --------------------------------------------------------------------------------
+    def _handle_all(self, msgs) -> None:
+        for msg in msgs:
+            if self._closed:
+                return
+            if self._auth_task is not None:
+                self._queue.append(msg)
+            else:
+                self._handle(msg)
+
+    def _drain_queue(self) -> None:
+        while self._queue and self._auth_task is None and not self._closed:
+            self._handle(self._queue.popleft())
+
+    def _handle(self, msg) -> None:
+        kind = type(msg)
+        if kind is m.Get:
+            if self._admit_command(msg.cmd_id):
+                self._get(msg)
+        elif kind is m.Set:
+            if self._admit_command(msg.cmd_id):
+                self._set(msg)
+        elif kind is m.Abort:
+            if self._admit_command(msg.cmd_id):
+                self._abort(msg)
+        elif kind is m.Auth:
+            self._auth(msg)
+        elif kind is m.Disconnect:
+            self.send(m.DisconnectOk())
+            self._closed = True
+            if self.abort_on_disconnect:
+                for cmd in list(self.commands.values()):
+                    if cmd.task is not None:
+                        cmd.task.cancel()
+            if self.transport is not None:
+                self.transport.close()
+        elif kind is m.Enc:
+            self.send(m.EncUnsupported())
+        elif kind is m.AuthSyntaxError:
+            self.send(m.AuthError())
+        elif kind is m.BadId:
+            self.send(m.CommandError.idrange(msg.text))
+        elif kind is m.BadSyntax or kind is m.LineTooLong:
+            self._refuse(msg.cmd_id, "SYNTAX")
+        elif kind is m.UnknownCommand:
+            self._refuse(msg.cmd_id, "UNKNOWN", f"unknown command {msg.verb}")
+        else:  # pragma: no cover - every parser message is handled above
+            log.error("unhandled message %r", msg)
+
+    def _refuse(self, cmd_id: int, code: str, detail: str | None = None) -> None:
+        self.send(m.CommandError(cmd_id, code, detail))
+        if cmd_id:
+            self.send(m.CommandFailed(cmd_id))
+
+    def _admit_command(self, cmd_id: int) -> bool:
+        if not self.authenticated:
+            self._refuse(cmd_id, "UNAUTHENTICATED")
+            return False
+        if cmd_id in self.commands:
+            self.send(m.CommandError.idbusy(cmd_id))
+            return False
+        if len(self.commands) >= self.server.settings.max_in_flight:
+            self._refuse(cmd_id, "TOOMANY")
+            return False
+        return True
+
+    # -- AUTH --------------------------------------------------------------------------------
+    def _auth(self, msg: m.Auth) -> None:
+        if msg.method != "PLAIN":
+            self.send(m.AuthUnsupported())
+            return
+        if msg.user is None or msg.password is None:
+            self.send(m.AuthError())
+            return
+        self._auth_task = asyncio.get_running_loop().create_task(self._verify(msg))
+
+    async def _verify(self, msg: m.Auth) -> None:
+        try:
+            user = await self.server.authenticate(msg.user, msg.password)
+            if user is None:
+                self._auth_failures += 1
+                await asyncio.sleep(self.server.settings.auth_fail_delay)
+                self.send(m.AuthFailed())
+                if self._auth_failures >= self.server.settings.auth_max_failures:
+                    log.warning("connection %d (%s): %d failed logins, dropping it",
+                                self.id, self.address, self._auth_failures)
+                    self._closed = True
+                    self.close()
+                return
+            rlevel = max(user.rlevel, msg.rlevel if msg.rlevel is not None else 0)
+            wlevel = max(user.wlevel, msg.wlevel if msg.wlevel is not None else 0)
+            self._login(user.name, rlevel, wlevel)
+        finally:
+            self._auth_task = None
+        self._drain_queue()
+
+    def _login(self, name: str, rlevel: int, wlevel: int) -> None:
+        self.username, self.rlevel, self.wlevel = name, rlevel, wlevel
+        self.authenticated = True
+        self.send(m.AuthOk(rlevel, wlevel))
+        log.info("connection %d (%s) logged in as %s (%d %d)", self.id, self.address, name, rlevel, wlevel)
+
+    # -- GET -----------------------------------------------------------------------------------
+    def _get(self, msg: m.Get) -> None:
+        cmd_id = msg.cmd_id
+        tree = self.server.tree
+        send = self.proto.send
+        out = [send(m.CommandOk(cmd_id))]
+        for ref in msg.objects:
+            try:
+                targets = tree.resolve(ref)
+                value = ",".join([tree.read(t, ref.prop, self) for t in targets])
+            except TcsError as exc:
+                value = exc.reply
+            out.append(send(m.DataInline(cmd_id, ref.text, (value,))))
+        out.append(send(m.CommandComplete(cmd_id)))
+        self.write(b"".join(out))
+
+    # -- SET -----------------------------------------------------------------------------------
+    def _set(self, msg: m.Set) -> None:
+        cmd_id = msg.cmd_id
+        self.send(m.CommandOk(cmd_id))
+        token = current_cause.set((self.id, cmd_id))
+        try:
+            for i, assignment in enumerate(msg.assignments):
+                pending = self._assign(cmd_id, assignment)
+                if pending is not None:
+                    cmd = _Command(cmd_id)
+                    self.commands[cmd_id] = cmd
+                    cmd.task = self.server.spawn(
+                        self._finish_set(cmd, assignment, pending, msg.assignments[i + 1:]))
+                    return
+        finally:
+            current_cause.reset(token)
+        self.send(m.CommandComplete(cmd_id))
+
+    def _assign(self, cmd_id: int, assignment: m.Assignment):
+        """Start one assignment. Returns None when it finished (line sent), else the
+        awaitables still to wait for and the number of targets."""
+        ref = assignment.obj
+        tree = self.server.tree
+        try:
+            targets = tree.resolve(ref)
+            values = tree.check_write(targets, ref.prop, assignment.values, self)
+        except TcsError as exc:
+            self.send(m.DataError(cmd_id, ref.text, (exc.reply,)))
+            return None
+        errors: list[str] = []
+        waits = []
+        for target, value in zip(targets, values):
+            try:
+                pending = tree.write(target, value, self)
+            except TcsError as exc:
+                errors.append(exc.reply)
+                continue
+            except Exception:
+                log.exception("setting %s failed", ref.text)
+                errors.append("FAILED 13")
+                continue
+            errors.append("")
+            if pending is not None:
+                waits.append((len(errors) - 1, pending))
+        if waits:
+            return errors, waits
+        self._data_result(cmd_id, ref.text, errors)
+        return None
+
+    def _data_result(self, cmd_id: int, obj: str, errors: list[str]) -> None:
+        if any(errors):
+            self.send(m.DataError(cmd_id, obj, tuple(e or "OK" for e in errors)))
+        else:
+            self.send(m.DataOk(cmd_id, obj))
+
+    async def _finish_set(self, cmd: _Command, assignment, pending, rest) -> None:
+        cmd_id = cmd.cmd_id
+        try:
+            await self._await_assignment(cmd_id, assignment.obj.text, pending)
+            for a in rest:
+                more = self._assign(cmd_id, a)
+                if more is not None:
+                    await self._await_assignment(cmd_id, a.obj.text, more)
+            self.send(m.CommandComplete(cmd_id))
+        except asyncio.CancelledError:
+            if cmd.aborted_by is not None:
+                self.send(m.CommandAbortedBy(cmd_id, cmd.aborted_by))
+            else:
+                self.send(m.CommandFailed(cmd_id))
+        finally:
+            self.commands.pop(cmd_id, None)
+
+    async def _await_assignment(self, cmd_id: int, obj: str, pending) -> None:
+        errors, waits = pending
+        for slot, awaitable in waits:
+            try:
+                await awaitable
+            except TcsError as exc:
+                errors[slot] = exc.reply
+            except asyncio.CancelledError:
+                raise
+            except Exception:
+                log.exception("long-running set of %s failed", obj)
+                errors[slot] = "FAILED 13"
+        self._data_result(cmd_id, obj, errors)
+
+    # -- ABORT ---------------------------------------------------------------------------------
+    def _abort(self, msg: m.Abort) -> None:
+        cmd_id, target = msg.cmd_id, msg.target
+        if target == 0:
+            victims = [c for c in self.commands.values()]
+        elif target in self.commands:
+            victims = [self.commands[target]]
+        else:
+            self._refuse(cmd_id, "NOTRUNNING")
+            return
+        self.send(m.CommandOk(cmd_id))
+        for victim in victims:
+            victim.aborted_by = cmd_id
+            if victim.task is not None:
+                victim.task.cancel()
+        tasks = [v.task for v in victims if v.task is not None]
+        if not tasks:
+            self.send(m.CommandComplete(cmd_id))
+            return
+        cmd = _Command(cmd_id)
+        self.commands[cmd_id] = cmd
+        cmd.task = self.server.spawn(self._finish_abort(cmd, tasks))
+
+    async def _finish_abort(self, cmd: _Command, tasks) -> None:
+        try:
+            _, still = await asyncio.wait(tasks, timeout=self.server.settings.abort_timeout)
+            self.send(m.CommandTimeout(cmd.cmd_id) if still else m.CommandComplete(cmd.cmd_id))
+        except asyncio.CancelledError:
+            self.send(m.CommandFailed(cmd.cmd_id))
+        finally:
+            self.commands.pop(cmd.cmd_id, None)
+
+    def fail_all(self) -> None:
+        """Server shutdown: end every running command with COMMAND FAILED."""
+        for cmd in list(self.commands.values()):
+            cmd.shutdown = True
+            if cmd.task is not None:
+                cmd.task.cancel()
+
+
+__all__ = ["Session"]

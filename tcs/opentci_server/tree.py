@@ -1,0 +1,436 @@
+"""The typed TPL2 variable tree: declaration helpers, the built tree, lookup, reads and writes.
+
+How it works
+------------
+The OpenTCI tree is *declared* once (``tcs/opentci_server/opentci.py``) with the helpers
+:func:`var`, :func:`sysvar`, :func:`var_array`, :func:`module` and :func:`module_array`. A
+declaration names, for every variable, its type, access levels, range and how it reads and
+writes the **domain object** the module is bound to (an attribute/method name, or a callable).
+:meth:`Tree.build` walks the declaration against the telescope model: each module's ``bind``
+picks its domain object from the parent's; a module whose object is ``None`` (an array whose
+list is empty) is not configured and simply does not exist. Member numbers (``!INDEX`` and
+numeric access ``<n>``) are the positions among the members that exist, in declaration order.
+
+Reads are synchronous and fast (the spec asks ~5 ms); a write calls the domain setter, which
+validates at once (raising :class:`~tcs.errors.TcsError` subclasses) and either finishes or
+returns an awaitable for a long-running action. The server awaits that in the command's task.
+
+Access levels: lower number = more privilege. A client may read a variable when its read
+level ≤ the variable's ``RLEVEL`` and write it when its write level ≤ ``WLEVEL``; ``WLEVEL``
+−1 means nobody writes it (read-only).
+
+Only the TPL2 server (``server.py``) and the declaration use this module.
+"""
+
+from __future__ import annotations
+
+import inspect
+import logging
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterator, Sequence
+
+from tcs.errors import AccessDenied, RangeRefused, RequestRefused, TcsError, UnknownObject
+from tcs.opentci_server.paths import ObjectRef
+from tcs.opentci_server.values import ErrorValue, Value, ValueType, convert, format_value
+
+log = logging.getLogger(__name__)
+
+# Object classes (!CLASS), protocol doc §7.
+ROOT, MODULE, MODULEARR, VARIABLE, VARIABLEARR, SYSVAR, SYSVARARR = 1001, 1002, 1003, 1006, 1007, 2006, 2007
+
+#: Default levels: everybody reads; observers (level ≤ 3) operate; configuration needs level ≤ 1.
+READ_ALL, OPERATE, CONFIGURE = 9, 3, 1
+NOBODY = -1
+
+INT, FLOAT, STRING = ValueType.INT, ValueType.FLOAT, ValueType.STRING
+
+Getter = str | Callable[[Any], Any] | None
+
+
+# ----------------------------------------------------------------------------- declaration
+
+
+@dataclass(frozen=True)
+class VarSpec:
+    name: str
+    type: ValueType
+    get: Getter
+    set: Getter
+    min: float | Callable[[Any], float | None] | None
+    max: float | Callable[[Any], float | None] | None
+    init: Any
+    rlevel: int
+    wlevel: int
+    info: str
+    per_connection: bool = False
+    long: bool = False
+    count: int | Callable[[Any], int] | None = None  # variable arrays only
+
+
+@dataclass(frozen=True)
+class ModuleSpec:
+    name: str
+    members: tuple
+    info: str
+    bind: Getter
+    array: bool = False
+
+
+def var(name: str, type: ValueType, *, get: Getter = None, set: Getter = None, min=None, max=None,
+        init=None, info: str = "", rlevel: int = READ_ALL, wlevel: int | None = None,
+        long: bool = False) -> VarSpec:
+    """Declare a variable.
+
+    ``get``: attribute or zero-argument method name on the domain object, or ``f(obj)``.
+    ``set``: method name called ``obj.method(value)``, or ``f(obj, value)``; it may return an
+    awaitable for a long-running action (``long=True`` documents that). Without ``set`` the
+    variable is read-only (``WLEVEL`` −1). ``min``/``max`` may be callables of the object.
+    """
+    if wlevel is None:
+        wlevel = OPERATE if set is not None else NOBODY
+    return VarSpec(name, type, get, set, min, max, init, rlevel, wlevel, info, long=long)
+
+
+def sysvar(name: str, type: ValueType, *, get: Getter = None, set: Getter = None, min=None, max=None,
+           init=None, info: str = "", rlevel: int = READ_ALL, wlevel: int | None = None) -> VarSpec:
+    """Declare a per-connection variable: ``get(conn)`` / ``set(conn, value)`` see the caller's connection."""
+    if wlevel is None:
+        wlevel = READ_ALL if set is not None else NOBODY
+    return VarSpec(name, type, get, set, min, max, init, rlevel, wlevel, info, per_connection=True)
+
+
+def var_array(name: str, type: ValueType, *, count: int | Callable[[Any], int], get: Getter,
+              info: str = "", rlevel: int = READ_ALL, min=None, max=None) -> VarSpec:
+    """Declare a read-only variable array; ``get`` returns a sequence of ``count`` values."""
+    return VarSpec(name, type, get, None, min, max, None, rlevel, NOBODY, info, count=count)
+
+
+def module(name: str, *members, info: str = "", bind: Getter = None) -> ModuleSpec:
+    """Declare a module; ``bind`` picks its domain object from the parent's (None = absent)."""
+    return ModuleSpec(name, tuple(members), info, bind)
+
+
+def module_array(name: str, *members, info: str = "", bind: Getter = None) -> ModuleSpec:
+    """Declare a module array; ``bind`` returns the list of element objects (empty = absent)."""
+    return ModuleSpec(name, tuple(members), info, bind, array=True)
+
+
+def _call(how: Getter, obj: Any, *args):
+    if callable(how):
+        return how(obj, *args)
+    attr = getattr(obj, how)
+    if args or callable(attr):
+        return attr(*args)
+    return attr
+
+
+# ----------------------------------------------------------------------------- built tree
+
+
+@dataclass(eq=False)
+class Node:
+    name: str
+    index: int
+    info: str
+    parent: "Node | None"
+
+    cls_code = 0
+
+    @property
+    def path(self) -> str:
+        parts = []
+        node: Node | None = self
+        while node is not None and node.parent is not None:
+            parts.append(node.name)
+            node = node.parent
+        return ".".join(reversed(parts))
+
+    def object_count(self) -> int:
+        return 1
+
+
+@dataclass(eq=False)
+class ModuleNode(Node):
+    obj: Any = None
+    members: list[Node] = field(default_factory=list)
+    by_name: dict[str, Node] = field(default_factory=dict)
+
+    @property
+    def cls_code(self):  # type: ignore[override]
+        return ROOT if self.parent is None else MODULE
+
+    def add(self, node: Node) -> None:
+        self.members.append(node)
+        self.by_name[node.name] = node
+
+    def object_count(self) -> int:
+        return 1 + sum(m.object_count() for m in self.members)
+
+
+@dataclass(eq=False)
+class ArrayNode(Node):
+    elements: list[ModuleNode] = field(default_factory=list)
+    cls_code = MODULEARR
+
+    def object_count(self) -> int:
+        return 1 + sum(e.object_count() for e in self.elements)
+
+
+@dataclass(eq=False)
+class VarNode(Node):
+    spec: VarSpec = None  # type: ignore[assignment]
+    obj: Any = None
+
+    @property
+    def cls_code(self):  # type: ignore[override]
+        array = self.spec.count is not None
+        if self.spec.per_connection:
+            return SYSVARARR if array else SYSVAR
+        return VARIABLEARR if array else VARIABLE
+
+    @property
+    def count(self) -> int | None:
+        c = self.spec.count
+        return c(self.obj) if callable(c) else c
+
+    def limit(self, which: str) -> float | None:
+        value = getattr(self.spec, which)
+        return value(self.obj) if callable(value) else value
+
+
+@dataclass(frozen=True, slots=True)
+class Target:
+    """One resolved object: a node, and for arrays the selected element (None = the whole)."""
+
+    node: Node
+    element: int | None = None
+
+
+class Tree:
+    """The built variable tree of one telescope. Immutable after :meth:`build`."""
+
+    def __init__(self, root: ModuleNode):
+        self.root = root
+        self._cache: dict[tuple, list[Target]] = {}
+
+    @classmethod
+    def build(cls, members: Sequence[ModuleSpec | VarSpec], obj: Any, info: str = "") -> "Tree":
+        root = ModuleNode("", 0, info, None, obj)
+        _build_members(root, members, obj)
+        return cls(root)
+
+    # -- lookup ------------------------------------------------------------------------------
+
+    def resolve(self, ref: ObjectRef) -> list[Target]:
+        """The objects ``ref`` names (several when one index selects several elements).
+
+        Raises ``UnknownObject`` (no such member), ``RequestRefused`` with keyword ``INVALID``
+        (two multi-selections, an index on a scalar, an array used without index inside a
+        path) or ``DIMENSION`` (an index out of range).
+        """
+        key = ref.parts
+        cached = self._cache.get(key)
+        if cached is not None:
+            return cached
+        targets = self._resolve(ref)
+        if len(self._cache) < 8192:
+            self._cache[key] = targets
+        return targets
+
+    def _resolve(self, ref: ObjectRef) -> list[Target]:
+        current: list[Target] = [Target(self.root)]
+        multi = False
+        last = len(ref.parts) - 1
+        for i, part in enumerate(ref.parts):
+            nxt: list[Target] = []
+            for t in current:
+                parent = t.node
+                if t.element is not None:  # element of a module array
+                    parent = parent.elements[t.element]  # type: ignore[attr-defined]
+                if not isinstance(parent, ModuleNode):
+                    raise UnknownObject(f"{ref.text}: {parent.path} has no members")
+                if part.number is not None:
+                    if not 0 <= part.number < len(parent.members):
+                        raise UnknownObject(f"{ref.text}: no member <{part.number}>")
+                    child = parent.members[part.number]
+                else:
+                    child = parent.by_name.get(part.name)
+                    if child is None:
+                        raise UnknownObject(f"{ref.text}: unknown object {part.name}")
+                if part.index is not None:
+                    size = len(child.elements) if isinstance(child, ArrayNode) else (
+                        child.count if isinstance(child, VarNode) else None)
+                    if size is None:
+                        raise RequestRefused(f"{ref.text}: {child.name} is not an array")
+                    indices = [j for lo, hi in part.index for j in range(lo, hi + 1)]
+                    if any(j >= size for j in indices):
+                        raise RequestRefused(f"{ref.text}: index beyond {size} elements", keyword="DIMENSION")
+                    if len(indices) > 1:
+                        if multi:
+                            raise RequestRefused(f"{ref.text}: only one index may select several elements")
+                        multi = True
+                    nxt.extend(Target(child, j) for j in indices)
+                else:
+                    if isinstance(child, ArrayNode) and i != last:
+                        raise RequestRefused(f"{ref.text}: {child.name} is an array, give an index")
+                    nxt.append(Target(child))
+            current = nxt
+        return current
+
+    # -- walking (documentation, tests) ------------------------------------------------------
+
+    def walk(self) -> Iterator[tuple[str, Node]]:
+        """Every object with its path, depth first; array elements as ``NAME[i]``."""
+        yield from _walk(self.root, "")
+
+    # -- reads ---------------------------------------------------------------------------------
+
+    def read(self, target: Target, prop: str | None, conn: Any) -> str:
+        """The wire text of one object (value or property), or an error keyword."""
+        try:
+            if prop is not None:
+                return _format_property(target, prop)
+            node = target.node
+            if not isinstance(node, VarNode):
+                return "INVALID"
+            spec = node.spec
+            if conn.rlevel > spec.rlevel:
+                return "DENIED"
+            if spec.count is not None and target.element is None:
+                values = _call(spec.get, node.obj)
+                return ",".join(format_value(v, spec.type) for v in values)
+            value = _call(spec.get, conn if spec.per_connection else node.obj)
+            if target.element is not None:
+                value = value[target.element]
+            return format_value(value, spec.type)
+        except TcsError as exc:
+            return exc.reply
+        except Exception:
+            log.exception("reading %s failed", target.node.path)
+            return "FAILED 13"
+
+    # -- writes ------------------------------------------------------------------------------
+
+    def check_write(self, targets: list[Target], prop: str | None, values: tuple[Value, ...],
+                    conn: Any) -> list[Any]:
+        """Validate a SET before anything happens; return the converted values, one per target.
+
+        Raises a ``RequestRefused`` whose keyword is the reply: INVALID (module, property,
+        read-only array), DENIED (levels), DIMENSION (value count), TYPE, RANGE.
+        """
+        if prop is not None:
+            raise RequestRefused("properties cannot be set")
+        if len(values) != len(targets):
+            raise RequestRefused(f"{len(values)} values for {len(targets)} elements", keyword="DIMENSION")
+        out = []
+        for t, v in zip(targets, values):
+            node = t.node
+            if not isinstance(node, VarNode) or (node.spec.count is not None):
+                raise RequestRefused(f"{node.path} is not a settable variable")
+            spec = node.spec
+            if spec.wlevel == NOBODY or spec.set is None or conn.wlevel > spec.wlevel:
+                raise AccessDenied(f"{node.path} is not writable at level {conn.wlevel}")
+            value = convert(v, spec.type)
+            if spec.type in (INT, FLOAT) and value is not None:
+                lo, hi = node.limit("min"), node.limit("max")
+                if (lo is not None and value < lo) or (hi is not None and value > hi):
+                    raise RangeRefused(f"{node.path}={value} outside [{lo}, {hi}]")
+            out.append(value)
+        return out
+
+    def write(self, target: Target, value: Any, conn: Any) -> Any:
+        """Apply one checked value; returns None or an awaitable for a long-running action."""
+        spec: VarSpec = target.node.spec  # type: ignore[attr-defined]
+        obj = conn if spec.per_connection else target.node.obj  # type: ignore[attr-defined]
+        result = _call(spec.set, obj, value)
+        return result if inspect.isawaitable(result) else None
+
+
+def _build_members(parent: ModuleNode, members, obj) -> None:
+    for spec in members:
+        index = len(parent.members)
+        if isinstance(spec, VarSpec):
+            parent.add(VarNode(spec.name, index, spec.info, parent, spec, obj))
+            continue
+        bound = obj if spec.bind is None else _call(spec.bind, obj)
+        if spec.array:
+            objs = list(bound or [])
+            if not objs:
+                continue
+            array = ArrayNode(spec.name, index, spec.info, parent)
+            for i, element_obj in enumerate(objs):
+                element = ModuleNode(f"{spec.name}[{i}]", i, spec.info, array, element_obj)
+                _build_members(element, spec.members, element_obj)
+                array.elements.append(element)
+            parent.add(array)
+        else:
+            if bound is None:
+                continue
+            child = ModuleNode(spec.name, index, spec.info, parent, bound)
+            _build_members(child, spec.members, bound)
+            parent.add(child)
+
+
+def _walk(node: Node, prefix: str) -> Iterator[tuple[str, Node]]:
+    if isinstance(node, ModuleNode):
+        for m in node.members:
+            path = f"{prefix}.{m.name}" if prefix else m.name
+            yield path, m
+            yield from _walk(m, path)
+    elif isinstance(node, ArrayNode):
+        for e in node.elements:
+            path = f"{prefix}[{e.index}]"
+            yield path, e
+            yield from _walk(e, path)
+
+
+def _q(text: str) -> str:
+    return format_value(text, STRING)
+
+
+def _format_property(target: Target, prop: str) -> str:
+    node = target.node
+    if target.element is not None and isinstance(node, ArrayNode):
+        node = node.elements[target.element]
+    common = {
+        "INDEX": lambda: str(node.index),
+        "CLASS": lambda: str(node.cls_code),
+        "NAME": lambda: _q(node.name),
+        "INFO": lambda: _q(node.info),
+    }
+    if prop in common:
+        return common[prop]()
+    if isinstance(node, ModuleNode):
+        if prop == "MEMBERS":
+            return _q(",".join(m.name for m in node.members))
+        if prop == "OBJECTCOUNT":
+            return str(node.object_count() - 1)
+    elif isinstance(node, ArrayNode):
+        if prop == "COUNT":
+            return str(len(node.elements))
+        if prop == "OBJECTCOUNT":
+            return str(node.object_count() - 1)
+    elif isinstance(node, VarNode):
+        spec = node.spec
+        if spec.count is not None and prop == "COUNT":
+            return str(node.count)
+        if prop == "TYPE":
+            return str(int(spec.type))
+        if prop in ("MIN", "MAX"):
+            if spec.type not in (INT, FLOAT):
+                return "UNKNOWN"
+            return format_value(node.limit(prop.lower()), spec.type)
+        if prop == "INIT":
+            return format_value(spec.init, spec.type)
+        if prop == "RLEVEL":
+            return str(spec.rlevel)
+        if prop == "WLEVEL":
+            return str(spec.wlevel)
+        if prop in ("RLOCK", "WLOCK", "CALLBACK", "CALLBACKTYPE"):
+            return "0"
+    return "UNKNOWN"
+
+
+__all__ = ["Tree", "Target", "VarSpec", "ModuleSpec", "var", "sysvar", "var_array", "module",
+           "module_array", "READ_ALL", "OPERATE", "CONFIGURE", "NOBODY", "INT", "FLOAT", "STRING",
+           "ErrorValue"]

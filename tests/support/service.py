@@ -1,0 +1,28 @@
+"""Start the real service (telescope model + TPL2 server) in-process for a test."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from tcs.app import Service
+from tcs.config import DEFAULT_CONFIG, HwConfig, load_config
+from tcs.config.sections import StateSection
+
+
+def make_config(state_dir: Path, path: Path = DEFAULT_CONFIG, **server) -> HwConfig:
+    """The hardware file at ``path`` with state in ``state_dir`` and server settings overridden
+    (port 0 = a free port; a short login-failure delay)."""
+    config = load_config(path)
+    settings = dict(port=0, auth_fail_delay=0.05)
+    settings.update(server)
+    new = dataclasses.replace(config, server=dataclasses.replace(config.server, **settings),
+                              state=StateSection(path=str(state_dir)))
+    object.__setattr__(new, "source", config.source)
+    return new
+
+
+async def start_service(state_dir: Path, path: Path = DEFAULT_CONFIG, **server) -> tuple[Service, int]:
+    service = Service(make_config(state_dir, path, **server))
+    port = await service.start()
+    return service, port
