@@ -17,6 +17,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from tcs.config.can import CanSection, DriveSection, check_can_drives
 from tcs.config.schema import build, setting
 from tcs.config.sections import (CabinetSection, MountSection, ServerSection, SiteSection,
                                  StateSection, TimeSection, UserSection)
@@ -35,6 +36,8 @@ class HwConfig:
     mount: MountSection = setting(factory=MountSection)
     state: StateSection = setting(factory=StateSection)
     cabinet: CabinetSection = setting(factory=CabinetSection)
+    can: CanSection | None = setting(None, doc="the CAN bus of the drives (tcs.config.can)")
+    drives: dict[str, DriveSection] = setting(factory=dict, doc="CiA-402 drives by name (tcs.config.can)")
     # Set by load_config, not by the file.
     source: Path = field(default=Path("<memory>"), init=False, compare=False)
 
@@ -47,6 +50,7 @@ class HwConfig:
         if self.server.implicit_auth and self.server.implicit_user not in names:
             problems.append(("server.implicit_user",
                              f"implicit_auth needs implicit_user to name one of the users {names}"))
+        problems.extend(check_can_drives(self.can, self.drives))
         return problems
 
     @property
