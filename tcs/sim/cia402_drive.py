@@ -1,55 +1,441 @@
 """A simulated CiA-402 servo drive: a CANopen node a master cannot tell from a real drive.
 
-(Skeleton: the constructor and the fault-injection API are fixed; the behaviour is being
-filled in.)
+:class:`SimDrive` is the CANopen side of one drive: NMT slave, boot-up, heartbeat producer
+and consumer, SDO server, PDOs, EMCY producer. The CiA-402 application behind it (state
+machine, modes, physics, homing) is :class:`tcs.sim.drive_logic.DriveLogic`; the object
+dictionary comes from the EDS ``hwconfig/eds/tcs-sim-drive.eds``.
+
+Threads: none of its own. Every drive on a bus shares the bus's
+:class:`~tcs.sim.can_port.SimCanPort` (one receive thread, one timer thread); all handlers
+run under the port's lock. Physics follows the injectable ``clock``; heartbeats, the heartbeat
+consumer, event-TPDO timing and the poll that notices events between SYNCs use real time.
+
+CANopen behaviour (CiA-301):
+
+* ``start()`` sends the boot-up message (0x700 + id, ``[0]``) after ``boot_delay`` and enters
+  pre-operational; the heartbeat producer runs per 0x1017 (default 0 = off).
+* NMT: start (1), stop (2), pre-operational (0x80), reset node (0x81: every object back to
+  its default, the drive disabled, the homing reference lost, boot-up again), reset
+  communication (0x82: objects 0x1000–0x1FFF back to defaults, boot-up again). In stopped
+  only NMT and heartbeat work; PDOs only in operational.
+* Heartbeat consumer (0x1016: ``node << 16 | ms``): monitoring of a node starts with its first
+  heartbeat; when one is late the drive sends EMCY 0x8130, faults, and — CiA-301's default
+  error behaviour (0x1029 = 0) — drops from operational to pre-operational. It re-arms when
+  the heartbeat comes back.
+* SYNC: synchronous RPDOs received since the last SYNC are applied, the drive logic is
+  stepped (CSP target latched), then synchronous TPDOs are sent. An RPDO shorter than its
+  mapping is dropped with EMCY 0x8210.
+* EMCY (0x1014, default 0x80 + id): ``[code lo, code hi, error register, 0, 0, 0, 0, 0]``.
+
+Fault injection (for tests): :meth:`inject_fault` ("overcurrent" 0x2310, "following_error"
+0x8611, "encoder" 0x7305, "position_limit" 0x8612, "heartbeat" 0x8130, "rpdo_timeout"
+0x8250, or any int code), :meth:`set_responding` (False = a dead node: sends nothing,
+answers nothing) and :meth:`set_refuse_sdo` (every SDO request aborted with 0x08000020).
 """
 
 from __future__ import annotations
 
+import logging
+import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import canopen
+
+from tcs.sim.can_port import SimCanPort, TimerHandle, open_port
+from tcs.sim.drive_logic import (
+    EMCY_ENCODER,
+    EMCY_FOLLOWING_ERROR,
+    EMCY_HEARTBEAT,
+    EMCY_OVERCURRENT,
+    EMCY_PDO_LENGTH,
+    EMCY_POSITION_LIMIT,
+    EMCY_RPDO_TIMEOUT,
+    DriveLogic,
+    error_register_bits,
+)
+from tcs.sim.drive_params import SimDriveParams
+from tcs.sim.object_store import ABORT_STORE, ObjectStore
+from tcs.sim.pdo import RPDO_COMM, PdoEngine
+from tcs.sim.sdo_server import SdoServer
+
+__all__ = ["DEFAULT_EDS", "FAULT_CODES", "SimDrive", "SimDriveParams"]
+
+log = logging.getLogger(__name__)
+
 DEFAULT_EDS = Path(__file__).resolve().parents[2] / "hwconfig" / "eds" / "tcs-sim-drive.eds"
 
+#: Names accepted by :meth:`SimDrive.inject_fault` and the EMCY code each raises.
+FAULT_CODES: dict[str, int] = {
+    "overcurrent": EMCY_OVERCURRENT,
+    "following_error": EMCY_FOLLOWING_ERROR,
+    "encoder": EMCY_ENCODER,
+    "position_limit": EMCY_POSITION_LIMIT,
+    "heartbeat": EMCY_HEARTBEAT,
+    "rpdo_timeout": EMCY_RPDO_TIMEOUT,
+}
 
-@dataclass
-class SimDriveParams:
-    """Everything physical about one simulated axis, in user units (degrees or mm)."""
+# NMT states as the heartbeat reports them.
+INITIALISING, STOPPED, OPERATIONAL, PRE_OPERATIONAL = 0x00, 0x04, 0x05, 0x7F
+NMT_NAMES = {INITIALISING: "INITIALISING", STOPPED: "STOPPED", OPERATIONAL: "OPERATIONAL",
+             PRE_OPERATIONAL: "PRE-OPERATIONAL"}
+#: Real-time period (s) of the poll that advances the physics between SYNCs and sends event TPDOs.
+POLL_PERIOD = 0.01
 
-    increments_per_unit: float = 10000.0
-    max_velocity: float = 5.0
-    max_acceleration: float = 5.0
-    position: float = 0.0
-    negative_limit_switch: float | None = None
-    positive_limit_switch: float | None = None
-    home_switch: float | None = None
-    home_switch_active_below: bool = False
-    index_pulse_spacing: float = 1.0
-    identity: tuple[int, int, int, int] = (0xABC, 0x00402001, 0x00010000, 1)
-    boot_delay: float = 0.0
+_od_cache: dict[tuple[str, int], canopen.ObjectDictionary] = {}
+_od_lock = threading.Lock()
+
+
+def _load_od(eds: str | Path, node_id: int) -> canopen.ObjectDictionary:
+    key = (str(Path(eds).resolve()), node_id)
+    with _od_lock:
+        od = _od_cache.get(key)
+        if od is None:
+            if not Path(eds).is_file():
+                raise FileNotFoundError(f"simulated drive {node_id}: EDS file {eds} not found")
+            od = _od_cache[key] = canopen.import_od(str(eds), node_id)
+        return od
 
 
 class SimDrive:
-    """One simulated CiA-402 drive on a CAN bus."""
+    """One simulated CiA-402 drive on a CAN bus.
+
+    Parameters
+    ----------
+    bus_or_network:
+        Where the drive sits: a python-can bus (read by the simulator only), a connected
+        ``canopen.Network``, a :class:`SimCanPort`, or a dict of ``can.Bus`` keyword
+        arguments. Drives given the same bus object share its threads.
+    node_id:
+        CANopen node id, 1–127.
+    params:
+        The physical axis (defaults: :class:`SimDriveParams`).
+    clock:
+        Time source of the physics (s); tests pass a fake clock they advance themselves.
+    eds:
+        The EDS describing the object dictionary.
+    """
 
     def __init__(self, bus_or_network: Any, node_id: int, params: SimDriveParams | None = None,
                  clock: Callable[[], float] = time.monotonic, eds: str | Path = DEFAULT_EDS):
-        raise NotImplementedError
+        if not 1 <= int(node_id) <= 127:
+            raise ValueError(f"simulated drive: node id {node_id} outside 1..127")
+        self.params = params if params is not None else SimDriveParams()
+        problems = self.params.problems()
+        if problems:
+            raise ValueError(f"simulated drive {node_id}: " + "; ".join(problems))
+        self.node_id = int(node_id)
+        self.clock = clock
+        self._od = _load_od(eds, self.node_id)
+        self._port: SimCanPort = open_port(bus_or_network)
+        self.lock = self._port.lock
+        self.nmt_state = INITIALISING
+        self.responding = True
+        self.refuse_sdo = False
+        self.sync_count = 0
+        self.emcy_sent: list[int] = []
+        self._rpdo_since_sync = False
+        self._subscribed: dict[int, str] = {}
+        self._sync_cob = 0x080
+        self._timers: list[TimerHandle] = []
+        self._heartbeat_timer: TimerHandle | None = None
+        self._heartbeat_period = 0
+        self._consumers: dict[int, float] = {}       # node -> timeout (s)
+        self._consumer_seen: dict[int, float] = {}   # node -> last heartbeat (real time)
+        self._started = False
+        self._stopped = False
+        self._build()
 
+    def _build(self) -> None:
+        """A freshly powered drive: objects at their defaults, application reset."""
+        self.store = ObjectStore(self._od)
+        self.sdo = SdoServer(self.store)
+        self.sdo.refuse_code = ABORT_STORE if self.refuse_sdo else None
+        self.pdo = PdoEngine(self.store, lambda: self.nmt_state == PRE_OPERATIONAL)
+        old = getattr(self, "logic", None)
+        params = self.params
+        if old is not None:  # the motor does not jump when the firmware restarts
+            old.update(self.clock())
+            params = SimDriveParams(**{**vars(self.params), "position": old.axis.x})
+        self.logic = DriveLogic(self.store, params, self.clock(), self._on_logic_emcy)
+
+    # -- life cycle --------------------------------------------------------------------------
     def start(self) -> None:
-        raise NotImplementedError
+        """Boot: the boot-up message after ``boot_delay``, then heartbeats per 0x1017."""
+        with self.lock:
+            if self._started:
+                return
+            self._started = True
+            self._timers.append(self._port.call_every(POLL_PERIOD, self._poll))
+            if self.params.boot_delay > 0:
+                self._timers.append(self._port.call_later(self.params.boot_delay, self._boot))
+            else:
+                self._boot()
 
     def stop(self) -> None:
-        raise NotImplementedError
+        """Leave the bus: timers cancelled, subscriptions dropped, the shared port released."""
+        with self.lock:
+            if self._stopped:
+                return
+            self._stopped = True
+            for timer in self._timers:
+                timer.cancel()
+            if self._heartbeat_timer is not None:
+                self._heartbeat_timer.cancel()
+            for cob_id in list(self._subscribed):
+                self._port.unsubscribe(cob_id, self._on_frame)
+            self._subscribed.clear()
+        self._port.release()
 
-    def inject_fault(self, kind: str) -> None:
-        raise NotImplementedError
+    def __enter__(self) -> SimDrive:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _boot(self) -> None:
+        if self._stopped:
+            return
+        self.nmt_state = PRE_OPERATIONAL
+        self._send(0x700 + self.node_id, b"\x00")
+        self._update_comm()
+
+    # -- fault injection ---------------------------------------------------------------------
+    def inject_fault(self, kind: str | int) -> None:
+        """Make the drive fault now with EMCY (see :data:`FAULT_CODES`; an int is a raw code)."""
+        code = kind if isinstance(kind, int) else FAULT_CODES.get(kind)
+        if code is None:
+            raise ValueError(f"unknown fault kind {kind!r}; known: {', '.join(FAULT_CODES)}")
+        with self.lock:
+            self.logic.update(self.clock())
+            self._raise_fault(code)
 
     def set_responding(self, responding: bool) -> None:
-        raise NotImplementedError
+        """False: the node is dead on the bus (no heartbeat, PDO, EMCY or SDO answer)."""
+        with self.lock:
+            self.responding = bool(responding)
+            self._consumer_seen.clear()
 
     def set_refuse_sdo(self, refuse: bool) -> None:
-        raise NotImplementedError
+        """True: abort every SDO request with 0x08000020 ("cannot be stored/transferred")."""
+        with self.lock:
+            self.refuse_sdo = bool(refuse)
+            self.sdo.refuse_code = ABORT_STORE if refuse else None
+
+    # -- introspection (tests and benchmarks; never used by the TCS) --------------------------
+    def _now(self):
+        self.logic.update(self.clock())
+        return self.logic
+
+    @property
+    def position(self) -> float:
+        """Position actual value in user units (what the drive reports, divided by the scale)."""
+        with self.lock:
+            lg = self._now()
+            return (lg.axis.x - lg.zero) * lg.ipu() / self.params.increments_per_unit
+
+    @property
+    def physical_position(self) -> float:
+        """Where the motor really is (user units, the frame of the switch positions)."""
+        with self.lock:
+            return self._now().axis.x
+
+    @property
+    def velocity(self) -> float:
+        with self.lock:
+            return self._now().axis.v
+
+    @property
+    def state(self) -> str:
+        """CiA-402 state name, e.g. ``"OPERATION ENABLED"``."""
+        with self.lock:
+            return self._now().state.value
+
+    @property
+    def statusword(self) -> int:
+        with self.lock:
+            return self._now().statusword()
+
+    @property
+    def controlword(self) -> int:
+        with self.lock:
+            return self.logic.controlword
+
+    @property
+    def mode_display(self) -> int:
+        with self.lock:
+            return self.logic.mode
+
+    @property
+    def error_code(self) -> int:
+        with self.lock:
+            return self.store.get(0x603F, 0)
+
+    @property
+    def rpdo_missed(self) -> int:
+        with self.lock:
+            return self.logic.rpdo_missed
+
+    @property
+    def nmt_state_name(self) -> str:
+        return NMT_NAMES.get(self.nmt_state, hex(self.nmt_state))
+
+    def read_object(self, index: int, sub: int = 0) -> Any:
+        """An object's current value (for tests; bypasses the bus and access rights)."""
+        with self.lock:
+            self.logic.update(self.clock())
+            return self.store.value(index, sub)
+
+    # -- sending -----------------------------------------------------------------------------
+    def _send(self, cob_id: int, data: bytes) -> None:
+        if self.responding and not self._stopped:
+            self._port.send(cob_id, data)
+
+    def _on_logic_emcy(self, code: int, register: int) -> None:
+        self.emcy_sent.append(code)
+        cob = self.store.get(0x1014, 0)
+        if cob & 0x80000000 or self.nmt_state not in (PRE_OPERATIONAL, OPERATIONAL):
+            return
+        self._send(cob & 0x7FF, bytes([code & 0xFF, code >> 8, register & 0xFF, 0, 0, 0, 0, 0]))
+
+    def _raise_fault(self, code: int) -> None:
+        """Fault the drive; a drive already in fault still reports the new error by EMCY."""
+        if not self.logic.fault(code):
+            self._on_logic_emcy(code, self.store.get(0x1001, 0) | error_register_bits(code))
+
+    # -- subscriptions -----------------------------------------------------------------------
+    def _update_comm(self) -> None:
+        """Follow the communication objects: subscriptions and heartbeat timers."""
+        wanted: dict[int, str] = {0x000: "nmt"}
+        if self.nmt_state != INITIALISING:
+            wanted[0x600 + self.node_id] = "sdo"
+            sync = self.store.get(0x1005, 0)
+            self._sync_cob = sync & 0x7FF
+            wanted.setdefault(self._sync_cob, "sync")
+            for cob, _n in self.pdo.rpdo_cob_ids().items():
+                wanted.setdefault(cob, "rpdo")
+            consumers = {}
+            for sub in range(1, self.store.get(0x1016, 0) + 1):
+                entry = self.store.get(0x1016, sub)
+                node, ms = (entry >> 16) & 0xFF, entry & 0xFFFF
+                if 1 <= node <= 127 and ms > 0:
+                    consumers[node] = ms / 1000.0
+                    wanted.setdefault(0x700 + node, "heartbeat")
+            for node in list(self._consumer_seen):
+                if node not in consumers:
+                    del self._consumer_seen[node]
+            self._consumers = consumers
+        for cob in [c for c in self._subscribed if c not in wanted]:
+            self._port.unsubscribe(cob, self._on_frame)
+        for cob in wanted:
+            if cob not in self._subscribed:
+                self._port.subscribe(cob, self._on_frame)
+        self._subscribed = wanted
+        period = self.store.get(0x1017, 0) if self.nmt_state != INITIALISING else 0
+        if period != self._heartbeat_period:
+            if self._heartbeat_timer is not None:
+                self._heartbeat_timer.cancel()
+                self._heartbeat_timer = None
+            if period > 0:
+                self._heartbeat_timer = self._port.call_every(period / 1000.0, self._heartbeat)
+            self._heartbeat_period = period
+
+    # -- receiving ---------------------------------------------------------------------------
+    def _on_frame(self, cob_id: int, data: bytes) -> None:
+        if self._stopped or not self.responding:
+            return
+        kind = self._subscribed.get(cob_id)
+        if kind == "nmt":
+            self._on_nmt(data)
+        elif kind == "heartbeat":
+            self._consumer_seen[cob_id - 0x700] = time.monotonic()
+        elif self.nmt_state in (PRE_OPERATIONAL, OPERATIONAL):
+            if kind == "sdo":
+                self._on_sdo(data)
+            elif cob_id == self._sync_cob:
+                self._on_sync()
+            elif kind == "rpdo" and self.nmt_state == OPERATIONAL:
+                self._on_rpdo(cob_id, data)
+
+    def _on_nmt(self, data: bytes) -> None:
+        if len(data) < 2 or data[1] not in (0, self.node_id) or self.nmt_state == INITIALISING:
+            return
+        command = data[0]
+        if command == 0x01:
+            self.nmt_state = OPERATIONAL
+        elif command == 0x02:
+            self.nmt_state = STOPPED
+        elif command == 0x80:
+            self.nmt_state = PRE_OPERATIONAL
+        elif command == 0x81:
+            self._build()
+            self._consumer_seen.clear()
+            self._boot()
+            return
+        elif command == 0x82:
+            self.store.reset_range(0x1000, 0x1FFF)
+            self.logic.install_identity()
+            self.pdo.reset()
+            self._consumer_seen.clear()
+            self._boot()
+            return
+        self._update_comm()
+
+    def _on_sdo(self, data: bytes) -> None:
+        self.logic.update(self.clock())
+        response = self.sdo.handle(data)
+        if response is not None:
+            self._send(0x580 + self.node_id, response)
+        if data and data[0] >> 5 in (0, 1):  # a download may have changed communication objects
+            self._update_comm()
+
+    def _on_rpdo(self, cob_id: int, data: bytes) -> None:
+        n = self.pdo.rpdo_cob_ids().get(cob_id)
+        if n is None:
+            return
+        self.logic.update(self.clock())
+        before = self.pdo.rpdo_length_errors
+        self.pdo.receive(n, data)
+        if self.pdo.rpdo_length_errors != before:
+            self._on_logic_emcy(EMCY_PDO_LENGTH, self.store.get(0x1001, 0) | 0x10)
+        else:
+            self._rpdo_since_sync = True
+
+    def _on_sync(self) -> None:
+        self.sync_count += 1
+        self.logic.update(self.clock())
+        if self.nmt_state != OPERATIONAL:
+            return
+        self.pdo.apply_sync_rpdos()
+        fresh, self._rpdo_since_sync = self._rpdo_since_sync, False
+        self.logic.on_sync(fresh)
+        for cob, payload in self.pdo.on_sync(time.monotonic()):
+            self._send(cob, payload)
+
+    # -- timers ------------------------------------------------------------------------------
+    def _heartbeat(self) -> None:
+        if self.nmt_state != INITIALISING:
+            self._send(0x700 + self.node_id, bytes([self.nmt_state]))
+
+    def _poll(self) -> None:
+        if self._stopped or self.nmt_state == INITIALISING:
+            return
+        self.logic.update(self.clock())
+        if not self.responding:
+            return
+        now = time.monotonic()
+        for node, last in list(self._consumer_seen.items()):
+            timeout = self._consumers.get(node)
+            if timeout is not None and now - last > timeout:
+                del self._consumer_seen[node]  # re-armed by the next heartbeat
+                log.info("simulated drive %d: heartbeat of node %d lost", self.node_id, node)
+                self._raise_fault(EMCY_HEARTBEAT)
+                if self.nmt_state == OPERATIONAL:
+                    self.nmt_state = PRE_OPERATIONAL
+                    self._update_comm()
+        if self.nmt_state == OPERATIONAL:
+            for cob, payload in self.pdo.poll_events(now):
+                self._send(cob, payload)

@@ -1,0 +1,75 @@
+"""Several simulated drives on one bus, started and stopped together.
+
+``start_sim_drives(bus, {node_id: params})`` opens the simulator's own bus attachment (one
+receive thread and one timer thread for all the drives), creates and starts one
+:class:`SimDrive` per node and returns a :class:`SimDriveNetwork`; ``stop()`` (or leaving the
+``with`` block) stops the drives and closes the bus the helper opened.
+
+``bus`` is a dict of ``can.Bus`` keyword arguments (``{"interface": "virtual", "channel":
+"tcs"}``, a socketcand or socketcan bus …), or an existing python-can bus or canopen
+``Network`` to share (never shut down by the helper).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+from tcs.sim.can_port import open_port
+from tcs.sim.cia402_drive import DEFAULT_EDS, SimDrive
+from tcs.sim.drive_params import SimDriveParams
+
+
+class SimDriveNetwork(Mapping[int, SimDrive]):
+    """The running simulated drives of one bus, by node id."""
+
+    def __init__(self, bus: Any, drives: Mapping[int, SimDriveParams | None],
+                 clock: Callable[[], float] = time.monotonic, eds: str | Path = DEFAULT_EDS,
+                 start: bool = True):
+        self.port = open_port(bus)
+        self._released = False
+        self._drives: dict[int, SimDrive] = {}
+        try:
+            for node_id, params in sorted(drives.items()):
+                self._drives[node_id] = SimDrive(self.port, node_id, params, clock=clock, eds=eds)
+            if start:
+                self.start()
+        except BaseException:
+            self.stop()
+            raise
+
+    def start(self) -> None:
+        for drive in self._drives.values():
+            drive.start()
+
+    def stop(self) -> None:
+        """Stop every drive and close the simulator's bus attachment. Idempotent."""
+        for drive in self._drives.values():
+            drive.stop()
+        if not self._released:
+            self._released = True
+            self.port.release()
+
+    def __enter__(self) -> SimDriveNetwork:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def __getitem__(self, node_id: int) -> SimDrive:
+        return self._drives[node_id]
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self._drives)
+
+    def __len__(self) -> int:
+        return len(self._drives)
+
+
+def start_sim_drives(bus: Any, drives: Mapping[int, SimDriveParams | None],
+                     clock: Callable[[], float] = time.monotonic,
+                     eds: str | Path = DEFAULT_EDS) -> SimDriveNetwork:
+    """Start simulated drives ``{node_id: params}`` on ``bus``; ``.stop()`` the result."""
+    return SimDriveNetwork(bus, drives, clock=clock, eds=eds)
