@@ -181,7 +181,7 @@ class Session(asyncio.Protocol):
         for msg in msgs:
             if self._closed:
                 return
-            if self._auth_task is not None:
+            if self._auth_task is not None or self._queue:
                 self._queue.append(msg)
             else:
                 self._handle(msg)
@@ -270,7 +270,7 @@ class Session(asyncio.Protocol):
             self._login(user.name, rlevel, wlevel)
         finally:
             self._auth_task = None
-        self._drain_queue()
+            self._drain_queue()
 
     def _login(self, name: str, rlevel: int, wlevel: int) -> None:
         self.username, self.rlevel, self.wlevel = name, rlevel, wlevel

@@ -1,0 +1,1 @@
+"""The telescope model shared by every module: events, persistent state, LOCAL, CONFIG, health."""
