@@ -1,0 +1,83 @@
+"""``tcs-server`` as a process: the default simulated telescope, overrides, a bad hardware
+file refused with a clear message, and a clean exit on SIGTERM/SIGINT."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def start(tmp_path, *args) -> subprocess.Popen:
+    env = dict(os.environ, XDG_STATE_HOME=str(tmp_path / "state"), PYTHONUNBUFFERED="1")
+    return subprocess.Popen([sys.executable, "-m", "tcs.cli.server", *args], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def connect(port: int, timeout: float = 30.0) -> socket.socket:
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            return socket.create_connection(("127.0.0.1", port), timeout=10)
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_serves_the_simulated_telescope_and_stops_cleanly(tmp_path, sig):
+    port = free_port()
+    proc = start(tmp_path, "--port", str(port))
+    try:
+        s = connect(port)
+        f = s.makefile("rb")
+        assert f.readline().startswith(b"TPL2 2.1 CONN ")
+        s.sendall(b'AUTH PLAIN "admin" "admin"\n1 GET CONFIG.MOUNT\n')
+        assert f.readline() == b"AUTH OK 0 0\n"
+        assert [f.readline() for _ in range(3)][1] == b'1 DATA INLINE CONFIG.MOUNT="AZ-ZD"\n'
+        proc.send_signal(sig)
+        assert proc.wait(30) == 0
+        assert f.read() == b""  # the server closed the connection
+        s.close()
+        f.close()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        out, err = proc.communicate()
+    assert "Traceback" not in err
+    assert "TPL2 server listening on 127.0.0.1:" in err
+
+
+def test_bad_hardware_file_is_refused_with_a_clear_message(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[server]\nport = "high"\n[site]\nlatitude = 123\n[nonsense]\n')
+    proc = start(tmp_path, "--config", str(bad))
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2
+    assert f"{bad}: server.port: must be an integer" in err
+    assert f"{bad}: site.latitude: 123.0 is out of range" in err
+    assert f"{bad}: nonsense: unknown key" in err
+    assert "Traceback" not in err
+
+
+def test_port_in_use_is_a_clear_error(tmp_path):
+    with socket.socket() as blocker:
+        blocker.bind(("127.0.0.1", 0))
+        blocker.listen()
+        port = blocker.getsockname()[1]
+        proc = start(tmp_path, "--port", str(port))
+        out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 1
+    assert "Traceback" not in err and "address already in use" in err.lower()
