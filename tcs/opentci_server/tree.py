@@ -228,7 +228,7 @@ class Tree:
         (two multi-selections, an index on a scalar, an array used without index inside a
         path) or ``DIMENSION`` (an index out of range).
         """
-        key = ref.parts
+        key = ref.text  # the exact text: cheaper to hash than the parsed parts
         cached = self._cache.get(key)
         if cached is not None:
             return cached
