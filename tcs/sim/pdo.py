@@ -22,7 +22,6 @@ it returns frames to send. Nothing here knows CiA-402.
 
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass, field
 
 from tcs.sim.object_store import (
@@ -67,6 +66,7 @@ class PdoEngine:
     _tpdo: list[_TpdoRuntime] = field(default_factory=lambda: [_TpdoRuntime() for _ in range(COUNT)])
     rpdo_received: int = 0
     rpdo_length_errors: int = 0
+    _compiled: dict[int, list] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for n in range(COUNT):
@@ -77,11 +77,13 @@ class PdoEngine:
 
     def reset(self) -> None:
         """Forget buffered RPDOs and TPDO timing (NMT reset communication)."""
+        self._compiled.clear()
         self._rpdo_buffer.clear()
         self._tpdo = [_TpdoRuntime() for _ in range(COUNT)]
 
     # -- configuration rules -----------------------------------------------------------------
     def _check_state(self) -> None:
+        self._compiled.clear()  # the mapping may change: recompile on next use
         if not self.is_pre_operational():
             raise SdoAbort(ABORT_STATE, "PDO parameters change only in pre-operational")
 
@@ -139,13 +141,18 @@ class PdoEngine:
             raise SdoAbort(ABORT_NOT_MAPPABLE)
 
     # -- helpers -----------------------------------------------------------------------------
-    def _entries(self, base: int, n: int) -> list[tuple[int, int, int]]:
-        count = self.store.get(base + n, 0)
-        out = []
-        for i in range(1, count + 1):
-            entry = self.store.get(base + n, i)
-            out.append((entry >> 16, (entry >> 8) & 0xFF, entry & 0xFF))
-        return out
+    def _entries(self, base: int, n: int) -> list[tuple[int, int, int, object]]:
+        """(index, sub, bits, ODVariable or None for a dummy) of the mapped objects."""
+        compiled = self._compiled.get(base + n)
+        if compiled is None:
+            compiled = []
+            for i in range(1, self.store.get(base + n, 0) + 1):
+                entry = self.store.get(base + n, i)
+                index, sub, bits = entry >> 16, (entry >> 8) & 0xFF, entry & 0xFF
+                var = None if index in _DUMMY_BITS else self.store.variable(index, sub)
+                compiled.append((index, sub, bits, var))
+            self._compiled[base + n] = compiled
+        return compiled
 
     def cob_id(self, comm_base: int, n: int) -> int | None:
         """The PDO's COB-ID, or None when it is invalid."""
@@ -164,7 +171,7 @@ class PdoEngine:
         mapping is dropped (CiA-301: "PDO not processed due to length error").
         """
         entries = self._entries(RPDO_MAP, n)
-        length = sum(bits for _, _, bits in entries) // 8
+        length = sum(e[2] for e in entries) // 8
         if len(data) < length:
             self.rpdo_length_errors += 1
             return False
@@ -189,13 +196,12 @@ class PdoEngine:
 
     def _apply(self, n: int, data: bytes) -> None:
         offset = 0
-        for index, sub, bits in self._entries(RPDO_MAP, n):
+        for _index, _sub, bits, var in self._entries(RPDO_MAP, n):
             size = bits // 8
             chunk = data[offset:offset + size]
             offset += size
-            if index in _DUMMY_BITS:
+            if var is None:
                 continue
-            var = self.store.variable(index, sub)
             try:
                 self.store.write_value(var, self.store.decode(var, chunk))
             except SdoAbort:
@@ -204,8 +210,7 @@ class PdoEngine:
     # -- transmit ----------------------------------------------------------------------------
     def _pack(self, n: int) -> bytes:
         out = bytearray()
-        for index, sub, _bits in self._entries(TPDO_MAP, n):
-            var = self.store.variable(index, sub)
+        for index, sub, _bits, var in self._entries(TPDO_MAP, n):
             out += self.store.encode(var, self.store.value(index, sub))
         return bytes(out)
 
@@ -249,7 +254,3 @@ class PdoEngine:
                 frames.append((cob, data))
                 rt.last_data, rt.last_sent = data, now
         return frames
-
-
-def pack_u16(value: int) -> bytes:
-    return struct.pack("<H", value & 0xFFFF)

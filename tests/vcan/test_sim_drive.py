@@ -437,16 +437,15 @@ def test_homing_error_on_unexpected_limit_switch(rig, clock):
 # --------------------------------------------------------------------------- heartbeat consumer, faults
 def test_heartbeat_consumer_fault(rig):
     sim, m = rig()
-    m.sdo_write(0x1016, 1, (MASTER << 16) | 100, "<I")
+    m.sdo_write(0x1016, 1, (MASTER << 16) | 200, "<I")
     m.send(0x000, bytes([0x01, NODE]))
     enable(m, 1)
-    for _ in range(5):
-        m.send(0x700 + MASTER, b"\x05")
-        time.sleep(0.03)
-    assert sim.state == "OPERATION ENABLED"
+    time.sleep(0.3)                       # monitoring starts with the first heartbeat only
+    assert sim.state == "OPERATION ENABLED" and m.emcy_codes() == []
+    m.send(0x700 + MASTER, b"\x05")       # one heartbeat, then silence
     wait_for(lambda: 0x8130 in m.emcy_codes(), what="EMCY 0x8130")
-    assert sim.state == "FAULT" and sim.nmt_state == 0x7F
-    assert m.sdo_read(0x1001, 0, "<B") & 0x11 == 0x11          # generic + communication
+    assert sim.state == "FAULT" and sim.nmt_state == 0x7F   # CiA-301: back to pre-operational
+    assert m.sdo_read(0x1001, 0, "<B") & 0x11 == 0x11      # generic + communication
 
 
 @pytest.mark.parametrize("kind,code", [("overcurrent", 0x2310), ("following_error", 0x8611),
@@ -469,7 +468,7 @@ def test_dead_node_sends_and_answers_nothing(rig):
     m.sdo_write(0x1017, 0, 20, "<H")
     m.wait_frames(0x700 + NODE, 2)
     sim.set_responding(False)
-    time.sleep(0.05)
+    time.sleep(0.2)                       # frames already on their way arrive
     m.clear()
     m.node.sdo.RESPONSE_TIMEOUT = 0.2
     with pytest.raises(canopen.SdoCommunicationError):
