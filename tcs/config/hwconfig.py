@@ -19,6 +19,8 @@ from pathlib import Path
 
 from tcs.config.can import CanSection, DriveSection, check_can_drives
 from tcs.config.schema import build, setting
+from tcs.config.gps import GpsSection
+from tcs.config.plc import PlcSection
 from tcs.config.sections import (CabinetSection, MountSection, ServerSection, SiteSection,
                                  StateSection, TimeSection, UserSection)
 from tcs.errors import ConfigError, ConfigErrors
@@ -36,6 +38,8 @@ class HwConfig:
     mount: MountSection = setting(factory=MountSection)
     state: StateSection = setting(factory=StateSection)
     cabinet: CabinetSection = setting(factory=CabinetSection)
+    plcs: dict[str, PlcSection] = setting(factory=dict)
+    gps: GpsSection | None = setting(None)
     can: CanSection | None = setting(None, doc="the CAN bus of the drives (tcs.config.can)")
     drives: dict[str, DriveSection] = setting(factory=dict, doc="CiA-402 drives by name (tcs.config.can)")
     # Set by load_config, not by the file.
