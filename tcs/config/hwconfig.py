@@ -23,6 +23,7 @@ from tcs.config.gps import GpsSection
 from tcs.config.plc import PlcSection
 from tcs.config.sections import (CabinetSection, MountSection, ServerSection, SiteSection,
                                  StateSection, TimeSection, UserSection)
+from tcs.config.axes import AxisSection, SimulationSection, check_axes
 from tcs.errors import ConfigError, ConfigErrors
 
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent.parent
@@ -42,6 +43,8 @@ class HwConfig:
     gps: GpsSection | None = setting(None)
     can: CanSection | None = setting(None, doc="the CAN bus of the drives (tcs.config.can)")
     drives: dict[str, DriveSection] = setting(factory=dict, doc="CiA-402 drives by name (tcs.config.can)")
+    axes: dict[str, AxisSection] = setting(factory=dict, doc="OpenTCI axes by name (tcs.config.axes)")
+    simulation: SimulationSection | None = setting(None, doc="drives simulated in-process (tcs.config.axes)")
     # Set by load_config, not by the file.
     source: Path = field(default=Path("<memory>"), init=False, compare=False)
 
@@ -55,6 +58,7 @@ class HwConfig:
             problems.append(("server.implicit_user",
                              f"implicit_auth needs implicit_user to name one of the users {names}"))
         problems.extend(check_can_drives(self.can, self.drives))
+        problems.extend(check_axes(self))
         return problems
 
     @property

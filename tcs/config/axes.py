@@ -1,0 +1,112 @@
+"""Axes and the in-process simulation in the hardware file: ``[axes.<name>]`` and
+``[simulation]``.
+
+Each ``[axes.<name>]`` table is one OpenTCI axis module bound to one drive of ``[drives]``:
+which module it is (``AZ``, ``ZD``, ``HA``, ``DEC``, ``DEROTATOR``, ``FOCUS``, ``FILTER``,
+``MIRROR``; ``index`` for arrays — the port index of spec App. C.2 for derotators and filters),
+its software limits (``REALPOS!MIN``/``!MAX``), its period for cyclic axes, its dynamics for
+ruckig, the on-target tolerance, the size of its trajectory buffer, and for discrete axes
+(filter wheels, M3) the drive position of each integer position.
+
+``[simulation]`` lists simulated drives that ``tcs-server`` starts in the same process on the
+``virtual`` bus (the default telescope): per drive the physics of :class:`SimDriveParams`.
+A real cabinet's file has no ``[simulation]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from tcs.config.schema import setting
+
+AXIS_MODULES = ("AZ", "ZD", "HA", "DEC", "DEROTATOR", "FOCUS", "FILTER", "MIRROR")
+ARRAY_MODULES = ("DEROTATOR", "FILTER", "ZD")
+TRAJECTORY_MODULES = ("AZ", "ZD", "HA", "DEC", "DEROTATOR")
+DISCRETE_MODULES = ("FILTER", "MIRROR")
+
+
+@dataclass(frozen=True)
+class AxisSection:
+    module: Literal["AZ", "ZD", "HA", "DEC", "DEROTATOR", "FOCUS", "FILTER", "MIRROR"] = setting(
+        doc="OpenTCI module this axis serves")
+    drive: str = setting(doc="name of its drive in [drives]")
+    min: float = setting(doc="software limit, user units (REALPOS!MIN)")
+    max: float = setting(doc="software limit, user units (REALPOS!MAX)")
+    max_velocity: float = setting(doc="units/s (CURRSPEED!MAX)", min=1e-9)
+    max_acceleration: float = setting(doc="units/s² (CURRACC!MAX)", min=1e-9)
+    max_jerk: float = setting(doc="units/s³ (CURRJRK!MAX)", min=1e-9)
+    index: int | None = setting(None, min=0, max=11, doc="element of a module array (port index for "
+                                                         "DEROTATOR/FILTER, 0/1 for ZD-ZD)")
+    cyclic: float = setting(0.0, min=0.0, doc="period of a rotary axis (360.0), 0 = not cyclic")
+    stop_deceleration: float = setting(0.0, min=0.0, doc="deceleration of STOP, units/s² "
+                                                         "(0 = 2 × max_acceleration)")
+    tolerance: float = setting(0.001, min=0.0, doc="on target when |REALPOS - demand| ≤ this")
+    trajectory_buffer: int = setting(120, min=2, max=100000, doc="TRAJECTORY.BUFFER[] size")
+    positions: dict[str, float] = setting(
+        factory=dict, doc="discrete axes: integer position (as a string key) -> drive position")
+    hw_type: int = setting(1, min=1, doc="TYPE of the module")
+
+    def check(self):
+        problems = []
+        if self.min >= self.max:
+            problems.append(("max", f"must be greater than min ({self.min})"))
+        if self.module in ARRAY_MODULES[:2] and self.index is None:
+            problems.append(("index", f"{self.module} is an array: give its index (port)"))
+        if self.module in DISCRETE_MODULES:
+            if not self.positions:
+                problems.append(("positions", f"{self.module} moves between discrete positions: list them"))
+            for key, value in self.positions.items():
+                if not key.lstrip("-").isdigit():
+                    problems.append((f"positions.{key}", "keys are the integer positions, e.g. \"0\""))
+                elif not self.min <= value <= self.max:
+                    problems.append((f"positions.{key}", f"{value} is outside [{self.min}, {self.max}]"))
+        return problems
+
+
+@dataclass(frozen=True)
+class SimDriveSection:
+    increments_per_unit: float = setting(10000.0, min=1e-6)
+    max_velocity: float = setting(5.0, min=1e-9, doc="motor limit, units/s")
+    max_acceleration: float = setting(5.0, min=1e-9, doc="motor limit, units/s²")
+    position: float = setting(0.0, doc="position at power-up, units")
+    negative_limit_switch: float | None = setting(None)
+    positive_limit_switch: float | None = setting(None)
+    home_switch: float | None = setting(None)
+    home_switch_active_below: bool = setting(False)
+    index_pulse_spacing: float = setting(1.0, min=1e-9)
+    serial: int = setting(1, min=0, max=0xFFFFFFFF)
+
+
+@dataclass(frozen=True)
+class SimulationSection:
+    drives: dict[str, SimDriveSection] = setting(factory=dict, doc="simulated drives by drive name")
+
+
+def check_axes(config) -> list[tuple[str, str]]:
+    """Rules across ``[axes]``, ``[drives]`` and the mount (called by ``HwConfig.check``)."""
+    problems = []
+    seen: dict[tuple, str] = {}
+    drives_used: dict[str, str] = {}
+    for name, axis in config.axes.items():
+        key = (axis.module, axis.index)
+        if key in seen:
+            problems.append((f"axes.{name}", f"{axis.module}"
+                             f"{'' if axis.index is None else f'[{axis.index}]'} is already axis {seen[key]!r}"))
+        seen[key] = name
+        if axis.drive not in config.drives:
+            problems.append((f"axes.{name}.drive", f"no drive {axis.drive!r} in [drives] "
+                                                   f"(known: {', '.join(config.drives) or 'none'})"))
+        elif axis.drive in drives_used:
+            problems.append((f"axes.{name}.drive", f"drive {axis.drive!r} already moves axis "
+                                                   f"{drives_used[axis.drive]!r}"))
+        drives_used.setdefault(axis.drive, name)
+    modules = {a.module for a in config.axes.values()}
+    needed = {"AZ-ZD": {"AZ", "ZD"}, "RA-DEC": {"HA", "DEC"}, "ZD-ZD": {"ZD"}}[config.mount.type]
+    if config.axes and not needed <= modules:
+        problems.append(("axes", f"a {config.mount.type} mount needs axes {sorted(needed)}; "
+                                 f"configured: {sorted(modules)}"))
+    for name in config.simulation.drives if config.simulation else ():
+        if name not in config.drives:
+            problems.append((f"simulation.drives.{name}", f"no drive {name!r} in [drives]"))
+    return problems
