@@ -252,7 +252,7 @@ def open_port(bus_or_network: Any) -> SimCanPort:
         port = bus_or_network
         if port.closed:
             raise ValueError("the simulated CAN port is closed")
-    elif isinstance(bus_or_network, Mapping):
+    elif isinstance(bus_or_network, Mapping) and not hasattr(bus_or_network, "send_message"):
         port = SimCanPort(bus=can.Bus(**dict(bus_or_network)), owns_bus=True)
     else:
         with _registry_lock:

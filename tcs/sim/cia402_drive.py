@@ -16,8 +16,9 @@ CANopen behaviour (CiA-301):
   pre-operational; the heartbeat producer runs per 0x1017 (default 0 = off).
 * NMT: start (1), stop (2), pre-operational (0x80), reset node (0x81: every object back to
   its default, the drive disabled, the homing reference lost, boot-up again), reset
-  communication (0x82: objects 0x1000–0x1FFF back to defaults, boot-up again). In stopped
-  only NMT and heartbeat work; PDOs only in operational.
+  communication (0x82: objects 0x1000–0x1FFF back to defaults, boot-up again); a reset
+  takes ``boot_delay`` like power-up, silent meanwhile. In stopped only NMT and heartbeat
+  work; PDOs only in operational.
 * Heartbeat consumer (0x1016: ``node << 16 | ms``): monitoring of a node starts with its first
   heartbeat; when one is late the drive sends EMCY 0x8130, faults, and — CiA-301's default
   error behaviour (0x1029 = 0) — drops from operational to pre-operational. It re-arms when
@@ -197,7 +198,7 @@ class SimDrive:
         self.stop()
 
     def _boot(self) -> None:
-        if self._stopped:
+        if self._stopped or self.nmt_state != INITIALISING:
             return
         self.nmt_state = PRE_OPERATIONAL
         self._send(0x700 + self.node_id, b"\x00")
@@ -370,17 +371,21 @@ class SimDrive:
             self.nmt_state = STOPPED
         elif command == 0x80:
             self.nmt_state = PRE_OPERATIONAL
-        elif command == 0x81:
-            self._build()
+        elif command in (0x81, 0x82):
+            if command == 0x81:
+                self._build()
+            else:
+                self.store.reset_range(0x1000, 0x1FFF)
+                self.logic.install_identity()
+                self.pdo.reset()
             self._consumer_seen.clear()
-            self._boot()
-            return
-        elif command == 0x82:
-            self.store.reset_range(0x1000, 0x1FFF)
-            self.logic.install_identity()
-            self.pdo.reset()
-            self._consumer_seen.clear()
-            self._boot()
+            self._rpdo_since_sync = False
+            self.nmt_state = INITIALISING
+            self._update_comm()
+            if self.params.boot_delay > 0:
+                self._timers.append(self._port.call_later(self.params.boot_delay, self._boot))
+            else:
+                self._boot()
             return
         self._update_comm()
 

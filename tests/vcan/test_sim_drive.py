@@ -54,6 +54,7 @@ class Master:
         self.node.sdo.RESPONSE_TIMEOUT = 2.0
         self.node_id = node_id
         self.frames: list[tuple[int, bytes]] = []
+        self.stamps: list[tuple[int, float]] = []
         self._lock = threading.Lock()
         for cob in (0x80 + node_id, 0x180 + node_id, 0x280 + node_id, 0x380 + node_id,
                     0x480 + node_id, 0x700 + node_id):
@@ -62,6 +63,7 @@ class Master:
     def _record(self, cob: int, data: bytearray, timestamp: float) -> None:
         with self._lock:
             self.frames.append((cob, bytes(data)))
+            self.stamps.append((cob, timestamp))
 
     def received(self, cob: int) -> list[bytes]:
         with self._lock:
@@ -70,6 +72,7 @@ class Master:
     def clear(self) -> None:
         with self._lock:
             self.frames.clear()
+            self.stamps.clear()
 
     def emcy_codes(self) -> list[int]:
         return [struct.unpack_from("<H", d)[0] for d in self.received(0x80 + self.node_id)]
@@ -492,3 +495,47 @@ def test_several_drives_share_one_bus(can_channel, clock):
     finally:
         master.close()
         sims.stop()
+
+
+def test_event_tpdo_timer_inhibit_and_change(rig):
+    sim, m = rig()
+    m.sdo_write(0x1802, 5, 50, "<H")                      # event timer 50 ms
+    m.sdo_write(0x1802, 3, 300, "<H")                     # inhibit 30 ms
+    m.send(0x000, bytes([0x01, NODE]))
+    m.wait_frames(0x380 + NODE, 4)                        # the timer keeps them coming
+    sim.inject_fault("encoder")
+    wait_for(lambda: any(d[4:6] == b"\x05\x73" for d in m.received(0x380 + NODE)),
+             what="TPDO3 with error code 0x7305")
+    times = [t for c, t in m.stamps if c == 0x380 + NODE]
+    assert min(b - a for a, b in zip(times, times[1:])) >= 0.03 - 0.002
+
+
+def test_reset_node_restores_defaults_and_boots_again(rig):
+    sim, m = rig()
+    m.sdo_write(0x6081, 0, 1234, "<I")
+    m.sdo_write(0x1017, 0, 20, "<H")
+    enable(m, 1)
+    m.clear()
+    m.send(0x000, bytes([0x81, NODE]))
+    wait_for(lambda: b"\x00" in m.received(0x700 + NODE), what="boot-up")
+    assert m.sdo_read(0x6081, 0, "<I") != 1234
+    assert m.statusword() & 0x4F == 0x40
+    assert m.sdo_read(0x6061, 0, "<b") == 0
+    count = len(m.received(0x700 + NODE))
+    time.sleep(0.1)
+    assert len(m.received(0x700 + NODE)) == count         # heartbeat off again (0x1017 = 0)
+
+
+def test_drive_on_a_canopen_network(can_channel, clock):
+    network = canopen.Network()
+    network.connect(**can_channel)
+    sim = SimDrive(network, NODE, SimDriveParams(position=-0.25), clock=clock)
+    master = Master(can_channel)
+    try:
+        sim.start()
+        assert master.sdo_read(0x6064, 0, "<i") == -2500
+        enable(master, 1)
+    finally:
+        sim.stop()
+        master.close()
+        network.disconnect()
