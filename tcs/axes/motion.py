@@ -1,0 +1,354 @@
+"""Jerk-limited point-to-point motion of one axis: :class:`MotionPlanner`.
+
+How it works
+------------
+The planner owns the axis's *demanded drive position* while the axis is in direct
+positioning (``TARGETPOS``). The drive is commanded to ``target + offset`` (notes, "Axis
+semantics"), so the planner runs ONE ruckig channel on that sum: a new target and a new
+offset are both just a new goal for the same channel, planned from the current setpoint
+(position, velocity, acceleration), so the stream stays continuous in acceleration whatever
+arrives when, and target and offset together never exceed the axis dynamics.
+
+Each command computes a whole ruckig profile (:mod:`tcs.axes.profile`), checks its position
+extrema against the software limits (ruckig ignores them) and then :meth:`MotionPlanner.step`
+samples it once per control cycle. The duration is rounded up to whole cycles, so a move ends
+exactly on the target, on a cycle.
+
+States (``PlannerState``) and what moves between them::
+
+    state      event                                   next
+    IDLE       set_target / set_offset (a move)        MOVING
+    MOVING     profile finished                        IDLE        (at_target)
+    MOVING     set_target / set_offset                 MOVING      (re-planned from the setpoint)
+    any        the direct profile would cross a limit  BRAKING     (stop first, move afterwards)
+    BRAKING    at rest                                 MOVING      (the pending goal)
+    any        stop(quick)                             STOPPING    (target := where it will rest)
+    STOPPING   at rest                                 IDLE
+    any        a setpoint beyond a limit (guard)       LIMIT       (braking to rest at the limit,
+                                                                    ``softlimit`` = "min"/"max")
+    LIMIT      at rest                                 IDLE
+
+``CURRSPEED`` (:meth:`MotionPlanner.set_speed`) lowers the velocity limit of motion planned
+afterwards; a running move keeps its profile. ``STOP`` uses the quick-stop deceleration and
+jerk of :class:`AxisDynamics`.
+
+Used by the axis module from the control-loop thread only (not thread-safe); about 2 µs per
+:meth:`MotionPlanner.step` (see ``tools/bench/motion_cost.py``).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+
+from tcs.axes.limits import LimitGuard, SoftLimits
+from tcs.axes.profile import (
+    AxisDynamics,
+    ProfileSolver,
+    Setpoint,
+    sample,
+    theoretical_minimum_time,
+)
+from tcs.errors import RangeRefused
+
+__all__ = ["AxisDynamics", "MotionPlanner", "PlannerState", "Setpoint", "SoftLimits",
+           "theoretical_minimum_time"]
+
+
+class PlannerState(enum.Enum):
+    IDLE = "idle"
+    MOVING = "moving"
+    BRAKING = "braking"
+    STOPPING = "stopping"
+    LIMIT = "limit"
+
+
+#: a velocity or acceleration within this fraction of its limit counts as "limited" (bit 4)
+SATURATION = 0.99
+
+
+class MotionPlanner:
+    """Point-to-point motion of one axis, one :class:`Setpoint` per :meth:`step`.
+
+    Parameters
+    ----------
+    dynamics:
+        Velocity, acceleration, jerk limits (and quick-stop values).
+    limits:
+        Software limits and cycle of the axis.
+    dt:
+        Control cycle in seconds.
+    position:
+        Initial position (the axis at rest there); use :meth:`take_over` to start from a
+        moving state.
+    """
+
+    def __init__(self, dynamics: AxisDynamics, limits: SoftLimits = SoftLimits(),
+                 dt: float = 0.01, position: float = 0.0):
+        self.dt = float(dt)
+        self.dynamics = dynamics
+        self._solver = ProfileSolver(dt)
+        self._guard = LimitGuard(limits, dynamics, dt)
+        self._speed = dynamics.max_velocity
+        self._offset = 0.0
+        self._sp = Setpoint(float(position))
+        self._target = float(position)
+        self._state = PlannerState.IDLE
+        self._traj = None
+        self._k = 0
+        self._n = 0
+        self._end = 0.0
+        self._pending: float | None = None
+        self._softlimit: str | None = None
+        self._verified = True
+
+    # -- read-only state ---------------------------------------------------------------------
+
+    @property
+    def limits(self) -> SoftLimits:
+        return self._guard.limits
+
+    @property
+    def state(self) -> PlannerState:
+        return self._state
+
+    @property
+    def setpoint(self) -> Setpoint:
+        """The setpoint produced by the last :meth:`step` (or the initial state)."""
+        return self._sp
+
+    @property
+    def target(self) -> float:
+        """Target in the user frame (``TARGETPOS``): the resolved one, i.e. on a cyclic axis
+        the chosen ``request + k·cycle``; after a stop, where the axis comes to rest."""
+        return self._target
+
+    @property
+    def offset(self) -> float:
+        return self._offset
+
+    @property
+    def demanded_target(self) -> float:
+        """Where the drive is going: ``target + offset``."""
+        return self._target + self._offset
+
+    @property
+    def speed(self) -> float:
+        """Velocity limit used for new motion (``CURRSPEED`` as written, else the maximum)."""
+        return self._speed
+
+    @property
+    def moving(self) -> bool:
+        """``MOTION_STATE`` bit 0: a profile is running or the setpoint is not at rest."""
+        return self._state is not PlannerState.IDLE or not self._sp.at_rest
+
+    @property
+    def at_target(self) -> bool:
+        """``MOTION_STATE`` bit 3 (of the demand): at rest exactly on ``target + offset``."""
+        return (self._state is PlannerState.IDLE and self._sp.at_rest
+                and self._sp.position == self.demanded_target)
+
+    @property
+    def limited(self) -> bool:
+        """``MOTION_STATE`` bit 4: moving with velocity or acceleration at its limit."""
+        if self._state is PlannerState.IDLE:
+            return False
+        sp = self._sp
+        return (abs(sp.velocity) >= SATURATION * self._speed
+                or abs(sp.acceleration) >= SATURATION * self.dynamics.max_acceleration)
+
+    @property
+    def softlimit(self) -> str | None:
+        """``"min"`` / ``"max"`` if motion was stopped at that software limit (stays set until
+        the next target, offset or take-over), else ``None``."""
+        return self._softlimit
+
+    @property
+    def remaining_time(self) -> float:
+        """Seconds until the running profile ends (for BRAKING, plus an estimate of the
+        pending move); 0 when idle."""
+        if self._state is PlannerState.IDLE:
+            return 0.0
+        if self._state is PlannerState.LIMIT:
+            return 0.0 if self._guard._brake is None else max(
+                0.0, self._guard._brake.duration - self._guard._brake_steps * self.dt)
+        left = max(0.0, (self._n - self._k) * self.dt)
+        if self._pending is not None:
+            left += theoretical_minimum_time(self._pending - self._end, self._dyn_speed())
+        return left
+
+    # -- commands ----------------------------------------------------------------------------
+
+    def set_limits(self, limits: SoftLimits) -> None:
+        """Replace the software limits (after referencing or commissioning). The running
+        profile was checked against the old limits, so until the next command every setpoint
+        gets the guard's full stopping-distance check (it stops at a new limit in time)."""
+        self._guard.limits = limits
+        self._verified = False
+
+    def set_speed(self, velocity: float) -> None:
+        """``CURRSPEED`` written: the velocity limit for motion planned from now on.
+
+        Raises
+        ------
+        RangeRefused
+            ``velocity`` not in (0, max_velocity].
+        """
+        vmax = self.dynamics.max_velocity
+        if not (math.isfinite(velocity) and 0.0 < velocity <= vmax * (1 + 1e-12)):
+            raise RangeRefused(f"speed {velocity!r} is outside (0, {vmax:g}]")
+        self._speed = min(float(velocity), vmax)
+
+    def set_target(self, position: float) -> float:
+        """``TARGETPOS`` written: move so that the drive reaches ``position + offset``.
+
+        On a cyclic axis, ``position + k·cycle`` inside the limits with the shortest travel
+        is taken (cable wrap: never through a limit).
+
+        Returns
+        -------
+        float
+            The resolved target in the user frame (what :attr:`target` reads).
+
+        Raises
+        ------
+        RangeRefused
+            The target (plus offset) is outside the software limits; nothing changes.
+        """
+        demanded = self.limits.resolve(float(position) + self._offset, self._sp.position,
+                                       what="target position (with offset)")
+        self._target = demanded - self._offset
+        self._plan_to(demanded)
+        return self._target
+
+    def set_offset(self, offset: float) -> None:
+        """``OFFSET`` written: move smoothly so the drive reaches ``target + offset``.
+
+        Raises
+        ------
+        RangeRefused
+            ``target + offset`` is outside the software limits; nothing changes.
+        """
+        offset = float(offset)
+        if not math.isfinite(offset):
+            raise RangeRefused(f"offset {offset!r} is not a finite number")
+        demanded = self._target + offset
+        if not self.limits.contains(demanded):
+            raise RangeRefused(f"offset {offset:g} puts target {self._target:g} at {demanded:g}, "
+                               f"outside the software limits")
+        self._offset = offset
+        self._plan_to(demanded)
+
+    def stop(self, quick: bool = True) -> None:
+        """``STOP``: decelerate to rest now (quick: with the quick-stop deceleration and jerk),
+        cancelling the target; :attr:`target` becomes where the axis will rest."""
+        self._pending = None
+        if self._state is PlannerState.IDLE and self._sp.at_rest:
+            return
+        d = self.dynamics
+        acc, jerk = (d.stop_acceleration, d.stop_jerk) if quick else (d.max_acceleration, d.max_jerk)
+        traj = self._solver.stop(self._sp, max_velocity=max(d.max_velocity, abs(self._sp.velocity)),
+                                 max_acceleration=acc, max_jerk=jerk)
+        side = self._guard.crossing(traj, self._sp.position)
+        if side is not None:                       # only when already heading past a limit
+            traj, _ = self._guard.brake_profile(self._sp, side)
+        self._guard.reset()
+        self._start(traj, PlannerState.STOPPING, sample(traj, traj.duration)[0])
+        self._target = self._end - self._offset
+
+    def take_over(self, setpoint: Setpoint) -> None:
+        """Continue from ``setpoint`` (e.g. after a trajectory or at power-on): hold there if
+        at rest, else brake to rest with the normal dynamics. Clears ``softlimit``."""
+        self._sp = Setpoint(*setpoint)
+        self._pending = None
+        self._softlimit = None
+        self._guard.reset()
+        if self._sp.at_rest:
+            self._idle()
+            self._target = self._sp.position - self._offset
+        else:
+            self.stop(quick=False)
+
+    # -- the cycle ---------------------------------------------------------------------------
+
+    def step(self) -> Setpoint:
+        """Advance one control cycle and return the setpoint to send."""
+        state = self._state
+        prev = self._sp
+        if state is PlannerState.IDLE:
+            return prev
+        guard = self._guard
+        if state is PlannerState.LIMIT:
+            sp = guard.filter(prev, prev)
+            if not guard.braking:
+                self._sp = sp
+                self._idle()
+                return sp
+            self._sp = sp
+            return sp
+        self._k += 1
+        finished = self._k >= self._n
+        if finished:
+            proposed = Setpoint(self._end, 0.0, 0.0, -prev.acceleration / self.dt)
+        else:
+            p, v, a = sample(self._traj, self._k * self.dt)
+            proposed = Setpoint(p, v, a, (a - prev.acceleration) / self.dt)
+        sp = guard.filter(prev, proposed, verified=self._verified)
+        self._sp = sp
+        if guard.tripped is not None:
+            self._softlimit = guard.tripped
+            self._state = PlannerState.LIMIT
+            self._pending = None
+            self._target = guard._brake_end.position - self._offset
+            if not guard.braking:
+                self._idle()
+        elif finished:
+            if state is PlannerState.BRAKING and self._pending is not None:
+                pending, self._pending = self._pending, None
+                self._plan_to(pending)
+            else:
+                self._idle()
+        return sp
+
+    # -- internals ---------------------------------------------------------------------------
+
+    def _dyn_speed(self) -> AxisDynamics:
+        d = self.dynamics
+        return AxisDynamics(self._speed, d.max_acceleration, d.max_jerk)
+
+    def _idle(self) -> None:
+        self._state = PlannerState.IDLE
+        self._traj = None
+        self._sp = Setpoint(self._sp.position)
+        self._k = self._n = 0
+
+    def _start(self, traj, state: PlannerState, end: float) -> None:
+        self._traj = traj
+        self._verified = True
+        self._k = 0
+        self._n = max(1, math.ceil(traj.duration / self.dt - 1e-9))
+        self._end = float(end)
+        self._state = state
+
+    def _plan_to(self, demanded: float) -> None:
+        """Plan from the current setpoint to rest at ``demanded`` (drive frame)."""
+        sp = self._sp
+        self._softlimit = None
+        self._guard.reset()
+        self._pending = None
+        if sp.at_rest and sp.position == demanded:
+            self._idle()
+            return
+        d = self.dynamics
+        traj = self._solver.move(sp, demanded, max_velocity=self._speed,
+                                 max_acceleration=d.max_acceleration, max_jerk=d.max_jerk)
+        side = self._guard.crossing(traj, sp.position)
+        if side is None:
+            self._start(traj, PlannerState.MOVING, demanded)
+            return
+        # The direct way overshoots a limit (moving fast towards it): come to rest first.
+        traj, end = self._guard.brake_profile(sp)
+        if self._guard.crossing(traj, sp.position) is not None:
+            traj, end = self._guard.brake_profile(sp, side)
+        self._start(traj, PlannerState.BRAKING, end)
+        self._pending = demanded

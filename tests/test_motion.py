@@ -1,0 +1,367 @@
+"""Point-to-point motion (tcs.axes.motion, tcs.axes.limits, tcs.axes.profile): pure, no I/O.
+
+Every test runs the planner cycle by cycle and checks the whole setpoint stream: exact
+arrival, velocity/acceleration/jerk limits at every step, software limits never crossed.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+
+from tcs.axes import (
+    AxisDynamics,
+    LimitGuard,
+    MotionPlanner,
+    PlannerState,
+    Setpoint,
+    SoftLimits,
+    theoretical_minimum_time,
+)
+from tcs.axes.profile import ProfileSolver
+from tcs.errors import RangeRefused
+
+DT = 0.01
+AZ = AxisDynamics(5.0, 2.0, 5.0, quick_stop_acceleration=4.0, quick_stop_jerk=20.0)
+ZD = AxisDynamics(3.0, 1.5, 4.0)
+REL = 1e-9          # numerical slack on limit checks
+
+
+def run(planner: MotionPlanner, max_steps: int = 200_000) -> list[Setpoint]:
+    """Step until the planner is idle; return every setpoint produced."""
+    out = []
+    for _ in range(max_steps):
+        if not planner.moving:
+            return out
+        out.append(planner.step())
+    raise AssertionError("planner did not come to rest")
+
+
+def check_dynamics(stream, dyn: AxisDynamics, *, vmax=None, amax=None, jmax=None,
+                   start: Setpoint | None = None):
+    vmax = (vmax or dyn.max_velocity) * (1 + 1e-6)
+    amax = (amax or dyn.max_acceleration) * (1 + 1e-6)
+    jmax = (jmax or dyn.max_jerk) * (1 + 1e-6)
+    prev = start or Setpoint(stream[0].position)
+    for sp in stream:
+        assert abs(sp.velocity) <= vmax, sp
+        assert abs(sp.acceleration) <= amax, sp
+        assert abs(sp.jerk) <= jmax, sp
+        # the stream is consistent: the reported jerk is the acceleration change
+        assert sp.jerk == pytest.approx((sp.acceleration - prev.acceleration) / DT, abs=1e-6)
+        prev = sp
+
+
+# -- theoretical minimum time -------------------------------------------------------------------
+
+@pytest.mark.parametrize("dyn", [AZ, ZD, AxisDynamics(1.0, 10.0, 10.0), AxisDynamics(10, 1, 100)])
+@pytest.mark.parametrize("distance", [1e-4, 0.01, 0.1, 1.0, 10.0, 90.0, 180.0, 1000.0])
+def test_theoretical_minimum_time_matches_ruckig(dyn, distance):
+    solver = ProfileSolver(DT)
+    traj = solver.move(Setpoint(0.0), distance, max_velocity=dyn.max_velocity,
+                       max_acceleration=dyn.max_acceleration, max_jerk=dyn.max_jerk,
+                       discrete=False)
+    assert theoretical_minimum_time(distance, dyn) == pytest.approx(traj.duration, rel=1e-9)
+    assert theoretical_minimum_time(-distance, dyn) == theoretical_minimum_time(distance, dyn)
+
+
+def test_theoretical_minimum_time_zero():
+    assert theoretical_minimum_time(0.0, AZ) == 0.0
+
+
+def test_dynamics_are_validated():
+    with pytest.raises(ValueError, match="max_jerk"):
+        AxisDynamics(1.0, 1.0, 0.0)
+    with pytest.raises(ValueError, match="quick_stop_acceleration"):
+        AxisDynamics(1.0, 2.0, 3.0, quick_stop_acceleration=1.0)
+
+
+# -- moves --------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("distance", [1.0, 10.0, 90.0, 180.0, -37.5, 1e-3])
+def test_move_reaches_target_exactly_within_limits(distance):
+    planner = MotionPlanner(AZ, SoftLimits(-270, 270), DT, position=10.0)
+    assert planner.set_target(10.0 + distance) == 10.0 + distance
+    assert planner.state is PlannerState.MOVING and planner.moving and not planner.at_target
+    expected_time = planner.remaining_time
+    stream = run(planner)
+    assert stream[-1] == Setpoint(10.0 + distance, 0.0, 0.0, stream[-1].jerk)
+    assert planner.at_target and planner.state is PlannerState.IDLE
+    check_dynamics(stream, AZ, start=Setpoint(10.0))
+    # ends on a whole cycle, at most one cycle later than the time-optimal profile
+    minimum = theoretical_minimum_time(distance, AZ)
+    assert len(stream) * DT == pytest.approx(expected_time, abs=1e-9)
+    assert minimum <= len(stream) * DT < minimum + DT + 1e-9
+    # idle: the setpoint holds
+    assert planner.step() == Setpoint(10.0 + distance)
+
+
+def test_target_outside_limits_is_refused_before_anything_moves():
+    planner = MotionPlanner(AZ, SoftLimits(-90.0, 90.0), DT, position=5.0)
+    with pytest.raises(RangeRefused) as info:
+        planner.set_target(90.5)
+    assert info.value.keyword == "RANGE" and "90.5" in info.value.message
+    assert planner.state is PlannerState.IDLE and not planner.moving
+    assert [planner.step() for _ in range(3)] == [Setpoint(5.0)] * 3
+    assert planner.target == 5.0
+    with pytest.raises(RangeRefused):
+        planner.set_target(float("nan"))
+
+
+def test_new_target_while_moving_replans_smoothly():
+    planner = MotionPlanner(AZ, SoftLimits(), DT)
+    planner.set_target(50.0)
+    first = [planner.step() for _ in range(400)]
+    planner.set_target(-20.0)                     # reverse while at speed
+    rest = run(planner)
+    check_dynamics(first + rest, AZ, start=Setpoint(0.0))
+    assert rest[-1].position == -20.0 and planner.at_target
+
+
+def test_offset_moves_the_drive_to_target_plus_offset():
+    planner = MotionPlanner(AZ, SoftLimits(-10, 10), DT)
+    planner.set_target(5.0)
+    run(planner)
+    planner.set_offset(0.01)
+    assert planner.target == 5.0 and planner.demanded_target == pytest.approx(5.01)
+    stream = run(planner)
+    assert stream[-1].position == pytest.approx(5.01, abs=1e-12) and planner.at_target
+    check_dynamics(stream, AZ, start=Setpoint(5.0))
+    # an offset that would put the drive beyond a limit is refused and changes nothing
+    with pytest.raises(RangeRefused):
+        planner.set_offset(5.5)
+    assert planner.offset == 0.01 and not planner.moving
+    # a target is checked with the offset applied
+    with pytest.raises(RangeRefused):
+        planner.set_target(9.995)
+
+
+def test_offset_while_moving_is_one_smooth_motion():
+    planner = MotionPlanner(AZ, SoftLimits(), DT)
+    planner.set_target(20.0)
+    a = [planner.step() for _ in range(150)]
+    planner.set_offset(-1.0)
+    b = run(planner)
+    check_dynamics(a + b, AZ, start=Setpoint(0.0))
+    assert b[-1].position == pytest.approx(19.0) and planner.target == 20.0
+
+
+# -- stop, speed --------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("quick", [True, False])
+def test_stop_decelerates_to_rest(quick):
+    planner = MotionPlanner(AZ, SoftLimits(), DT)
+    planner.set_target(100.0)
+    moving = [planner.step() for _ in range(500)]          # at full speed by now
+    assert moving[-1].velocity == pytest.approx(5.0, rel=1e-3)
+    planner.stop(quick=quick)
+    assert planner.state is PlannerState.STOPPING
+    stopping = run(planner)
+    assert stopping[-1].velocity == 0.0 and stopping[-1].acceleration == 0.0
+    assert all(b.velocity <= a.velocity + 1e-12 for a, b in zip(stopping, stopping[1:]))
+    assert planner.target == stopping[-1].position and planner.at_target
+    acc = AZ.stop_acceleration if quick else AZ.max_acceleration
+    jerk = AZ.stop_jerk if quick else AZ.max_jerk
+    check_dynamics(stopping, AZ, amax=acc, jmax=jerk, start=moving[-1])
+
+
+def test_quick_stop_is_shorter():
+    def stop_steps(quick):
+        planner = MotionPlanner(AZ, SoftLimits(), DT)
+        planner.set_target(100.0)
+        for _ in range(500):
+            planner.step()
+        planner.stop(quick=quick)
+        return len(run(planner))
+    assert stop_steps(True) < stop_steps(False)
+
+
+def test_stop_at_rest_does_nothing():
+    planner = MotionPlanner(AZ, SoftLimits(), DT, position=3.0)
+    planner.stop()
+    assert planner.state is PlannerState.IDLE and planner.step() == Setpoint(3.0)
+
+
+def test_speed_override_lowers_new_motion_only():
+    planner = MotionPlanner(AZ, SoftLimits(), DT)
+    planner.set_target(30.0)
+    planner.set_speed(1.0)                          # running move keeps its profile
+    stream = run(planner)
+    assert max(abs(s.velocity) for s in stream) > 4.9
+    planner.set_target(0.0)
+    stream = run(planner)
+    assert max(abs(s.velocity) for s in stream) == pytest.approx(1.0, rel=1e-2)
+    check_dynamics(stream, AZ, vmax=1.0, start=Setpoint(30.0))
+    assert planner.speed == 1.0
+    for bad in (0.0, -1.0, 5.5, float("inf")):
+        with pytest.raises(RangeRefused):
+            planner.set_speed(bad)
+
+
+def test_limited_flag_while_at_velocity_or_acceleration_limit():
+    planner = MotionPlanner(AZ, SoftLimits(), DT)
+    planner.set_target(100.0)
+    flags = []
+    while planner.moving:
+        planner.step()
+        flags.append(planner.limited)
+    assert any(flags) and not all(flags) and not planner.limited
+
+
+def test_take_over_a_moving_state_brakes_to_rest():
+    planner = MotionPlanner(AZ, SoftLimits(-50, 50), DT)
+    start = Setpoint(0.0, 3.0, 1.0)
+    planner.take_over(start)
+    assert planner.moving
+    stream = run(planner)
+    assert stream[-1].velocity == 0.0 and 0.0 < stream[-1].position < 50
+    check_dynamics(stream, AZ, start=start)
+
+
+# -- cyclic axes and cable wrap -----------------------------------------------------------------
+
+@pytest.mark.parametrize("current, asked, expected", [
+    (350.0, 10.0, 370.0),        # no limits: the short way, across 360
+    (10.0, 350.0, -10.0),
+    (720.5, 0.0, 720.0),
+    (0.0, 180.0, -180.0),        # a tie: the lower one
+])
+def test_cyclic_axis_takes_the_shortest_way(current, asked, expected):
+    planner = MotionPlanner(AZ, SoftLimits(cycle=360.0), DT, position=current)
+    assert planner.set_target(asked) == pytest.approx(expected)
+    stream = run(planner)
+    assert stream[-1].position == pytest.approx(expected)
+    travelled = [s.position for s in stream]
+    assert min(travelled) >= min(current, expected) - 1e-9
+    assert max(travelled) <= max(current, expected) + 1e-9
+
+
+@pytest.mark.parametrize("current, asked, expected", [
+    (260.0, -100.0, 260.0),      # -100 + 360 = 260: already there
+    (260.0, -80.0, -80.0),       # shortest way (+20 to 280) is beyond +270: go the allowed way
+    (100.0, -100.0, 260.0),      # 260 (travel 160) beats -100 (travel 200)
+    (-100.0, 100.0, -260.0),     # mirror image
+    (0.0, 180.0, -180.0),        # tie, both as far from the centre: the lower one
+    (265.0, 270.0, 270.0),       # exactly at the limit is allowed
+    (-260.0, 90.0, -270.0),      # 90 - 360 = -270 is inside and only 10 away
+    (200.0, -200.0, 160.0),      # -200 (travel 400) vs 160 (travel 40)
+])
+def test_cable_wrap_choice(current, asked, expected):
+    limits = SoftLimits(-270.0, 270.0, 360.0)
+    planner = MotionPlanner(AZ, limits, DT, position=current)
+    assert planner.set_target(asked) == pytest.approx(expected)
+    stream = run(planner) or [Setpoint(current)]
+    assert stream[-1].position == pytest.approx(expected)
+    assert all(-270.0 - REL <= s.position <= 270.0 + REL for s in stream)
+
+
+def test_cyclic_target_outside_narrow_limits_is_refused():
+    planner = MotionPlanner(AZ, SoftLimits(10.0, 20.0, 360.0), DT, position=15.0)
+    with pytest.raises(RangeRefused, match="modulo 360"):
+        planner.set_target(50.0)
+    assert planner.set_target(375.0) == 15.0     # 375 - 360 is inside
+
+
+# -- software limits on every setpoint ----------------------------------------------------------
+
+@pytest.mark.parametrize("steps", [1900, 2000, 2100, 2200])
+def test_new_target_while_running_at_a_limit_never_crosses_it(steps):
+    planner = MotionPlanner(AZ, SoftLimits(-100.0, 100.0), DT)
+    planner.set_target(100.0)
+    stream = [planner.step() for _ in range(steps)]    # fast towards +100, or braking for it
+    assert stream[-1].velocity > 1.0
+    planner.set_target(99.9)      # ruckig passes 99.9 and comes back: not beyond +100
+    stream += run(planner)
+    assert max(s.position for s in stream) <= 100.0 + REL
+    assert stream[-1].position == pytest.approx(99.9) and planner.at_target
+    check_dynamics(stream, AZ, start=Setpoint(0.0))
+
+
+def test_guard_stops_a_stream_exactly_at_the_limit():
+    guard = LimitGuard(SoftLimits(-10.0, 10.0), AZ, DT)
+    prev = Setpoint(0.0, 2.0, 0.0)
+    stream = []
+    for k in range(1, 2000):
+        proposed = Setpoint(2.0 * k * DT, 2.0, 0.0, 0.0)       # runs straight through +10
+        prev = guard.filter(prev, proposed)
+        stream.append(prev)
+        if guard.tripped and not guard.braking:
+            break
+    assert guard.tripped == "max"
+    assert stream[-1] == Setpoint(10.0) or stream[-1].position == pytest.approx(10.0, abs=1e-9)
+    assert max(s.position for s in stream) <= 10.0 + REL
+    check_dynamics(stream, AZ, start=Setpoint(0.0, 2.0))
+    # after the trip the guard holds at the limit whatever is proposed
+    assert guard.filter(prev, Setpoint(50.0)).position == pytest.approx(10.0)
+    guard.reset()
+    assert guard.tripped is None
+
+
+def test_axis_beyond_a_limit_may_come_back_not_go_further():
+    planner = MotionPlanner(AZ, SoftLimits(-100.0, 100.0), DT)
+    planner.take_over(Setpoint(105.0))
+    with pytest.raises(RangeRefused):
+        planner.set_target(106.0)
+    planner.set_target(50.0)
+    stream = run(planner)
+    assert max(s.position for s in stream) <= 105.0 and stream[-1].position == 50.0
+
+
+def test_softlimit_reported_when_the_guard_stops_the_planner():
+    planner = MotionPlanner(AZ, SoftLimits(-100.0, 100.0), DT)
+    planner.set_target(90.0)
+    for _ in range(1000):
+        planner.step()
+    planner.set_limits(SoftLimits(-100.0, 60.0))   # limits narrowed under a running move
+    stream = run(planner)
+    assert planner.softlimit == "max"
+    assert max(s.position for s in stream) <= 60.0 + REL
+    assert stream[-1].position == pytest.approx(60.0) and not planner.moving
+    planner.set_target(0.0)
+    assert planner.softlimit is None
+
+
+# -- property: never outside the limits, never beyond the dynamics ------------------------------
+
+commands = st.lists(
+    st.tuples(st.sampled_from(["target", "stop", "quick", "offset", "speed"]),
+              st.floats(0.0, 1.0), st.integers(1, 600)),
+    min_size=1, max_size=6)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(lo=st.floats(-200.0, 0.0), width=st.floats(0.5, 300.0),
+       frac=st.floats(0.0, 1.0), v=st.floats(-5.0, 5.0), a=st.floats(-2.0, 2.0),
+       cyclic=st.booleans(), cmds=commands)
+def test_property_setpoints_stay_inside_limits(lo, width, frac, v, a, cyclic, cmds):
+    hi = lo + width
+    limits = SoftLimits(lo, hi, 360.0 if cyclic else None)
+    start = Setpoint(lo + frac * width, v, a)
+    guard = LimitGuard(limits, AZ, DT)
+    low, high = guard.stop_extent(start)
+    assume(lo <= low and high <= hi)                 # a start the axis can still stop from
+    planner = MotionPlanner(AZ, limits, DT)
+    planner.take_over(start)
+    stream = []
+    for kind, x, steps in cmds:
+        try:
+            if kind == "target":
+                planner.set_target(lo + x * width + (360.0 if cyclic and x > 0.5 else 0.0))
+            elif kind == "stop":
+                planner.stop(quick=False)
+            elif kind == "quick":
+                planner.stop(quick=True)
+            elif kind == "offset":
+                planner.set_offset((x - 0.5) * width / 4)
+            else:
+                planner.set_speed(0.1 + 4.9 * x)
+        except RangeRefused:
+            pass
+        stream += [planner.step() for _ in range(steps)]
+    stream += run(planner)
+    assert all(lo - 1e-9 * (1 + abs(lo)) <= s.position <= hi + 1e-9 * (1 + abs(hi)) for s in stream)
+    check_dynamics(stream, AZ, amax=AZ.stop_acceleration, jmax=AZ.stop_jerk, start=start)
+    assert not planner.moving
