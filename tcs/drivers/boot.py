@@ -1,0 +1,313 @@
+"""Boot of one CiA-402 node: wait for it, check who it is, configure it over SDO, start it.
+
+Blocking, outside the cyclic phase (a plain call; from asyncio use ``asyncio.to_thread``).
+:func:`boot_node` is the whole sequence; every failure is a :class:`~tcs.errors.HardwareError`
+(or :class:`~tcs.errors.CommunicationError`) whose device names the drive and node, and whose
+text names the step and object — "drive az (node 3): SDO write 0x6065:0 following-error window
+aborted: 0x06090030 value range of parameter exceeded".
+
+Sequence:
+
+1. wait ``boot_timeout`` for a boot-up or heartbeat frame; after a quarter of it (at most
+   0.25 s) without one, probe 0x1000 over SDO (a node booted earlier, heartbeat off), and if
+   that fails too send NMT *reset communication* (it answers with boot-up);
+2. NMT *enter pre-operational* (PDO remapping is only allowed there);
+3. identity: 0x1000 must be a CiA-402 device; 0x1018 vendor / product / revision (/ serial)
+   must equal the hardware file;
+4. SDO configuration (:func:`configuration`): heartbeat producer (0x1017) and consumer of the
+   TCS heartbeat (0x1016), SYNC period (0x1006, optional object) and interpolation period
+   (0x60C2), software limits (0x607D), following-error window and time-out (0x6065/0x6066),
+   profile velocity / acceleration / deceleration / quick-stop deceleration
+   (0x6081/0x6083/0x6084/0x6085), homing method / speeds / acceleration / offset
+   (0x6098/0x6099/0x609A/0x607C), the PDO mapping (:mod:`tcs.drivers.pdo`), and the default
+   mode of operation (0x6060, read back from 0x6061);
+5. read statusword, position and error code, NMT *start*, wait for heartbeat "operational".
+"""
+
+from __future__ import annotations
+
+import struct
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import canopen
+from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+
+from tcs.config.can import CanSection, DriveSection, interpolation_period
+from tcs.drivers.pdo import PdoLayout, configuration_writes
+from tcs.errors import CommunicationError, ErrorNumber, HardwareError
+
+NMT_START, NMT_PRE_OPERATIONAL, NMT_RESET_COMMUNICATION = 0x01, 0x80, 0x82
+HB_BOOTUP, HB_OPERATIONAL, HB_PRE_OPERATIONAL, HB_STOPPED = 0x00, 0x05, 0x7F, 0x04
+NMT_STATE_NAMES = {0x00: "boot-up", 0x04: "stopped", 0x05: "operational", 0x7F: "pre-operational"}
+DEVICE_PROFILE_402 = 0x0192
+MODE_READBACK_TIMEOUT = 1.0
+
+SDO_ABORTS = {
+    0x05040000: "SDO protocol timed out",
+    0x06010000: "unsupported access",
+    0x06010001: "write-only object",
+    0x06010002: "read-only object",
+    0x06020000: "object does not exist",
+    0x06040041: "object cannot be mapped to a PDO",
+    0x06040042: "PDO too long for the mapped objects",
+    0x06060000: "access failed (hardware error)",
+    0x06070010: "data type / length mismatch",
+    0x06090011: "sub-index does not exist",
+    0x06090030: "value range of parameter exceeded",
+    0x06090031: "value too high",
+    0x06090032: "value too low",
+    0x08000000: "general error",
+    0x08000020: "data cannot be stored",
+    0x08000021: "data cannot be stored (local control)",
+    0x08000022: "data cannot be stored in the present device state",
+}
+
+#: Objects whose absence (abort 0x06020000 / 0x06090011) is no error: optional in CiA 301/402.
+OPTIONAL = {0x1006}
+
+NAMES = {
+    0x1000: "device type", 0x1006: "SYNC period", 0x1016: "consumer heartbeat time",
+    0x1017: "producer heartbeat time", 0x1018: "identity", 0x603F: "error code",
+    0x6041: "statusword", 0x6060: "modes of operation", 0x6061: "modes of operation display",
+    0x6064: "position actual value", 0x6065: "following-error window",
+    0x6066: "following-error time-out", 0x607C: "home offset", 0x607D: "software position limit",
+    0x6081: "profile velocity", 0x6083: "profile acceleration", 0x6084: "profile deceleration",
+    0x6085: "quick-stop deceleration", 0x6098: "homing method", 0x6099: "homing speeds",
+    0x609A: "homing acceleration", 0x60C2: "interpolation time period",
+}
+
+
+def object_name(index: int) -> str:
+    if 0x1400 <= index < 0x1C00:
+        kind = "RPDO" if index < 0x1800 else "TPDO"
+        number = (index & 0xFF) + 1
+        what = "mapping" if index & 0x0200 else "communication"
+        return f"{kind}{number} {what}"
+    return NAMES.get(index, "")
+
+
+class Sdo:
+    """Blocking SDO access to one node with errors that name the drive, step and object."""
+
+    def __init__(self, node: canopen.RemoteNode, device: str):
+        self.node = node
+        self.device = device
+
+    def _fail(self, what: str, index: int, sub: int, exc: Exception) -> HardwareError:
+        where = f"SDO {what} 0x{index:04X}:{sub} {object_name(index)}".rstrip()
+        if isinstance(exc, SdoAbortedError):
+            code = exc.code
+            text = SDO_ABORTS.get(code, "abort")
+            return HardwareError(self.device, f"{where} aborted: 0x{code:08X} {text}",
+                                 ErrorNumber.LIBFAIL)
+        return CommunicationError(self.device, f"{where}: no answer ({exc})")
+
+    def write(self, index: int, sub: int, fmt: str, value: int) -> bool:
+        """Write; returns False when an OPTIONAL object is missing, raises otherwise."""
+        try:
+            self.node.sdo.download(index, sub, struct.pack(fmt, value))
+        except SdoAbortedError as exc:
+            if index in OPTIONAL and exc.code in (0x06020000, 0x06090011):
+                return False
+            raise self._fail("write", index, sub, exc) from None
+        except SdoCommunicationError as exc:
+            raise self._fail("write", index, sub, exc) from None
+        return True
+
+    def read(self, index: int, sub: int, fmt: str) -> Any:
+        try:
+            data = self.node.sdo.upload(index, sub)
+        except (SdoAbortedError, SdoCommunicationError) as exc:
+            raise self._fail("read", index, sub, exc) from None
+        size = struct.calcsize(fmt)
+        if len(data) < size:
+            raise HardwareError(self.device, f"SDO read 0x{index:04X}:{sub} {object_name(index)}: "
+                                             f"{len(data)} bytes, expected {size}")
+        return struct.unpack(fmt, data[:size])[0]
+
+
+@dataclass(frozen=True)
+class BootResult:
+    statusword: int
+    position: int
+    error_code: int
+    mode: int
+
+
+class HeartbeatWatch:
+    """Last heartbeat time and NMT state of one node (fed from the notifier thread)."""
+
+    def __init__(self, clock=time.monotonic):
+        self._clock = clock
+        self.time: float | None = None
+        self.state: int | None = None
+        self.bootups = 0
+        self.event = threading.Event()
+
+    def on_frame(self, cob_id: int, data: bytearray, timestamp: float) -> None:
+        if not data:
+            return
+        self.state = data[0] & 0x7F
+        self.time = self._clock()
+        if self.state == HB_BOOTUP:
+            self.bootups += 1
+        self.event.set()
+
+    def wait_state(self, states: set[int], timeout: float) -> bool:
+        """Block until a heartbeat shows one of ``states`` (boot only)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            if self.state in states:
+                return True
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return False
+            self.event.clear()
+            if self.state in states:
+                return True
+            self.event.wait(min(remaining, 0.05))
+
+
+def send_nmt(network: canopen.Network, command: int, node_id: int) -> None:
+    network.send_message(0x000, bytes([command, node_id]))
+
+
+def wait_for_node(network: canopen.Network, sdo: Sdo, hb: HeartbeatWatch, timeout: float,
+                  device: str) -> None:
+    """Step 1: boot-up or heartbeat within ``timeout``.
+
+    A node that booted before the TCS listened and produces no heartbeat is found by one SDO
+    read of 0x1000; one that does not answer that either gets NMT reset communication and
+    must then send its boot-up within the rest of ``timeout``.
+    """
+    start = time.monotonic()
+    if hb.state is not None or hb.event.wait(min(max(timeout / 4, 0.05), 0.25)):
+        return
+    try:
+        sdo.read(0x1000, 0, "<I")
+        return
+    except HardwareError:
+        pass
+    send_nmt(network, NMT_RESET_COMMUNICATION, sdo.node.id)
+    if not hb.event.wait(max(timeout - (time.monotonic() - start), 0.05)):
+        raise CommunicationError(device, f"did not boot within {timeout:g} s (no boot-up, "
+                                         "heartbeat or SDO answer, not even after NMT reset "
+                                         "communication)")
+
+
+def check_identity(sdo: Sdo, section: DriveSection) -> None:
+    """Step 3: device profile 402 and the identity of the hardware file."""
+    device_type = sdo.read(0x1000, 0, "<I")
+    if device_type & 0xFFFF != DEVICE_PROFILE_402:
+        raise HardwareError(sdo.device, f"device type 0x{device_type:08X} is not a CiA-402 drive")
+    ident = section.identity
+    expected = [("vendor", 1, ident.vendor), ("product", 2, ident.product),
+                ("revision", 3, ident.revision)]
+    if ident.serial is not None:
+        expected.append(("serial", 4, ident.serial))
+    wrong = []
+    for name, sub, want in expected:
+        got = sdo.read(0x1018, sub, "<I")
+        if got != want:
+            wrong.append(f"{name} 0x{got:08X} (hardware file: 0x{want:08X})")
+    if wrong:
+        raise HardwareError(sdo.device, "wrong identity (0x1018): " + ", ".join(wrong) +
+                            " — another device at this node id, or the file is out of date")
+
+
+def _u32(value: float, what: str, device: str) -> int:
+    v = round(abs(value))
+    if v > 0xFFFFFFFF:
+        raise HardwareError(device, f"{what} {value:g} increments does not fit the drive's U32")
+    return v
+
+
+def configuration(section: DriveSection, can: CanSection, device: str) -> list[tuple[int, int, str, int]]:
+    """Step 4 (without PDOs and mode): the SDO writes ``(index, sub, format, value)``."""
+    k = section.increments_per_unit
+    lo, hi = sorted((round(section.min_position * k), round(section.max_position * k)))
+    micro = round(can.sync_period * 1e6)
+    value, exponent = interpolation_period(can.sync_period)
+    home = section.homing
+    quick = section.quick_stop_deceleration or section.max_acceleration
+    return [
+        (0x1017, 0, "<H", round(section.heartbeat_period * 1000)),
+        (0x1016, 1, "<I", can.node_id << 16 | round(section.heartbeat_consumer_timeout * 1000)),
+        (0x1006, 0, "<I", micro),
+        (0x60C2, 1, "<B", value),
+        (0x60C2, 2, "<b", exponent),
+        (0x607D, 1, "<i", lo),
+        (0x607D, 2, "<i", hi),
+        (0x6065, 0, "<I", _u32(section.following_error_window * k, "following-error window", device)),
+        (0x6066, 0, "<H", round(section.following_error_timeout * 1000)),
+        (0x6081, 0, "<I", _u32(section.max_velocity * k, "profile velocity", device)),
+        (0x6083, 0, "<I", _u32(section.max_acceleration * k, "profile acceleration", device)),
+        (0x6084, 0, "<I", _u32(section.max_acceleration * k, "profile deceleration", device)),
+        (0x6085, 0, "<I", _u32(quick * k, "quick-stop deceleration", device)),
+        (0x6098, 0, "<b", home.method),
+        (0x6099, 1, "<I", _u32(home.speed_switch * k, "homing speed (switch)", device)),
+        (0x6099, 2, "<I", _u32(home.speed_zero * k, "homing speed (zero)", device)),
+        (0x609A, 0, "<I", _u32(home.acceleration * k, "homing acceleration", device)),
+        (0x607C, 0, "<i", round(home.offset * k)),
+    ]
+
+
+def check_eds(od: canopen.ObjectDictionary, layouts: dict[str, PdoLayout], device: str) -> None:
+    """The PDO mapping against the EDS: objects exist, may be mapped, enough entries."""
+    for pdo in layouts.values():
+        mapping = od.get(pdo.map_index())
+        if mapping is None:
+            raise HardwareError(device, f"the EDS has no {pdo.name.upper()} (0x{pdo.map_index():04X})")
+        entries = len([s for s in getattr(mapping, "subindices", {}) if s != 0])
+        if entries and len(pdo.indices) > entries:
+            raise HardwareError(device, f"{pdo.name.upper()} maps {len(pdo.indices)} objects; the "
+                                        f"drive takes at most {entries}")
+        for index in pdo.indices:
+            var = od.get_variable(index, 0)
+            if var is None:
+                raise HardwareError(device, f"the EDS has no object 0x{index:04X} for {pdo.name.upper()}")
+            if not getattr(var, "pdo_mappable", True):
+                raise HardwareError(device, f"the EDS says 0x{index:04X} cannot be mapped to a PDO")
+
+
+def set_mode(sdo: Sdo, mode: int, timeout: float = MODE_READBACK_TIMEOUT) -> int:
+    """Write 0x6060 and poll 0x6061 until it reads ``mode`` back (blocking)."""
+    sdo.write(0x6060, 0, "<b", mode)
+    deadline = time.monotonic() + timeout
+    while True:
+        shown = sdo.read(0x6061, 0, "<b")
+        if shown == mode:
+            return shown
+        if time.monotonic() > deadline:
+            raise HardwareError(sdo.device, f"mode {mode} requested, 0x6061 still shows {shown}")
+        time.sleep(0.01)
+
+
+def boot_node(network: canopen.Network, sdo: Sdo, hb: HeartbeatWatch, section: DriveSection,
+              can: CanSection, layouts: dict[str, PdoLayout], mode: int,
+              start: callable = None) -> BootResult:
+    """Steps 1–5 for one node. ``start()`` runs just before NMT start (subscribe TPDOs)."""
+    node_id = section.node_id
+    device = sdo.device
+    wait_for_node(network, sdo, hb, can.boot_timeout, device)
+    send_nmt(network, NMT_PRE_OPERATIONAL, node_id)
+    check_identity(sdo, section)
+    for index, sub, fmt, value in configuration(section, can, device):
+        sdo.write(index, sub, fmt, value)
+    check_eds(sdo.node.object_dictionary, layouts, device)
+    for name in ("rpdo1", "rpdo2", "rpdo3", "rpdo4", "tpdo1", "tpdo2", "tpdo3", "tpdo4"):
+        for index, sub, fmt, value in configuration_writes(layouts.get(name), name, node_id):
+            sdo.write(index, sub, fmt, value)
+    shown = set_mode(sdo, mode)
+    result = BootResult(statusword=sdo.read(0x6041, 0, "<H"), position=sdo.read(0x6064, 0, "<i"),
+                        error_code=sdo.read(0x603F, 0, "<H"), mode=shown)
+    if start is not None:
+        start()
+    send_nmt(network, NMT_START, node_id)
+    if not hb.wait_state({HB_OPERATIONAL}, can.boot_timeout):
+        state = NMT_STATE_NAMES.get(hb.state, hb.state)
+        raise CommunicationError(device, f"NMT start sent, but the heartbeat still shows {state}")
+    return result

@@ -1,0 +1,250 @@
+"""The CAN bus of the drives: python-can bus, canopen ``Network``, TCS heartbeat, bus health.
+
+:class:`CanBus` opens the python-can interface the hardware file names (``[can]``:
+``virtual``, ``socketcand``, ``socketcan``) with the interface's options, puts a canopen
+:class:`~canopen.Network` on it (used for SDO, NMT and EDS — not for PDOs, see
+:mod:`tcs.drivers.pdo`), and runs
+
+* the TCS's own **heartbeat producer** (COB-ID 0x700 + ``can.node_id``, state 5) with
+  ``send_periodic``: the kernel broadcast manager on socketcan, a python-can thread elsewhere.
+  Every drive watches it (0x1016) and faults when it stops; :meth:`stop_heartbeat` exists for
+  that test and for a deliberate safe stop;
+* a **bus-health listener** in the notifier: error frames (controller warning / passive,
+  bus-off, restarted) and receive failures are counted and kept as :class:`BusHealth`; the
+  latest problem is a :class:`~tcs.errors.CommunicationError`; callbacks registered with
+  :meth:`add_error_callback` hear each one. Nothing is swallowed: a failed ``send`` raises to
+  its caller and is recorded here too.
+
+The SYNC producer is not here but in :class:`tcs.drivers.cycle.CycleSource`, which must know
+when each SYNC went out. All receive callbacks run in the one notifier thread and never block.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import can
+import canopen
+
+from tcs.config.can import CanSection
+from tcs.errors import CommunicationError, ErrorNumber, TcsError
+
+log = logging.getLogger(__name__)
+
+SYNC_COB_ID = 0x080
+HEARTBEAT_BASE = 0x700
+NMT_OPERATIONAL = 0x05
+
+# Linux can/error.h: error class bits in the identifier of an error frame, details in data.
+CAN_ERR_TX_TIMEOUT = 0x001
+CAN_ERR_LOSTARB = 0x002
+CAN_ERR_CRTL = 0x004
+CAN_ERR_PROT = 0x008
+CAN_ERR_TRX = 0x010
+CAN_ERR_ACK = 0x020
+CAN_ERR_BUSOFF = 0x040
+CAN_ERR_BUSERROR = 0x080
+CAN_ERR_RESTARTED = 0x100
+CAN_ERR_CRTL_RX_WARNING = 0x04
+CAN_ERR_CRTL_TX_WARNING = 0x08
+CAN_ERR_CRTL_RX_PASSIVE = 0x10
+CAN_ERR_CRTL_TX_PASSIVE = 0x20
+CAN_ERR_CRTL_ACTIVE = 0x40
+
+
+@dataclass(frozen=True)
+class BusHealth:
+    """Controller state and error counts; ``last_error`` is the latest problem, if any."""
+
+    state: str = "ok"              # ok | warning | passive | bus-off | failed
+    error_frames: int = 0
+    bus_off_count: int = 0
+    send_failures: int = 0
+    receive_failures: int = 0
+    last_error: TcsError | None = None
+
+
+class _HealthListener(can.Listener):
+    """Notifier listener that turns error frames and receive errors into BusHealth."""
+
+    def __init__(self, bus: CanBus):
+        self._bus = bus
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if msg.is_error_frame:
+            self._bus._on_error_frame(msg)
+
+    def on_error(self, exc: Exception) -> None:
+        self._bus._on_receive_error(exc)
+
+    def stop(self) -> None:
+        pass
+
+
+class CanBus:
+    """One CAN bus: open with :meth:`open` (blocking, at start), :meth:`close` at the end.
+
+    Parameters
+    ----------
+    section:
+        The ``[can]`` table of the hardware file.
+    """
+
+    def __init__(self, section: CanSection):
+        self.section = section
+        self.name = f"CAN {section.interface}:{section.channel}"
+        self.bus: can.BusABC | None = None
+        self.network: canopen.Network | None = None
+        self._heartbeat_task = None
+        self._lock = threading.Lock()
+        self._health = BusHealth()
+        self._callbacks: list[Callable[[TcsError], None]] = []
+        self._last_receive_error = 0.0
+
+    # ---------------------------------------------------------------- life cycle
+    @property
+    def kernel_periodic(self) -> bool:
+        """True when ``send_periodic`` is done by the kernel (socketcan broadcast manager)."""
+        return self.section.interface == "socketcan"
+
+    def open(self) -> CanBus:
+        """Open the interface, start the notifier and the TCS heartbeat (blocking).
+
+        Raises
+        ------
+        CommunicationError
+            The interface cannot be opened (names the interface and channel).
+        """
+        if self.section.interface == "socketcand":
+            logging.getLogger("can.interfaces.socketcand").setLevel(logging.ERROR)
+        try:
+            self.bus = can.Bus(**self.section.bus_kwargs())
+        except (can.CanError, OSError, ValueError, TypeError, ImportError) as exc:
+            raise CommunicationError(self.name, f"cannot open the bus: {exc}") from exc
+        self.network = canopen.Network(self.bus)
+        self.network.listeners.append(_HealthListener(self))
+        self.network.connect()
+        self.start_heartbeat()
+        return self
+
+    def close(self) -> None:
+        """Stop the heartbeat and the notifier, shut the bus down (idempotent)."""
+        self.stop_heartbeat()
+        network, self.network = self.network, None
+        if network is not None:
+            for node_id in list(network.nodes):
+                del network[node_id]
+            try:
+                network.disconnect()
+            except Exception as exc:  # the notifier's last error: report, do not hide
+                log.warning("%s: notifier ended with %r", self.name, exc)
+        self.bus = None
+
+    def __enter__(self) -> CanBus:
+        return self.open() if self.bus is None else self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ---------------------------------------------------------------- heartbeat
+    def start_heartbeat(self) -> None:
+        """Produce the TCS heartbeat (state operational) every ``heartbeat_period``."""
+        if self._heartbeat_task is not None or self.bus is None:
+            return
+        msg = can.Message(arbitration_id=HEARTBEAT_BASE + self.section.node_id,
+                          data=[NMT_OPERATIONAL], is_extended_id=False)
+        self._heartbeat_task = self.bus.send_periodic(msg, self.section.heartbeat_period)
+
+    def stop_heartbeat(self) -> None:
+        """Stop the TCS heartbeat: every drive faults after its consumer time (0x1016)."""
+        task, self._heartbeat_task = self._heartbeat_task, None
+        if task is not None:
+            task.stop()
+            thread = getattr(task, "thread", None)
+            if thread is not None and thread is not threading.current_thread():
+                thread.join(timeout=2.0)
+
+    @property
+    def heartbeat_running(self) -> bool:
+        return self._heartbeat_task is not None
+
+    # ---------------------------------------------------------------- sending
+    def send(self, cob_id: int, data: bytes) -> None:
+        """Send one frame (any thread). A failure is recorded and raised as CommunicationError."""
+        bus = self.bus
+        if bus is None:
+            raise CommunicationError(self.name, "bus is closed")
+        msg = can.Message(arbitration_id=cob_id, data=data, is_extended_id=False)
+        try:
+            bus.send(msg, timeout=0.005)
+        except (can.CanError, OSError) as exc:
+            error = CommunicationError(self.name, f"send of 0x{cob_id:03X} failed: {exc}",
+                                       ErrorNumber.CONFAIL)
+            self._record(error, send_failures=1)
+            raise error from exc
+
+    # ---------------------------------------------------------------- health
+    def health(self) -> BusHealth:
+        """The bus state now (any thread)."""
+        return self._health
+
+    def add_error_callback(self, callback: Callable[[TcsError], None]) -> None:
+        """``callback(error)`` for every bus problem; runs in the thread that saw it."""
+        self._callbacks.append(callback)
+
+    def _record(self, error: TcsError, state: str | None = None, **counts: int) -> None:
+        with self._lock:
+            h = self._health
+            values = {k: getattr(h, k) + v for k, v in counts.items()}
+            self._health = BusHealth(**{**h.__dict__, **values, "last_error": error,
+                                        "state": state or h.state})
+        log.warning("%s", error)
+        for callback in list(self._callbacks):
+            try:
+                callback(error)
+            except Exception:  # a listener's bug must not stop the notifier
+                log.exception("bus error callback failed")
+
+    def _on_error_frame(self, msg: can.Message) -> None:
+        cls = msg.arbitration_id
+        data = bytes(msg.data).ljust(8, b"\0")
+        if cls & CAN_ERR_BUSOFF:
+            self._record(CommunicationError(self.name, "bus-off: the controller stopped sending"),
+                         "bus-off", error_frames=1, bus_off_count=1)
+        elif cls & CAN_ERR_RESTARTED:
+            self._record(CommunicationError(self.name, "controller restarted after bus-off",
+                                            ErrorNumber.CONFAIL), "ok", error_frames=1)
+        elif cls & CAN_ERR_CRTL and data[1] & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE):
+            self._record(CommunicationError(self.name, f"error passive (tx errors {data[6]}, rx "
+                                                       f"errors {data[7]})", ErrorNumber.CONFAIL),
+                         "passive", error_frames=1)
+        elif cls & CAN_ERR_CRTL and data[1] & (CAN_ERR_CRTL_RX_WARNING | CAN_ERR_CRTL_TX_WARNING):
+            self._record(CommunicationError(self.name, "error warning level reached",
+                                            ErrorNumber.CONFAIL), "warning", error_frames=1)
+        elif cls & CAN_ERR_CRTL and data[1] & CAN_ERR_CRTL_ACTIVE:
+            self._record(CommunicationError(self.name, "back to error active", ErrorNumber.CONFAIL),
+                         "ok", error_frames=1)
+        else:
+            kinds = [n for bit, n in ((CAN_ERR_TX_TIMEOUT, "tx timeout"), (CAN_ERR_LOSTARB, "lost "
+                     "arbitration"), (CAN_ERR_PROT, "protocol violation"), (CAN_ERR_TRX,
+                     "transceiver"), (CAN_ERR_ACK, "no acknowledge"), (CAN_ERR_BUSERROR,
+                     "bus error")) if cls & bit] or [f"class 0x{cls:X}"]
+            self._record(CommunicationError(self.name, "error frame: " + ", ".join(kinds),
+                                            ErrorNumber.CONFAIL), None, error_frames=1)
+
+    def _on_receive_error(self, exc: Exception) -> None:
+        self._record(CommunicationError(self.name, f"receive failed: {exc}"), "failed",
+                     receive_failures=1)
+        # canopen's Network.check() would re-raise this on every later send: the error is
+        # reported here, so clear it; a dead bus must not spin the notifier thread.
+        notifier = self.network.notifier if self.network is not None else None
+        if notifier is not None:
+            notifier.exception = None
+        now = time.monotonic()
+        if now - self._last_receive_error < 0.5:
+            time.sleep(0.1)
+        self._last_receive_error = now

@@ -1,0 +1,710 @@
+"""One CiA-402 drive on CANopen, behind the :class:`~tcs.drivers.drive.Drive` interface.
+
+How it works
+------------
+* :meth:`Cia402Drive.boot` (blocking, see :mod:`tcs.drivers.boot`) configures the node and
+  subscribes its TPDOs, heartbeat and EMCY. From then on the notifier thread only *stores*
+  what arrives: the unpacked TPDO objects (``_raw``), the heartbeat time and NMT state, the
+  last EMCY decoded into a :class:`~tcs.drivers.emcy.DriveFault`.
+* Requests (``enable()``, ``move_to()`` …) only record what is wanted, under a small lock.
+* :meth:`Cia402Drive.step` — once per SYNC period, in the control-loop thread, after the
+  synchronous TPDOs of this cycle arrived (:class:`tcs.drivers.cycle.CycleSource`) — decodes
+  the statusword, looks up the controlword in the table of :mod:`tcs.drivers.cia402`, runs the
+  small handshakes (fault reset, mode switch, homing, profile move), and sends **exactly one
+  RPDO** (controlword + target position) while the node is operational. It never blocks: the
+  rare SDO transfers it needs (mode switch with read-back of 0x6061, a new profile velocity)
+  go to the :class:`~tcs.drivers.worker.SdoWorker` and are polled in later cycles.
+* :meth:`Cia402Drive.status` builds a frozen :class:`~tcs.drivers.drive.DriveStatus` from
+  those fields, from any thread.
+
+Safety rules kept here
+----------------------
+* CSP: until the axis layer gives a setpoint after enabling, the target sent is the actual
+  position latched when Operation enabled (or CSP) began — the drive never jumps.
+* A fault, a lost heartbeat or a drive that leaves Operation enabled by itself sets the wanted
+  state to *disabled*: after a fault reset (rising edge of bit 7, transition 15) the drive
+  stays in Switch on disabled until ``enable()`` is requested again.
+* Setpoints and move targets are clamped to the software limits of the hardware file.
+
+Units: the interface is in user units; the wire in increments (``increments_per_unit``).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import canopen
+
+from tcs.config.can import CanSection, DriveSection
+from tcs.drivers import cia402 as sm
+from tcs.drivers.boot import (HB_OPERATIONAL, NMT_STATE_NAMES, BootResult, HeartbeatWatch, Sdo,
+                              boot_node, set_mode)
+from tcs.drivers.canbus import HEARTBEAT_BASE, CanBus
+from tcs.drivers.cia402 import HomingBits, Want, homing_bits
+from tcs.drivers.drive import DriveState, DriveStatus, Mode, Progress
+from tcs.drivers.emcy import DriveFault, decode_emcy
+from tcs.drivers.pdo import PdoLayout, layouts
+from tcs.drivers.worker import Job, SdoWorker
+from tcs.errors import (CommunicationError, ErrorNumber, HardwareError, RangeRefused,
+                        RequestRefused, TcsError)
+
+log = logging.getLogger(__name__)
+
+ENABLE_TIMEOUT = 2.0          # s from enable() to Operation enabled
+FAULT_RESET_TIMEOUT = 1.0     # s for the drive to leave Fault after the rising edge
+HANDSHAKE_TIMEOUT = 1.0       # s for a PP set-point acknowledge / homing start
+EMCY_BASE = 0x080
+
+
+class Cia402Drive:
+    """A CiA-402 servo drive on a :class:`CanBus` (implements :class:`tcs.drivers.drive.Drive`).
+
+    Parameters
+    ----------
+    bus:
+        The open bus.
+    name:
+        The drive's name in the hardware file (``[drives.<name>]``).
+    section:
+        Its validated table.
+    can:
+        The ``[can]`` table (SYNC period, TCS node id, timeouts).
+    eds:
+        Path of the EDS (resolved against the hardware file).
+    worker:
+        The bus's SDO worker (started before the cyclic phase).
+    clock:
+        Monotonic clock.
+    """
+
+    def __init__(self, bus: CanBus, name: str, section: DriveSection, can: CanSection, *,
+                 eds: str | Path, worker: SdoWorker, clock: Callable[[], float] = time.monotonic):
+        self.name = name
+        self.section = section
+        self.node_id = section.node_id
+        self.device = f"drive {name} (node {section.node_id})"
+        self._bus = bus
+        self._can = can
+        self._eds = Path(eds)
+        self._worker = worker
+        self._clock = clock
+        self._scale = section.increments_per_unit
+        self._lo = min(section.min_position, section.max_position)
+        self._hi = max(section.min_position, section.max_position)
+        self.layouts: dict[str, PdoLayout] = layouts(section.mapping, section.node_id)
+        self._rpdo = self.layouts["rpdo1"]
+        self._default_mode = Mode.CSP if section.default_mode == "csp" else Mode.PP
+        self._subscriptions: list[tuple[int, Callable]] = []
+        self._node: canopen.RemoteNode | None = None
+        self._sdo: Sdo | None = None
+        # notifier-side fields
+        self._raw: dict[int, int] = {}
+        self._raw_time = float("-inf")
+        self._hb = HeartbeatWatch(clock)
+        self._hb_timeout = 1.5 * section.heartbeat_period
+        self._bootups_at_boot = 0
+        self._emcy: DriveFault | None = None
+        self._emcy_count = 0
+        # boot
+        self._booted = False
+        self._boot_error: TcsError | None = None
+        # requests (any thread, under _lock)
+        self._lock = threading.Lock()
+        self._want = Want.DISABLED
+        self._want_since = 0.0
+        self._reset_requested = False
+        self._mode_wanted: Mode | None = None
+        self._homing_requested = False
+        self._move_request: tuple[int, float | None] | None = None
+        # control-loop side
+        self._setpoint: int | None = None
+        self._velocity_ff = 0
+        self._mode: int | None = None
+        self._mode_job: Job | None = None
+        self._reset_phase = 0
+        self._reset_since = 0.0
+        self._reached_enabled = False
+        self._hold = 0
+        self._cw = 0
+        self._target_sent: int | None = None
+        self._request_error: TcsError | None = None
+        self._homing = Progress.IDLE
+        self._homing_phase = ""
+        self._homing_since = 0.0
+        self._homing_phase_since = 0.0
+        self._homing_progress = 0.0
+        self._homing_mode_before: Mode | None = None
+        self._homing_before = HomingBits.IDLE
+        self._homed = False
+        self._move = Progress.IDLE
+        self._move_phase = ""
+        self._move_target = 0
+        self._move_since = 0.0
+        self._move_deadline = 0.0
+        self._move_job: Job | None = None
+        self._profile_velocity = round(abs(section.max_velocity * self._scale))
+        self.rpdos_sent = 0
+        self.steps = 0
+
+    # ================================================================= boot (blocking)
+    @property
+    def sync_tpdo_ids(self) -> list[int]:
+        """COB-IDs of the TPDOs this drive sends on every SYNC (for the cycle's barrier)."""
+        return [p.cob_id for n, p in self.layouts.items() if not p.receive and p.synchronous]
+
+    def boot(self) -> None:
+        """Wait for the node, check its identity, configure it, start it (blocking).
+
+        Raises
+        ------
+        HardwareError, CommunicationError
+            Naming this drive and node, the step and the object that failed.
+        """
+        self._booted = False
+        self._boot_error = None
+        try:
+            result = self._boot()
+        except TcsError as exc:
+            self._boot_error = exc
+            raise
+        except Exception as exc:  # canopen / python-can internals: still name the node
+            self._boot_error = HardwareError(self.device, f"boot failed: {exc!r}")
+            raise self._boot_error from exc
+        with self._lock:
+            self._want = Want.DISABLED
+            self._reset_requested = False
+            self._mode_wanted = None
+            self._homing_requested = False
+            self._move_request = None
+        self._raw = {0x6041: result.statusword, 0x6064: result.position, **self._raw}
+        self._raw_time = self._clock()
+        self._hold = self._raw.get(0x6064, result.position)
+        self._mode = result.mode
+        self._mode_job = None
+        self._reset_phase = 0
+        self._reached_enabled = False
+        self._homing = self._move = Progress.IDLE
+        self._homing_phase = self._move_phase = ""
+        self._setpoint = None
+        if result.error_code and not self._emcy:
+            self._emcy = DriveFault(self.device, result.error_code)
+        self._bootups_at_boot = self._hb.bootups
+        self._booted = True
+
+    def _boot(self) -> BootResult:
+        network = self._bus.network
+        if network is None:
+            raise CommunicationError(self.device, "the CAN bus is not open")
+        if not self._eds.is_file():
+            raise HardwareError(self.device, f"EDS file {self._eds} not found", ErrorNumber.INTERNAL)
+        self._unsubscribe()
+        try:
+            od = canopen.import_od(str(self._eds), self.node_id)
+        except Exception as exc:
+            raise HardwareError(self.device, f"cannot read EDS {self._eds}: {exc}",
+                                ErrorNumber.INTERNAL) from exc
+        if self.node_id in network.nodes:
+            del network[self.node_id]
+        node = canopen.RemoteNode(self.node_id, od)
+        node.sdo.RESPONSE_TIMEOUT = self._can.sdo_timeout
+        network.add_node(node)
+        self._node = node
+        self._sdo = Sdo(node, self.device)
+        self._hb = HeartbeatWatch(self._clock)
+        self._emcy = None
+        self._raw = {}
+        self._subscribe(HEARTBEAT_BASE + self.node_id, self._hb.on_frame)
+        self._subscribe(EMCY_BASE + self.node_id, self._on_emcy)
+
+        def subscribe_tpdos() -> None:
+            for pdo in self.layouts.values():
+                if not pdo.receive:
+                    self._subscribe(pdo.cob_id, self._tpdo_handler(pdo))
+
+        return boot_node(network, self._sdo, self._hb, self.section, self._can, self.layouts,
+                         int(self._default_mode), start=subscribe_tpdos)
+
+    def close(self) -> None:
+        """Forget the node (unsubscribe; the bus stays open). The drive is offline after."""
+        self._booted = False
+        self._unsubscribe()
+        network = self._bus.network
+        if network is not None and self._node is not None and network.nodes.get(self.node_id) is self._node:
+            del network[self.node_id]
+        self._node = None
+
+    def _subscribe(self, cob_id: int, callback: Callable) -> None:
+        self._bus.network.subscribe(cob_id, callback)
+        self._subscriptions.append((cob_id, callback))
+
+    def _unsubscribe(self) -> None:
+        network = self._bus.network
+        for cob_id, callback in self._subscriptions:
+            if network is not None and callback in network.subscribers.get(cob_id, ()):
+                network.unsubscribe(cob_id, callback)
+        self._subscriptions.clear()
+
+    # ================================================================= notifier thread
+    def _tpdo_handler(self, pdo: PdoLayout) -> Callable:
+        unpack, indices, size, clock = pdo.codec.unpack_from, pdo.indices, pdo.codec.size, self._clock
+
+        def on_tpdo(cob_id: int, data: bytearray, timestamp: float) -> None:
+            if len(data) < size:
+                return
+            raw = self._raw
+            for index, value in zip(indices, unpack(data)):
+                raw[index] = value
+            self._raw_time = clock()
+        return on_tpdo
+
+    def _on_emcy(self, cob_id: int, data: bytearray, timestamp: float) -> None:
+        fault = decode_emcy(self.device, data)
+        self._emcy_count += 1
+        if fault is None:
+            return  # error reset: the state (statusword) tells whether the fault is gone
+        self._emcy = fault
+        log.warning("%s", fault)
+
+    # ================================================================= requests (any thread)
+    def enable(self) -> None:
+        self._refuse_if_unusable("enable")
+        with self._lock:
+            if self._want is not Want.ENABLED:
+                self._want, self._want_since = Want.ENABLED, self._clock()
+            self._request_error = None
+
+    def disable(self) -> None:
+        with self._lock:
+            self._want, self._want_since = Want.DISABLED, self._clock()
+            self._homing_requested = False
+            self._move_request = None
+
+    def quick_stop(self) -> None:
+        with self._lock:
+            self._want, self._want_since = Want.QUICK_STOP, self._clock()
+            self._homing_requested = False
+            self._move_request = None
+
+    def fault_reset(self) -> None:
+        with self._lock:
+            self._reset_requested = True
+
+    def set_mode(self, mode: Mode) -> None:
+        try:
+            mode = Mode(mode)
+        except ValueError:
+            raise RangeRefused(f"{self.device}: mode {mode!r} is not one of "
+                               f"{[m.name for m in Mode]}") from None
+        with self._lock:
+            self._mode_wanted = mode
+
+    def set_setpoint(self, position: float, velocity: float | None = None) -> None:
+        """CSP target for the next SYNC, clamped to the software limits (control-loop thread)."""
+        position = min(max(position, self._lo), self._hi)
+        self._setpoint = round(position * self._scale)
+        self._velocity_ff = round(velocity * self._scale) if velocity is not None else 0
+
+    def start_homing(self) -> None:
+        self._refuse_if_unusable("start homing")
+        with self._lock:
+            self._homing_requested = True
+            self._move_request = None
+
+    def move_to(self, position: float, velocity: float | None = None) -> None:
+        self._refuse_if_unusable("move")
+        if not self._lo <= position <= self._hi:
+            raise TcsError(f"{self.device}: target {position:g} outside the software limits "
+                           f"[{self._lo:g}, {self._hi:g}]", ErrorNumber.SOFTLIMIT)
+        if velocity is not None and not 0 < velocity <= self.section.max_velocity:
+            raise RangeRefused(f"{self.device}: velocity {velocity:g} not in (0, "
+                               f"{self.section.max_velocity:g}]")
+        with self._lock:
+            self._move_request = (round(position * self._scale), velocity)
+
+    def _refuse_if_unusable(self, what: str) -> None:
+        """Refuse at once what cannot work: a drive not booted or in fault."""
+        if not self._booted:
+            raise CommunicationError(self.device, f"cannot {what}: not booted" + (
+                f" ({self._boot_error.message})" if self._boot_error else ""))
+        fault = self.status().fault
+        if fault is not None:
+            raise TcsError(f"cannot {what}: {fault.message}", fault.number)
+
+    # ================================================================= status (any thread)
+    def _observe(self, now: float) -> tuple[DriveState, TcsError | None, bool]:
+        """(state, fault, heartbeat ok) as of now."""
+        if not self._booted:
+            return DriveState.OFFLINE, self._boot_error, False
+        hb = self._hb
+        hb_ok = hb.time is not None and now - hb.time <= self._hb_timeout
+        if not hb_ok:
+            silent = now - hb.time if hb.time is not None else float("inf")
+            return DriveState.OFFLINE, CommunicationError(
+                self.device, f"no heartbeat for {silent:.2f} s (expected every "
+                             f"{self.section.heartbeat_period:g} s)"), False
+        if hb.bootups != self._bootups_at_boot or hb.state != HB_OPERATIONAL:
+            why = "rebooted" if hb.bootups != self._bootups_at_boot else \
+                f"in NMT state {NMT_STATE_NAMES.get(hb.state, hb.state)}"
+            if self._emcy is not None:  # e.g. 0x8130: it lost the TCS heartbeat and left operational
+                return DriveState.OFFLINE, self._emcy, True
+            return DriveState.OFFLINE, CommunicationError(
+                self.device, f"{why}: it must be booted again"), True
+        sw = self._raw.get(0x6041, 0)
+        state = sm.decode_state(sw) or DriveState.NOT_READY
+        fault = None
+        if state in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
+            fault = self._emcy
+            code = self._raw.get(0x603F, 0)
+            if fault is None and code:
+                fault = DriveFault(self.device, code)
+            if fault is None:
+                fault = HardwareError(self.device, f"in fault (statusword 0x{sw:04X}), no error code")
+        return state, fault, hb_ok
+
+    def status(self) -> DriveStatus:
+        now = self._clock()
+        state, fault, hb_ok = self._observe(now)
+        raw = self._raw
+        sw = raw.get(0x6041, 0)
+        inputs = raw.get(0x60FD, 0)
+        k = self._scale
+        mode = raw.get(0x6061, self._mode)
+        try:
+            mode = Mode(mode) if mode is not None else None
+        except ValueError:
+            pass
+        return DriveStatus(
+            name=self.name, state=state, position=raw.get(0x6064, 0) / k,
+            velocity=raw.get(0x606C, 0) / k, following_error=raw.get(0x60F4, 0) / k,
+            statusword=sw, controlword=self._cw, mode=mode, fault=fault,
+            warning=self._emcy if fault is not self._emcy else None,
+            request_error=self._request_error,
+            limit_negative=bool(inputs & 1), limit_positive=bool(inputs & 2),
+            home_switch=bool(inputs & 4), homing=self._homing,
+            homing_progress=self._homing_progress, homed=self._homed, move=self._move,
+            target_reached=bool(sw & sm.SW_TARGET_REACHED),
+            setpoint=self._target_sent / k if self._target_sent is not None else None,
+            heartbeat_ok=hb_ok, heartbeat_age=now - self._hb.time if self._hb.time is not None
+            else float("inf"), booted=self._booted, age=now - self._raw_time)
+
+    # ================================================================= the cycle
+    def step(self) -> None:
+        """One cycle: decide the controlword and target from the latest TPDO, send one RPDO."""
+        if not self._booted:
+            return
+        now = self._clock()
+        self.steps += 1
+        state, fault, hb_ok = self._observe(now)
+        raw = self._raw
+        sw = raw.get(0x6041, 0)
+        actual = raw.get(0x6064, self._hold)
+
+        with self._lock:
+            want = self._want
+            if fault is not None or (state is DriveState.OFFLINE):
+                want = self._set_want(Want.DISABLED, now)
+            elif (self._reached_enabled and want is Want.ENABLED
+                  and state is not DriveState.OPERATION_ENABLED):
+                self._request_error = HardwareError(
+                    self.device, f"left operation enabled by itself (now {state.value}); "
+                                 "not re-enabling")
+                want = self._set_want(Want.DISABLED, now)
+            elif (want is Want.ENABLED and state is not DriveState.OPERATION_ENABLED
+                  and now - self._want_since > ENABLE_TIMEOUT):
+                self._request_error = HardwareError(
+                    self.device, f"enable timed out in state {state.value}", ErrorNumber.TIMEOUT)
+                want = self._set_want(Want.DISABLED, now)
+            reset, self._reset_requested = self._reset_requested, False
+            mode_wanted = self._mode_wanted
+            homing_req, self._homing_requested = self._homing_requested, False
+            move_req, self._move_request = self._move_request, None
+        self._reached_enabled = (want is Want.ENABLED and
+                                 (self._reached_enabled or state is DriveState.OPERATION_ENABLED))
+
+        if fault is not None or want is not Want.ENABLED:
+            why = fault or TcsError(f"{self.device}: aborted ({want.value} requested)",
+                                    ErrorNumber.LIBFAIL)
+            self._abort_homing(why)
+            self._abort_move(why)
+
+        if state is DriveState.OFFLINE:
+            # Heartbeat lost or node not operational: if it still listens, it powers off and
+            # holds; one RPDO per cycle either way.
+            self._send(sm.DISABLE_VOLTAGE, actual)
+            return
+
+        # --- fault reset: 0x0000 one cycle, then 0x0080 until Fault is left (15) ----------
+        if reset and state in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
+            self._reset_phase, self._reset_since = 1, now
+        elif reset:
+            self._emcy = None  # nothing to reset: forget the last warning
+        cw = sm.controlword(want, state)
+        if self._reset_phase:
+            if state not in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
+                self._reset_phase = 0
+                self._emcy = None
+            elif now - self._reset_since > FAULT_RESET_TIMEOUT:
+                self._reset_phase = 0
+                self._request_error = HardwareError(self.device, "fault reset did not clear the fault")
+            else:
+                cw = sm.DISABLE_VOLTAGE if self._reset_phase == 1 else sm.FAULT_RESET
+                self._reset_phase = 2
+
+        # --- mode of operation ------------------------------------------------------------
+        if homing_req and self._begin_homing(now, want):
+            mode_wanted = Mode.HM
+        if move_req is not None and self._begin_move(now, want, *move_req):
+            mode_wanted = Mode.PP
+        mode_wanted = self._drive_mode(mode_wanted)
+
+        # --- target: hold the actual position unless commanding in OE --------------------
+        enabled = state is DriveState.OPERATION_ENABLED and want is Want.ENABLED
+        mode = self._mode
+        if not (enabled and mode == Mode.CSP and self._mode_job is None):
+            self._hold = actual
+            self._setpoint = None
+        target = self._hold
+        if enabled and self._mode_job is None:
+            if mode == Mode.CSP:
+                if self._setpoint is not None:
+                    target = self._setpoint
+            elif mode == Mode.HM:
+                cw |= self._homing_step(now, sw, state)
+            elif mode == Mode.PP:
+                bits, target = self._move_step(now, sw, actual)
+                cw |= bits
+        elif self._homing is Progress.RUNNING:
+            self._homing_wait(now, state)
+        self._send(cw, target)
+
+    def _set_want(self, want: Want, now: float) -> Want:
+        if self._want is not want:
+            self._want, self._want_since = want, now
+        return want
+
+    def _send(self, cw: int, target: int) -> None:
+        values = {0x6040: cw, 0x607A: target, 0x60B1: self._velocity_ff}
+        data = self._rpdo.codec.pack(*(values[i] for i in self._rpdo.indices))
+        self._cw, self._target_sent = cw, target
+        try:
+            self._bus.send(self._rpdo.cob_id, data)
+        except TcsError:
+            return  # recorded in the bus health; the drive faults on missing RPDOs
+        self.rpdos_sent += 1
+
+    # ----------------------------------------------------------------- mode switching
+    def _drive_mode(self, wanted: Mode | None) -> Mode | None:
+        """Start/finish the SDO mode switch; the mode counts only once 0x6061 reads it."""
+        job = self._mode_job
+        if job is not None:
+            if not job.done:
+                return wanted
+            self._mode_job = None
+            if job.error is not None:
+                err = job.error if isinstance(job.error, TcsError) else HardwareError(
+                    self.device, f"mode switch failed: {job.error!r}")
+                self._request_error = err
+                with self._lock:
+                    self._mode_wanted = None
+                self._abort_homing(err)
+                self._abort_move(err)
+                return None
+            self._mode = job.result
+        shown = self._raw.get(0x6061)
+        if shown is not None:
+            self._mode = shown
+        if wanted is not None and wanted != self._mode and self._sdo is not None:
+            sdo, mode = self._sdo, int(wanted)
+            self._mode_job = self._worker.submit(lambda: set_mode(sdo, mode), f"{self.name} mode")
+        with self._lock:
+            if self._mode_wanted == wanted:
+                self._mode_wanted = None
+        return wanted
+
+    # ----------------------------------------------------------------- homing
+    def _begin_homing(self, now: float, want: Want) -> bool:
+        """Start the homing handshake (True), or fail it at once when not enabling."""
+        self._move_fail(TcsError(f"{self.device}: move superseded by homing", ErrorNumber.TARGETCHANGE))
+        if want is not Want.ENABLED:
+            self._homing = Progress.RUNNING
+            self._homing_fail(RequestRefused(f"{self.device}: homing needs the drive enabled "
+                                             "(request enable first)", ErrorNumber.INVMODE))
+            return False
+        if self._homing is not Progress.RUNNING:
+            current = self._mode if self._mode in (Mode.CSP, Mode.PP) else None
+            self._homing_mode_before = Mode(current) if current is not None else self._default_mode
+        self._homing = Progress.RUNNING
+        self._homing_phase = "mode"
+        self._homing_since = self._homing_phase_since = now
+        self._homing_progress = 0.0
+        self._homed = False
+        self._request_error = None
+        return True
+
+    def _homing_wait(self, now: float, state: DriveState) -> None:
+        """Homing requested while not (yet) enabled in HM: time out."""
+        if now - self._homing_since > self.section.homing.timeout:
+            self._homing_fail(TcsError(f"{self.device}: homing timed out waiting for "
+                                       f"operation enabled (state {state.value})", ErrorNumber.TIMEOUT))
+
+    def _homing_phase_to(self, phase: str, now: float) -> None:
+        self._homing_phase, self._homing_phase_since = phase, now
+
+    def _homing_step(self, now: float, sw: int, state: DriveState) -> int:
+        """Controlword bits for this cycle of the homing handshake (docs/cia402.md)."""
+        if self._homing is not Progress.RUNNING:
+            return 0
+        home = self.section.homing
+        bits = homing_bits(sw)
+        phase = self._homing_phase
+        elapsed = now - self._homing_since
+        if phase not in ("finish",) and elapsed > home.timeout:
+            self._homing_fail(TcsError(f"{self.device}: homing (method {home.method}) did not "
+                                       f"finish within {home.timeout:g} s", ErrorNumber.TIMEOUT))
+            return 0
+        if phase == "mode":  # mode HM active and enabled: make sure bit 4 is low first
+            self._homing_progress = 0.05
+            self._homing_phase_to("idle", now)
+            return 0
+        if phase == "idle":  # wait until the drive shows no homing in progress
+            if bits is not HomingBits.RUNNING or now - self._homing_phase_since > HANDSHAKE_TIMEOUT:
+                self._homing_phase_to("start", now)
+                self._homing_before = bits
+            return 0
+        if phase == "start":  # bit 4 high; wait until the drive started
+            self._homing_progress = 0.1
+            instant = home.method in (35, 37)
+            if bits is HomingBits.RUNNING or (bits is not self._homing_before and bits in (
+                    HomingBits.ATTAINED, HomingBits.DONE)):
+                self._homing_phase_to("running", now)
+            elif bits in (HomingBits.ERROR_MOVING, HomingBits.ERROR_AT_REST):
+                self._homing_fail(HardwareError(self.device, f"homing error at start "
+                                                             f"(statusword 0x{sw:04X})"))
+                return 0
+            elif instant and bits is HomingBits.DONE and now - self._homing_phase_since > 0.05:
+                self._homing_phase_to("running", now)
+            elif now - self._homing_phase_since > HANDSHAKE_TIMEOUT:
+                self._homing_fail(HardwareError(self.device, f"homing did not start (statusword "
+                                                             f"0x{sw:04X}, {bits.value})"))
+                return 0
+            return sm.CW_NEW_SETPOINT
+        if phase == "running":  # wait for attained or error
+            self._homing_progress = 0.1 + 0.8 * min(1.0, elapsed / home.timeout)
+            if bits in (HomingBits.ERROR_MOVING, HomingBits.ERROR_AT_REST):
+                self._homing_fail(HardwareError(self.device, f"homing error (method {home.method}, "
+                                                             f"statusword 0x{sw:04X}, {bits.value})"))
+                return 0
+            if bits is HomingBits.DONE:
+                self._homing_progress = 0.95
+                self._homing_phase_to("finish", now)
+                return 0
+            if bits is HomingBits.ATTAINED:
+                self._homing_progress = 0.95  # wait for standstill
+            return sm.CW_NEW_SETPOINT
+        if phase == "finish":  # bit 4 cleared this cycle; back to the mode before homing
+            self._homing = Progress.DONE
+            self._homing_progress = 1.0
+            self._homed = True
+            self._homing_phase = ""
+            self._homing_restore_mode()
+            return 0
+        return 0
+
+    def _homing_restore_mode(self) -> None:
+        with self._lock:
+            if self._mode_wanted is None and self._homing_mode_before is not None:
+                self._mode_wanted = self._homing_mode_before
+
+    def _homing_fail(self, error: TcsError) -> None:
+        if self._homing is not Progress.RUNNING:
+            return
+        self._homing = Progress.FAILED
+        self._homing_phase = ""
+        self._request_error = error
+        log.warning("%s", error)
+        self._homing_restore_mode()
+
+    def _abort_homing(self, error: TcsError) -> None:
+        self._homing_fail(error)
+
+    # ----------------------------------------------------------------- profile position
+    def _begin_move(self, now: float, want: Want, target: int, velocity: float | None) -> bool:
+        """Start a profile move (True), or fail it at once when not enabling."""
+        self._homing_fail(TcsError(f"{self.device}: homing superseded by a move", ErrorNumber.TARGETCHANGE))
+        if want is not Want.ENABLED:
+            self._move = Progress.RUNNING
+            self._move_fail(RequestRefused(f"{self.device}: a move needs the drive enabled "
+                                           "(request enable first)", ErrorNumber.INVMODE))
+            return False
+        self._move = Progress.RUNNING
+        self._move_phase = "speed"
+        self._move_target = target
+        self._move_since = now
+        self._request_error = None
+        speed = round(abs((velocity or self.section.max_velocity) * self._scale))
+        distance = abs(target - self._raw.get(0x6064, 0))
+        accel = abs(self.section.max_acceleration * self._scale) or 1
+        self._move_deadline = now + 5.0 + 2.0 * (distance / max(speed, 1) + speed / accel)
+        if speed != self._profile_velocity and self._sdo is not None:
+            sdo = self._sdo
+            self._move_job = self._worker.submit(lambda: sdo.write(0x6081, 0, "<I", speed),
+                                                 f"{self.name} velocity")
+            self._profile_velocity = speed
+        else:
+            self._move_job = None
+        return True
+
+    def _move_step(self, now: float, sw: int, actual: int) -> tuple[int, int]:
+        """(controlword bits, target) for this cycle of the PP set-point handshake."""
+        if self._move is not Progress.RUNNING:
+            return 0, self._hold
+        target = self._move_target
+        phase = self._move_phase
+        if now > self._move_deadline:
+            self._move_fail(TcsError(f"{self.device}: move to {target / self._scale:g} timed out",
+                                     ErrorNumber.TIMEOUT))
+            return 0, self._hold
+        if phase == "speed":
+            job = self._move_job
+            if job is not None and not job.done:
+                return 0, self._hold
+            if job is not None and job.error is not None:
+                self._move_fail(job.error if isinstance(job.error, TcsError) else
+                                HardwareError(self.device, f"profile velocity: {job.error!r}"))
+                return 0, self._hold
+            self._move_job = None
+            self._move_phase = "idle"
+        if self._move_phase == "idle":  # bit 4 low and no acknowledge pending
+            if not sw & sm.SW_MODE_12:
+                self._move_phase, self._move_since = "set", now
+            return 0, target
+        if phase == "set":  # new set-point, change immediately; wait for the acknowledge
+            if sw & sm.SW_MODE_12:
+                self._move_phase = "moving"
+                return 0, target
+            if now - self._move_since > HANDSHAKE_TIMEOUT:
+                self._move_fail(HardwareError(self.device, "set-point not acknowledged (bit 12)"))
+                return 0, self._hold
+            return sm.CW_NEW_SETPOINT | sm.CW_CHANGE_IMMEDIATELY, target
+        if phase == "moving":
+            window = abs(self.section.following_error_window * self._scale)
+            if sw & sm.SW_TARGET_REACHED and not sw & sm.SW_MODE_12 and abs(actual - target) <= window:
+                self._move = Progress.DONE
+                self._move_phase = ""
+            return 0, target
+        return 0, target
+
+    def _move_fail(self, error: TcsError) -> None:
+        if self._move is not Progress.RUNNING:
+            return
+        self._move = Progress.FAILED
+        self._move_phase = ""
+        self._request_error = error
+        log.warning("%s", error)
+
+    def _abort_move(self, error: TcsError) -> None:
+        self._move_fail(error)

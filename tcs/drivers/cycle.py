@@ -1,0 +1,289 @@
+"""The cyclic phase: SYNC producer and the runner that calls the control loop once per SYNC.
+
+Timing of cycle *k* (period *T*, ``tpdo_deadline`` *d*, default 0.5)::
+
+    t_k            SYNC k on the bus. Drives latch the RPDO received in cycle k-1, sample,
+                   and answer with their synchronous TPDOs.
+    t_k .. t_k+dT  the runner waits until every expected synchronous TPDO of cycle k has
+                   arrived (a barrier fed from the notifier thread) — or until t_k + dT.
+    then           the callbacks run with :class:`Cycle` k: they read the drives' status of
+                   cycle k, compute, and each drive's ``step()`` sends its RPDO, which the
+                   drives buffer until
+    t_k + T        SYNC k+1 applies it.
+
+So a callback sees the status of cycle k and its RPDO reaches the drives before SYNC k+1 as
+long as the callbacks finish within (1 - d)·T. Counters (:class:`CycleStats`):
+
+* ``late`` — callbacks that ended after the next SYNC was due (their RPDOs may miss it);
+* ``missed`` — SYNC slots skipped because the runner was still busy (no SYNC was sent then in
+  thread mode; the kernel sent it anyway on socketcan, with no new setpoint behind it);
+* ``tpdo_timeouts`` — cycles that ran at the deadline without every synchronous TPDO;
+* ``lateness`` — the last ``history`` SYNC send times minus their ideal schedule (thread mode)
+  or SYNC receive intervals minus *T* accumulated on the ideal grid (socketcan).
+
+Where the SYNC comes from: on ``socketcan`` the kernel broadcast manager sends it
+(``bus.send_periodic``; the runner sees each SYNC through the socket's loopback). Elsewhere the
+runner thread itself sends SYNC at ``t_k``: it sleeps to the slot, sends, waits for the
+barrier, runs the callbacks. No SYNC counter byte is sent.
+
+Threads: the runner is one dedicated thread (``tcs-cycle``); callbacks run in it and must not
+block. ``add_callback``/``expect_tpdos`` are for set-up before :meth:`start` (they are
+lock-protected, so later is allowed). :meth:`stats` may be read from any thread.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+import can
+
+from tcs.drivers.canbus import SYNC_COB_ID, CanBus
+from tcs.errors import TcsError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Cycle:
+    """What a callback gets: the cycle number, when its SYNC went out, when the next is due."""
+
+    index: int
+    sync_time: float
+    next_sync: float
+    tpdos_complete: bool
+
+
+@dataclass(frozen=True)
+class CycleStats:
+    cycles: int = 0
+    late: int = 0
+    missed: int = 0
+    tpdo_timeouts: int = 0
+    callback_errors: int = 0
+    sync_failures: int = 0
+    max_callback: float = 0.0
+
+
+class CycleSource:
+    """Produces SYNC every ``period`` and runs the callbacks once per SYNC.
+
+    Parameters
+    ----------
+    bus:
+        The open :class:`CanBus`.
+    period:
+        SYNC period, s (``can.sync_period``).
+    tpdo_deadline:
+        Fraction of the period after SYNC when the callbacks run even if TPDOs are missing.
+    kernel_sync:
+        Use the kernel's ``send_periodic`` for SYNC; default: when the bus is socketcan.
+    history:
+        How many lateness samples to keep.
+    clock:
+        Monotonic clock (tests may replace it only with another real-time clock).
+    """
+
+    def __init__(self, bus: CanBus, period: float, *, tpdo_deadline: float = 0.5,
+                 kernel_sync: bool | None = None, history: int = 100_000,
+                 clock: Callable[[], float] = time.monotonic):
+        self.bus = bus
+        self.period = float(period)
+        self.tpdo_deadline = float(tpdo_deadline)
+        self.kernel_sync = bus.kernel_periodic if kernel_sync is None else kernel_sync
+        self._clock = clock
+        self._callbacks: list[Callable[[Cycle], None]] = []
+        self._lock = threading.Lock()
+        self._expected: set[int] = set()
+        self._seen: set[int] = set()
+        self._arrived = threading.Event()
+        self._sync_seen = threading.Condition()
+        self._sync_count = 0
+        self._sync_time = 0.0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._periodic = None
+        self._stats = CycleStats()
+        self.lateness: collections.deque[float] = collections.deque(maxlen=history)
+        self.callback_time: collections.deque[float] = collections.deque(maxlen=history)
+        self.last_error: TcsError | Exception | None = None
+
+    # ---------------------------------------------------------------- set-up
+    def add_callback(self, callback: Callable[[Cycle], None]) -> None:
+        """Run ``callback(cycle)`` once per SYNC, in the runner thread, in the order added."""
+        with self._lock:
+            self._callbacks.append(callback)
+
+    def remove_callback(self, callback: Callable[[Cycle], None]) -> None:
+        with self._lock:
+            self._callbacks.remove(callback)
+
+    def expect_tpdos(self, cob_ids: Iterable[int]) -> None:
+        """Wait for these synchronous TPDO COB-IDs after each SYNC before the callbacks run."""
+        network = self.bus.network
+        with self._lock:
+            for cob_id in cob_ids:
+                if cob_id not in self._expected:
+                    self._expected.add(cob_id)
+                    network.subscribe(cob_id, self._on_tpdo)
+
+    def forget_tpdos(self, cob_ids: Iterable[int]) -> None:
+        """Stop waiting for these COB-IDs (a drive that went away)."""
+        network = self.bus.network
+        with self._lock:
+            for cob_id in cob_ids:
+                if cob_id in self._expected:
+                    self._expected.discard(cob_id)
+                    if network is not None and cob_id in network.subscribers:
+                        network.unsubscribe(cob_id, self._on_tpdo)
+            if self._expected <= self._seen:
+                self._arrived.set()
+
+    # ---------------------------------------------------------------- run
+    def start(self) -> None:
+        """Start SYNC and the runner thread."""
+        if self._thread is not None:
+            return
+        self._stop.clear()
+        if self.kernel_sync:
+            self.bus.network.subscribe(SYNC_COB_ID, self._on_sync)
+            msg = can.Message(arbitration_id=SYNC_COB_ID, data=b"", is_extended_id=False)
+            self._periodic = self.bus.bus.send_periodic(msg, self.period)
+            target = self._run_kernel
+        else:
+            target = self._run_thread
+        self._thread = threading.Thread(target=target, name="tcs-cycle", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop SYNC and the runner (the drives then fault on missing RPDOs if enabled)."""
+        self._stop.set()
+        self._arrived.set()
+        with self._sync_seen:
+            self._sync_seen.notify_all()
+        thread, self._thread = self._thread, None
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout=5.0)
+        periodic, self._periodic = self._periodic, None
+        if periodic is not None:
+            periodic.stop()
+            t = getattr(periodic, "thread", None)
+            if t is not None:
+                t.join(timeout=2.0)
+        network = self.bus.network
+        if network is not None:
+            if self.kernel_sync and SYNC_COB_ID in network.subscribers:
+                network.unsubscribe(SYNC_COB_ID, self._on_sync)
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None
+
+    def stats(self) -> CycleStats:
+        return self._stats
+
+    # ---------------------------------------------------------------- notifier side
+    def _on_tpdo(self, cob_id: int, data: bytearray, timestamp: float) -> None:
+        # Notifier thread: only set arithmetic and an Event.
+        seen = self._seen
+        seen.add(cob_id)
+        if len(seen) >= len(self._expected) and self._expected <= seen:
+            self._arrived.set()
+
+    def _on_sync(self, cob_id: int, data: bytearray, timestamp: float) -> None:
+        # Reset the TPDO barrier here, in the notifier thread, so the TPDOs that follow this
+        # SYNC on the bus are counted for it whatever the runner is doing.
+        self._new_cycle()
+        with self._sync_seen:
+            self._sync_count += 1
+            self._sync_time = self._clock()
+            self._sync_seen.notify_all()
+
+    # ---------------------------------------------------------------- runner
+    def _new_cycle(self) -> None:
+        self._seen = set()
+        self._arrived.clear()
+        if not self._expected:
+            self._arrived.set()
+
+    def _cycle(self, index: int, sync_time: float, next_sync: float) -> None:
+        deadline = sync_time + self.tpdo_deadline * self.period
+        complete = self._arrived.wait(max(0.0, deadline - self._clock()))
+        if self._stop.is_set():
+            return
+        cycle = Cycle(index, sync_time, next_sync, complete)
+        errors = 0
+        with self._lock:
+            callbacks = list(self._callbacks)
+        for callback in callbacks:
+            try:
+                callback(cycle)
+            except Exception as exc:  # a failing callback must not stop the SYNC
+                errors += 1
+                self.last_error = exc
+                log.exception("cycle callback %r failed", callback)
+        end = self._clock()
+        spent = end - sync_time
+        self.callback_time.append(spent)
+        s = self._stats
+        self._stats = CycleStats(
+            cycles=s.cycles + 1, late=s.late + (end > next_sync), missed=s.missed,
+            tpdo_timeouts=s.tpdo_timeouts + (not complete),
+            callback_errors=s.callback_errors + errors, sync_failures=s.sync_failures,
+            max_callback=max(s.max_callback, spent))
+
+    def _count(self, **delta: int) -> None:
+        s = self._stats
+        self._stats = CycleStats(**{**s.__dict__, **{k: getattr(s, k) + v for k, v in delta.items()}})
+
+    def _run_thread(self) -> None:
+        """SYNC from this thread: sleep to the slot, send, wait for TPDOs, run callbacks."""
+        period = self.period
+        index = 0
+        slot = self._clock() + period
+        while not self._stop.is_set():
+            delay = slot - self._clock()
+            if delay > 0 and self._stop.wait(delay):
+                break
+            self._new_cycle()
+            sent = self._clock()
+            try:
+                self.bus.send(SYNC_COB_ID, b"")
+            except TcsError as exc:
+                self.last_error = exc
+                self._count(sync_failures=1)
+            self.lateness.append(sent - slot)
+            self._cycle(index, sent, slot + period)
+            index += 1
+            slot += period
+            now = self._clock()
+            if now > slot:  # overran one or more slots: skip them, keep the grid
+                skipped = int((now - slot) // period) + 1
+                self._count(missed=skipped)
+                slot += skipped * period
+                index += skipped
+
+    def _run_kernel(self) -> None:
+        """SYNC from the kernel: wake on each SYNC seen in the loopback, then as above."""
+        period = self.period
+        seen = 0
+        first_time = None
+        first_count = 0
+        while not self._stop.is_set():
+            with self._sync_seen:
+                while self._sync_count == seen and not self._stop.is_set():
+                    self._sync_seen.wait(0.5)
+                count, sync_time = self._sync_count, self._sync_time
+            if self._stop.is_set():
+                break
+            if first_time is None:
+                first_time, first_count = sync_time, count
+            elif count > seen + 1:
+                self._count(missed=count - seen - 1)
+            seen = count
+            self.lateness.append(sync_time - (first_time + (count - first_count) * period))
+            self._cycle(count, sync_time, sync_time + period)

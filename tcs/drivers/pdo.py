@@ -1,0 +1,113 @@
+"""PDO layouts of one drive: the SDO writes that map them and the codecs of their frames.
+
+The mapping is the validated one of the hardware file (:func:`tcs.config.can.pdo_mapping`,
+default docs/cia402.md: RPDO1 = 0x6040 + 0x607A; TPDO1 = 0x6041 + 0x6064; TPDO2 = 0x606C +
+0x60F4, both synchronous; TPDO3 = 0x60FD + 0x603F, event driven). The driver does not use
+canopen's PDO classes: it writes the communication and mapping parameters itself (remap
+procedure of CiA 301: invalidate the COB-ID, sub0 = 0, entries, sub0 = n, validate — only in
+pre-operational) and packs / unpacks frames with a precompiled :class:`struct.Struct`, so the
+per-cycle path is one ``pack`` and one ``send``.
+
+Only the boot code (:mod:`tcs.drivers.cia402_drive`) and the cycle use this module.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+from tcs.config.can import CYCLIC_TPDO_OBJECTS, PDO_OBJECTS
+
+_FORMATS = {(8, True): "b", (8, False): "B", (16, True): "h", (16, False): "H",
+            (32, True): "i", (32, False): "I"}
+
+#: Transmission type: on every SYNC (1) / event driven, manufacturer specific (255).
+SYNCHRONOUS = 1
+EVENT = 255
+#: Event-driven TPDOs: inhibit time (100 µs units) and event timer (ms), so a changing input
+#: cannot flood the bus and a steady one is still refreshed.
+EVENT_INHIBIT_100US = 100   # 10 ms
+EVENT_TIMER_MS = 500
+
+
+@dataclass(frozen=True)
+class PdoLayout:
+    """One PDO: its name (``rpdo1``, ``tpdo2`` …), number 1..4, COB-ID and mapped objects."""
+
+    name: str
+    number: int
+    cob_id: int
+    indices: tuple[int, ...]
+    transmission: int
+    codec: struct.Struct
+
+    @property
+    def receive(self) -> bool:
+        """An RPDO (TCS -> drive)."""
+        return self.name.startswith("rpdo")
+
+    @property
+    def synchronous(self) -> bool:
+        return self.transmission == SYNCHRONOUS
+
+    @property
+    def bits(self) -> int:
+        return sum(PDO_OBJECTS[i][1] for i in self.indices)
+
+    def comm_index(self) -> int:
+        return (0x1400 if self.receive else 0x1800) + self.number - 1
+
+    def map_index(self) -> int:
+        return (0x1600 if self.receive else 0x1A00) + self.number - 1
+
+    def map_entries(self) -> list[int]:
+        """0x16xx / 0x1Axx sub-entries: index << 16 | sub-index << 8 | bit length."""
+        return [i << 16 | PDO_OBJECTS[i][1] for i in self.indices]
+
+    def names(self) -> tuple[str, ...]:
+        return tuple(PDO_OBJECTS[i][0] for i in self.indices)
+
+
+def layout(name: str, indices: tuple[int, ...], node_id: int) -> PdoLayout:
+    """The layout of PDO ``name`` carrying ``indices`` for ``node_id``."""
+    receive = name.startswith("rpdo")
+    number = int(name[4:])
+    base = 0x200 if receive else 0x180
+    cob_id = base + 0x100 * (number - 1) + node_id
+    if receive:
+        transmission = SYNCHRONOUS
+    else:
+        transmission = SYNCHRONOUS if CYCLIC_TPDO_OBJECTS & set(indices) else EVENT
+    fmt = "<" + "".join(_FORMATS[PDO_OBJECTS[i][1], PDO_OBJECTS[i][2]] for i in indices)
+    return PdoLayout(name, number, cob_id, tuple(indices), transmission, struct.Struct(fmt))
+
+
+def layouts(mapping: dict[str, tuple[int, ...]], node_id: int) -> dict[str, PdoLayout]:
+    """Layouts of every mapped PDO (unmapped ones are absent and get disabled at boot)."""
+    return {name: layout(name, indices, node_id) for name, indices in mapping.items() if indices}
+
+
+def configuration_writes(pdo: PdoLayout | None, name: str, node_id: int) -> list[tuple[int, int, str, int]]:
+    """SDO writes ``(index, sub, struct format, value)`` that (re)map one PDO, in order.
+
+    ``pdo`` None disables PDO ``name`` (COB-ID bit 31 set, no entries).
+    """
+    receive = name.startswith("rpdo")
+    number = int(name[4:])
+    comm = (0x1400 if receive else 0x1800) + number - 1
+    mapping = (0x1600 if receive else 0x1A00) + number - 1
+    default_cob = (0x200 if receive else 0x180) + 0x100 * (number - 1) + node_id
+    invalid = 0x80000000
+    writes = [(comm, 1, "<I", invalid | default_cob)]
+    if pdo is None:
+        return writes
+    writes.append((comm, 2, "<B", pdo.transmission))
+    if not receive and not pdo.synchronous:
+        writes.append((comm, 3, "<H", EVENT_INHIBIT_100US))
+        writes.append((comm, 5, "<H", EVENT_TIMER_MS))
+    writes.append((mapping, 0, "<B", 0))
+    for sub, entry in enumerate(pdo.map_entries(), start=1):
+        writes.append((mapping, sub, "<I", entry))
+    writes.append((mapping, 0, "<B", len(pdo.indices)))
+    writes.append((comm, 1, "<I", pdo.cob_id))
+    return writes
