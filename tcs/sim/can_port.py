@@ -8,8 +8,9 @@ port was given) and one timer thread, whatever N is.
   thread for every frame with that identifier.
 * ``send(cob_id, data)`` — thread-safe.
 * ``call_later(delay, callback)`` / ``call_every(period, callback)`` — run ``callback()`` in
-  the timer thread (real time: heartbeats, event timers, periodic polls); they return a handle
-  whose ``cancel()`` stops it.
+  the timer thread (real time: heartbeats, boot delays); they return a handle whose
+  ``cancel()`` stops it. ``add_poller(callback)`` runs ``callback()`` every
+  :data:`POLL_PERIOD`, all the pollers of the bus in one wake-up.
 * ``lock`` — one re-entrant lock held around every callback (received frames and timers), so
   the nodes' state is only ever touched by one thread at a time; code outside the port that
   touches a node (tests, fault injection) takes it too.
@@ -38,6 +39,8 @@ FrameCallback = Callable[[int, bytes], None]
 
 #: Seconds the receive thread waits for a frame before checking whether it must stop.
 RECEIVE_CYCLE = 0.05
+#: Real-time period (s) of the pollers (one timer wake-up for all the nodes of a bus).
+POLL_PERIOD = 0.01
 
 
 class TimerHandle:
@@ -72,6 +75,8 @@ class SimCanPort:
         self._closed = False
         self._users = 0
         self._send_lock = threading.Lock()
+        self._pollers: list[Callable[[], None]] = []
+        self._poll_timer: TimerHandle | None = None
         self._notifier: can.Notifier | None = None
         if network is not None:
             self._bus = None
@@ -140,6 +145,28 @@ class SimCanPort:
             log.warning("simulated node could not send 0x%03X: %s", cob_id, exc)
 
     # -- timers ------------------------------------------------------------------------------
+    def add_poller(self, callback: Callable[[], None]) -> None:
+        """Run ``callback()`` every :data:`POLL_PERIOD` together with every other poller."""
+        with self.lock:
+            self._pollers.append(callback)
+            if self._poll_timer is None:
+                self._poll_timer = self.call_every(POLL_PERIOD, self._poll_all)
+
+    def remove_poller(self, callback: Callable[[], None]) -> None:
+        with self.lock:
+            if callback in self._pollers:
+                self._pollers.remove(callback)
+            if not self._pollers and self._poll_timer is not None:
+                self._poll_timer.cancel()
+                self._poll_timer = None
+
+    def _poll_all(self) -> None:
+        for callback in list(self._pollers):
+            try:
+                callback()
+            except Exception:
+                log.exception("simulated node poll failed")
+
     def call_later(self, delay: float, callback: Callable[[], None]) -> TimerHandle:
         """Run ``callback()`` once in the timer thread after ``delay`` seconds (real time)."""
         return self._schedule(time.monotonic() + max(0.0, delay), TimerHandle(callback, None))

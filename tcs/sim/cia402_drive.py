@@ -59,7 +59,7 @@ from tcs.sim.drive_logic import (
 )
 from tcs.sim.drive_params import SimDriveParams
 from tcs.sim.object_store import ABORT_STORE, ObjectStore
-from tcs.sim.pdo import RPDO_COMM, PdoEngine
+from tcs.sim.pdo import PdoEngine
 from tcs.sim.sdo_server import SdoServer
 
 __all__ = ["DEFAULT_EDS", "FAULT_CODES", "SimDrive", "SimDriveParams"]
@@ -82,8 +82,6 @@ FAULT_CODES: dict[str, int] = {
 INITIALISING, STOPPED, OPERATIONAL, PRE_OPERATIONAL = 0x00, 0x04, 0x05, 0x7F
 NMT_NAMES = {INITIALISING: "INITIALISING", STOPPED: "STOPPED", OPERATIONAL: "OPERATIONAL",
              PRE_OPERATIONAL: "PRE-OPERATIONAL"}
-#: Real-time period (s) of the poll that advances the physics between SYNCs and sends event TPDOs.
-POLL_PERIOD = 0.01
 
 _od_cache: dict[tuple[str, int], canopen.ObjectDictionary] = {}
 _od_lock = threading.Lock()
@@ -169,7 +167,7 @@ class SimDrive:
             if self._started:
                 return
             self._started = True
-            self._timers.append(self._port.call_every(POLL_PERIOD, self._poll))
+            self._port.add_poller(self._poll)
             if self.params.boot_delay > 0:
                 self._timers.append(self._port.call_later(self.params.boot_delay, self._boot))
             else:
@@ -181,6 +179,7 @@ class SimDrive:
             if self._stopped:
                 return
             self._stopped = True
+            self._port.remove_poller(self._poll)
             for timer in self._timers:
                 timer.cancel()
             if self._heartbeat_timer is not None:

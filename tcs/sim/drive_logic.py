@@ -132,6 +132,7 @@ class DriveLogic:
         self.missed_in_row = 0
         self.rpdo_missed = 0
         self.transitions: list[int] = []       # the transition numbers taken, for tests
+        self._ipu: float | None = None
         self._install_defaults()
         self._install_hooks()
         self._refresh_watch()
@@ -179,8 +180,11 @@ class DriveLogic:
 
     # -- conversions -------------------------------------------------------------------------
     def ipu(self) -> float:
-        st = self.store
-        return (st.get(0x608F, 1) / st.get(0x608F, 2)) * (st.get(0x6091, 1) / st.get(0x6091, 2))
+        """Increments per user unit from 0x608F and 0x6091 (cached; scaling writes clear it)."""
+        if self._ipu is None:
+            st = self.store
+            self._ipu = (st.get(0x608F, 1) / st.get(0x608F, 2)) * (st.get(0x6091, 1) / st.get(0x6091, 2))
+        return self._ipu
 
     def to_inc(self, x: float) -> int:
         return round((x - self.zero) * self.ipu())
@@ -241,7 +245,8 @@ class DriveLogic:
             self.missed_in_row = 0
             self.internal_limit = False
             if number != 16 or self.mode != MODE_PV:
-                ax.set_reference(hold(ax.t, ax.x) if ax.v == 0 else stop_profile(ax.t, ax.x, ax.v, self._decel("quick")))
+                ax.set_reference(hold(ax.t, ax.x) if ax.v == 0
+                                 else stop_profile(ax.t, ax.x, ax.v, self._decel("quick")))
             self.pp_target, self.pp_pending, self.setpoint_ack = None, None, False
             self._apply_mode_request()
             if self.mode == MODE_PV:
@@ -600,6 +605,7 @@ class DriveLogic:
     def _check_scaling(self, sub: int, value: int) -> None:
         if self.state in POWERED:
             raise SdoAbort(ABORT_STATE, "scaling changes only while disabled")
+        self._ipu = None  # recomputed from the stored value at the next use
 
     def _on_error_history(self, sub: int, value: int) -> None:
         if sub != 0 or value != 0:

@@ -22,7 +22,10 @@ it returns frames to send. Nothing here knows CiA-402.
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass, field
+
+from canopen.objectdictionary import datatypes
 
 from tcs.sim.object_store import (
     ABORT_NOT_MAPPABLE,
@@ -38,6 +41,8 @@ RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
 COUNT = 4
 COB_INVALID = 0x80000000
 _DUMMY_BITS = {0x0002: 8, 0x0003: 16, 0x0004: 32, 0x0005: 8, 0x0006: 16, 0x0007: 32}
+_FORMATS = {datatypes.INTEGER8: "b", datatypes.INTEGER16: "h", datatypes.INTEGER32: "i",
+            datatypes.UNSIGNED8: "B", datatypes.UNSIGNED16: "H", datatypes.UNSIGNED32: "I"}
 
 
 @dataclass
@@ -208,18 +213,44 @@ class PdoEngine:
                 pass  # a refused value in a PDO is ignored, as devices do
 
     # -- transmit ----------------------------------------------------------------------------
+    def _packer(self, n: int) -> tuple[struct.Struct, list[tuple[int, int, int, int]]]:
+        """The compiled layout of TPDO ``n``: a struct and (index, sub, min, max) per entry."""
+        key = -1 - n
+        compiled = self._compiled.get(key)
+        if compiled is None:
+            fmt, fields = "<", []
+            for index, sub, bits, var in self._entries(TPDO_MAP, n):
+                code = _FORMATS.get(var.data_type, "")
+                if not code:
+                    raise SdoAbort(ABORT_NOT_MAPPABLE)
+                size = struct.calcsize(code) * 8
+                lo, hi = ((-(1 << (size - 1)), (1 << (size - 1)) - 1) if code.islower()
+                          else (0, (1 << size) - 1))
+                fmt += code
+                fields.append((index, sub, lo, hi))
+            compiled = self._compiled[key] = (struct.Struct(fmt), fields)
+        return compiled
+
     def _pack(self, n: int) -> bytes:
-        out = bytearray()
-        for index, sub, _bits, var in self._entries(TPDO_MAP, n):
-            out += self.store.encode(var, self.store.value(index, sub))
-        return bytes(out)
+        packer, fields = self._packer(n)
+        value = self.store.value
+        return packer.pack(*[min(hi, max(lo, int(value(index, sub)))) for index, sub, lo, hi in fields])
+
+    def _tpdo_comm(self, n: int) -> tuple[int | None, int, float, float]:
+        """(COB-ID or None, transmission type, inhibit s, event timer s) of TPDO ``n``."""
+        key = 100 + n
+        compiled = self._compiled.get(key)
+        if compiled is None:
+            st = self.store
+            compiled = self._compiled[key] = (self.cob_id(TPDO_COMM, n), st.get(TPDO_COMM + n, 2),
+                                              st.get(TPDO_COMM + n, 3) * 1e-4, st.get(TPDO_COMM + n, 5) * 1e-3)
+        return compiled
 
     def on_sync(self, now: float) -> list[tuple[int, bytes]]:
         """TPDO frames due at this SYNC."""
         frames = []
         for n in range(COUNT):
-            cob = self.cob_id(TPDO_COMM, n)
-            ttype = self.store.get(TPDO_COMM + n, 2)
+            cob, ttype, _inhibit, _timer = self._tpdo_comm(n)
             if cob is None or ttype > 240:
                 continue
             rt = self._tpdo[n]
@@ -241,16 +272,14 @@ class PdoEngine:
         """Event-driven TPDO frames due now (``now`` in seconds, any monotonic clock)."""
         frames = []
         for n in range(COUNT):
-            cob = self.cob_id(TPDO_COMM, n)
-            if cob is None or self.store.get(TPDO_COMM + n, 2) < 254:
+            cob, ttype, inhibit, timer = self._tpdo_comm(n)
+            if cob is None or ttype < 254:
                 continue
             rt = self._tpdo[n]
+            if now - rt.last_sent < inhibit:
+                continue
             data = self._pack(n)
-            inhibit = self.store.get(TPDO_COMM + n, 3) * 1e-4
-            timer = self.store.get(TPDO_COMM + n, 5) * 1e-3
-            changed = data != rt.last_data
-            due_by_timer = timer > 0 and now - rt.last_sent >= timer
-            if (changed or due_by_timer) and now - rt.last_sent >= inhibit:
+            if data != rt.last_data or (timer > 0 and now - rt.last_sent >= timer):
                 frames.append((cob, data))
                 rt.last_data, rt.last_sent = data, now
         return frames
