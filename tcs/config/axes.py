@@ -66,7 +66,6 @@ class AxisSection:
 
 @dataclass(frozen=True)
 class SimDriveSection:
-    increments_per_unit: float = setting(10000.0, min=1e-6)
     max_velocity: float = setting(5.0, min=1e-9, doc="motor limit, units/s")
     max_acceleration: float = setting(5.0, min=1e-9, doc="motor limit, units/s²")
     position: float = setting(0.0, doc="position at power-up, units")

@@ -1,18 +1,28 @@
 """The telescope model: every domain object of one hardware file, built and owned in one place.
 
 :class:`Telescope` is what the OpenTCI declaration binds to. It creates the event hub, the
-persistent state store, LOCAL and CONFIG, and (as the hardware issues add them) the cabinet,
-axes, dome, covers, sensors, switches, GPS and pointing. Hardware is started and stopped with
-:meth:`start` / :meth:`stop` on the server's event loop; attributes that are ``None`` (or empty
-lists) are modules the hardware file does not configure, and so do not exist in the tree.
+persistent state store, LOCAL and CONFIG, the axes on their CiA-402 drives (with the control
+loop) and, where the file has a ``[simulation]`` section, the simulated drives on the same
+``virtual`` bus in this process. Hardware is started and stopped with :meth:`start` /
+:meth:`stop` on the server's event loop; attributes that are ``None`` (or empty lists) are
+modules the hardware file does not configure, and so do not exist in the tree.
+
+Start order: simulators (they are "the hardware") → bus → boot every drive in parallel (a
+drive that fails to boot leaves its axis in ERROR_STATE, the others work) → axes → control
+loop and SYNC. Stop order is the reverse; axes are stopped and their drives disabled first.
 """
 
 from __future__ import annotations
 
+import asyncio
 import logging
+import time
+from concurrent.futures import ThreadPoolExecutor
 
 from tcs.config import HwConfig
+from tcs.errors import TcsError
 from tcs.model.events import EventHub
+from tcs.model.health import ERROR
 from tcs.model.local import LocalTime
 from tcs.model.mount_config import MountConfig
 from tcs.model.state_store import StateStore
@@ -30,14 +40,122 @@ class Telescope:
         self.store = StateStore(self.state_dir)
         self.local = LocalTime(config, self.store, self.events)
         self.mount_config = MountConfig(config, self.store, self.events)
+        self.cabinet = None
+        self.status_sink = None
+        self.axes: list = []
+        self.can = None
+        self.sims = None
+        self.control_loop = None
+        self._blocking: ThreadPoolExecutor | None = None  # boot, bus open/close: off the loop
+
+    # -- lookup for the declaration ---------------------------------------------------------
+    def axis(self, module: str):
+        """The plain axis module ``module`` (AZ, ZD, HA, DEC, FOCUS, MIRROR) or None."""
+        for a in self.axes:
+            if a.section.module == module and a.section.index is None:
+                return a
+        return None
+
+    def axis_array(self, module: str) -> list:
+        """Elements of an axis module array, index = position (ports without an axis: absent).
+
+        OpenTCI arrays have consecutive indices; a DEROTATOR at port 2 and one at port 3 give
+        ``DEROTATOR[2]`` and ``DEROTATOR[3]`` with elements 0 and 1 absent, so the array holds
+        ``None`` there and the tree skips nothing: those elements answer UNKNOWN members."""
+        found = {a.section.index: a for a in self.axes
+                 if a.section.module == module and a.section.index is not None}
+        if not found:
+            return []
+        return [found.get(i) for i in range(max(found) + 1)]
 
     def modules_health(self):
         """Every domain object with an ERROR_STATE (for CABINET.ERROR_STATE)."""
-        return [m for m in (self.local, self.mount_config) if m is not None]
+        return [m for m in (self.local, self.mount_config, *self.axes) if m is not None]
 
+    @property
+    def main_power(self) -> bool:
+        return True if self.cabinet is None else bool(getattr(self.cabinet, "main_power", True))
+
+    async def run_blocking(self, fn, *args):
+        """Run a blocking set-up call (boot, open, close) in the telescope's own worker thread."""
+        if self._blocking is None:
+            self._blocking = ThreadPoolExecutor(max_workers=2, thread_name_prefix="tcs-blocking")
+        return await asyncio.get_running_loop().run_in_executor(self._blocking, fn, *args)
+
+    # -- life cycle ------------------------------------------------------------------------------
     async def start(self) -> None:
-        """Bring up the hardware (nothing yet in the foundation)."""
+        """Bring up the simulators (if any), the bus, the drives, the axes and the loop."""
         self.events.bind_loop()
+        if self.config.can is not None and self.config.drives:
+            try:
+                await self._start_can()
+            except BaseException:
+                await self.stop()
+                raise
+
+    async def _start_can(self) -> None:
+        from tcs.axes.axis import Axis
+        from tcs.axes.control_loop import ControlLoop
+        from tcs.drivers.can_system import CanDrives
+
+        config = self.config
+        if config.simulation is not None and config.simulation.drives:
+            self.sims = start_simulated_drives(config)
+        self.can = CanDrives.from_config(config)
+        await self.run_blocking(self.can.open)
+        failures: dict[str, TcsError] = await self.run_blocking(self.can.boot)
+        loop = asyncio.get_running_loop()
+        for name, section in config.axes.items():
+            axis = Axis(name, section, self.can.drives[section.drive], self.events, self.local.ut1,
+                        config.can.sync_period, status_sink=self.status_sink,
+                        main_power=lambda: self.main_power)
+            axis.bind_loop(loop)
+            if section.drive in failures:
+                axis.raise_condition("drive offline", ERROR, failures[section.drive].message)
+            self.axes.append(axis)
+        self.control_loop = ControlLoop(self.axes, self.can.cycle, self.local.ut1)
+        self.can.start()
 
     async def stop(self) -> None:
-        """Stop motion and leave the hardware safe (nothing yet in the foundation)."""
+        """Stop motion, disable the drives, stop the loop and the bus, stop the simulators."""
+        if self.can is not None:
+            for axis in self.axes:
+                axis.stop()
+            deadline = time.monotonic() + 5.0
+            while self.control_loop is not None and time.monotonic() < deadline and any(
+                    axis.motion_state & 1 for axis in self.axes):
+                await asyncio.sleep(0.02)
+            for axis in self.axes:
+                axis.shutdown()
+            while self.control_loop is not None and time.monotonic() < deadline and any(
+                    axis.power_state != 0.0 for axis in self.axes):
+                await asyncio.sleep(0.02)
+            await self.run_blocking(self.can.close)
+            self.can = None
+        if self.sims is not None:
+            await self.run_blocking(self.sims.stop)
+            self.sims = None
+        if self._blocking is not None:
+            self._blocking.shutdown(wait=True)
+            self._blocking = None
+
+
+def start_simulated_drives(config: HwConfig):
+    """Start the ``[simulation]`` drives on the ``[can]`` bus of ``config`` (same process)."""
+    from tcs.sim.drive_network import SimDriveNetwork
+    from tcs.sim.drive_params import SimDriveParams
+
+    params = {}
+    for name, sim in config.simulation.drives.items():
+        drive = config.drives[name]
+        ident = drive.identity
+        params[drive.node_id] = SimDriveParams(
+            increments_per_unit=abs(drive.increments_per_unit),
+            max_velocity=sim.max_velocity, max_acceleration=sim.max_acceleration,
+            position=sim.position, negative_limit_switch=sim.negative_limit_switch,
+            positive_limit_switch=sim.positive_limit_switch, home_switch=sim.home_switch,
+            home_switch_active_below=sim.home_switch_active_below,
+            index_pulse_spacing=sim.index_pulse_spacing,
+            identity=(ident.vendor, ident.product, ident.revision,
+                      ident.serial if ident.serial is not None else sim.serial))
+    return SimDriveNetwork(config.can.bus_kwargs(), params)

@@ -102,8 +102,10 @@ CONFIG = module(
     bind=lambda root: root.telescope.mount_config,
 )
 
+from tcs.opentci_server.opentci_axes import AXES  # noqa: E402  (uses common() above)
+
 #: The modules of the OpenTCI tree in the order they are numbered.
-OPENTCI = (SERVER, LOCAL, CONFIG)
+OPENTCI = (SERVER, LOCAL, CONFIG, *AXES)
 
 
 def build_tree(telescope: Any, server: Any) -> Tree:

@@ -360,7 +360,8 @@ def _build_members(parent: ModuleNode, members, obj) -> None:
             array = ArrayNode(spec.name, index, spec.info, parent)
             for i, element_obj in enumerate(objs):
                 element = ModuleNode(f"{spec.name}[{i}]", i, spec.info, array, element_obj)
-                _build_members(element, spec.members, element_obj)
+                if element_obj is not None:  # None: an index with nothing configured (no members)
+                    _build_members(element, spec.members, element_obj)
                 array.elements.append(element)
             parent.add(array)
         else:

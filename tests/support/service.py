@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import uuid
 from pathlib import Path
 
 from tcs.app import Service
@@ -16,8 +17,12 @@ def make_config(state_dir: Path, path: Path = DEFAULT_CONFIG, **server) -> HwCon
     config = load_config(path)
     settings = dict(port=0, auth_fail_delay=0.05)
     settings.update(server)
-    new = dataclasses.replace(config, server=dataclasses.replace(config.server, **settings),
-                              state=StateSection(path=str(state_dir)))
+    changes = dict(server=dataclasses.replace(config.server, **settings),
+                   state=StateSection(path=str(state_dir)))
+    if config.can is not None and config.can.interface == "virtual":
+        # a bus of its own: services of different tests must not hear each other
+        changes["can"] = dataclasses.replace(config.can, channel=f"tcs-test-{uuid.uuid4().hex[:12]}")
+    new = dataclasses.replace(config, **changes)
     object.__setattr__(new, "source", config.source)
     return new
 

@@ -1,0 +1,674 @@
+"""The OpenTCI generic axis (spec §5.1) on a drive: :class:`Axis`.
+
+How it works
+------------
+An axis lives on two sides of a small command/status interface:
+
+* **asyncio side** (the TPL2 server's setters, the cabinet): ``set_power``, ``set_target``,
+  ``set_offset``, ``set_stop``, ``set_reinit``, ``set_speed``, the TRAJECTORY variables.
+  Each validates at once (limits, power, referencing — so a refused request changes
+  nothing), then puts a command into the axis's queue and, for a long-running SET, returns an
+  ``asyncio.Future`` that the control loop resolves. Readbacks (``real_position``,
+  ``motion_state`` …) are plain attributes published by the loop each cycle.
+* **control-loop side** (:meth:`cycle`, once per SYNC period in the loop thread): applies the
+  queued commands, reads the drive's status, computes the cycle's setpoint with the
+  :class:`~tcs.axes.motion.MotionPlanner` (TARGETPOS, OFFSET, STOP) or the
+  :class:`~tcs.axes.follower.TrajectoryFollower` (TRAJECTORY.RUN), hands it to the drive and
+  steps the drive, then resolves futures and emits events.
+
+Futures are resolved with ``loop.call_soon_threadsafe``; events carry the cause of the
+command that started them. Safety rules kept here: software limits are checked before a move
+starts (RANGE, nothing moves) and again on every setpoint (the planner's limit guard); STOP is
+a quick stop of the planner/follower and always accepted; a drive fault stops the axis, fails
+its pending SETs and powers it off — nothing re-enables it but an explicit POWER=1 after the
+fault was acknowledged (ERROR_STATE=0); an unreferenced axis refuses TARGETPOS, OFFSET and
+trajectories (5 invmode) and moves only to reference.
+
+Discrete axes (FILTER, MIRROR) move between configured positions with profile-position moves
+of the drive; their positions are the integer keys of ``[axes.<name>].positions``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import bisect
+import collections
+import logging
+import threading
+from typing import Any, Callable
+
+from tcs.axes.follower import TrajectoryFollower
+from tcs.axes.limits import SoftLimits
+from tcs.axes.motion import MotionPlanner
+from tcs.axes.profile import AxisDynamics, Setpoint
+from tcs.axes.trajectory import TrajectoryQueue
+from tcs.config.axes import DISCRETE_MODULES, TRAJECTORY_MODULES, AxisSection
+from tcs.drivers.drive import Drive, DriveState, DriveStatus, Mode, Progress
+from tcs.errors import ErrorNumber, RangeRefused, RequestRefused, TcsError
+from tcs.model.events import ERROR, INFO, current_cause
+from tcs.model.health import ERROR as ERROR_BIT, WARNING, ModuleHealth
+
+log = logging.getLogger(__name__)
+
+#: MOTION_STATE bits (spec §5.1, notes "Axis semantics").
+MOVING, TRAJECTORY, BLOCKED, ON_TARGET, LIMITED = 1, 2, 4, 8, 16
+#: LIMIT_STATE bits.
+HW_MIN, HW_MAX, HW_BLOCKING, SW_MIN, SW_MAX, SW_BLOCKING = 1, 2, 128, 256, 512, 32768
+
+POWER_TIMEOUT = 10.0  # s for a drive to reach Operation enabled / disabled
+
+REFERENCE_ORDER = {"ZD": 0, "DEC": 0, "AZ": 1, "HA": 1}
+
+#: Project event (numbers from 1000): trajectory points already in the past were dropped.
+POINTS_DROPPED = 1000
+
+
+class BufferSlot:
+    """One element of ``TRAJECTORY.BUFFER[]``: a staged (TIME, TARGETPOS) pair."""
+
+    __slots__ = ("time", "targetpos")
+
+    def __init__(self) -> None:
+        self.time: float | None = None
+        self.targetpos: float | None = None
+
+    def set_time(self, value: float) -> None:
+        self.time = float(value)
+
+    def set_targetpos(self, value: float) -> None:
+        self.targetpos = float(value)
+
+
+class AxisTrajectory:
+    """Domain object of ``<axis>.TRAJECTORY``."""
+
+    def __init__(self, axis: "Axis", capacity: int):
+        self.axis = axis
+        self.buffer = [BufferSlot() for _ in range(capacity)]
+        self.addpoints = 0
+
+    @property
+    def freepoints(self) -> int:
+        return self.axis.queue.free_points
+
+    def set_addpoints(self, count: int) -> None:
+        """Move BUFFER[0..count-1] into the running queue (returns at once)."""
+        count = int(count)
+        if not 0 < count <= len(self.buffer):
+            raise RangeRefused(f"ADDPOINTS must be 1..{len(self.buffer)}")
+        slots = self.buffer[:count]
+        if any(s.time is None or s.targetpos is None for s in slots):
+            raise RequestRefused(f"{self.axis.module_name}.TRAJECTORY: BUFFER[0..{count - 1}] "
+                                 "has points without TIME or TARGETPOS")
+        now = self.axis.ut1()
+        result = self.axis.queue.add_points([s.time for s in slots], [s.targetpos for s in slots], now)
+        self.addpoints = count
+        for s in slots:
+            s.time = s.targetpos = None
+        if result.dropped:
+            self.axis.emit(INFO, POINTS_DROPPED,
+                           f"{result.dropped} trajectory points already in the past were dropped")
+
+    @property
+    def run(self) -> int:
+        return 1 if self.axis.trajectory_running else 0
+
+    def set_run(self, value: int):
+        return self.axis.set_run(int(value))
+
+    @property
+    def starttime(self) -> float:
+        start = self.axis.queue.start_time
+        return start if start is not None else 0.0
+
+    @property
+    def runtime(self) -> float:
+        return self.axis.follower.runtime(self.axis.ut1()) if self.axis.follower else 0.0
+
+
+class Axis(ModuleHealth):
+    """One OpenTCI axis module bound to one drive.
+
+    Parameters
+    ----------
+    name:
+        The ``[axes.<name>]`` key.
+    section:
+        Its configuration.
+    drive:
+        The drive (``tcs.drivers.drive.Drive``).
+    events:
+        The telescope's event hub.
+    ut1:
+        The time base (``LocalTime.ut1``); trajectory times are UT1.
+    dt:
+        Control cycle (the SYNC period), s.
+    status_sink:
+        Where error conditions are recorded (CABINET.STATUS.LIST).
+    main_power:
+        Callable telling whether the cabinet's main power is on (axis POWER needs it).
+    """
+
+    def __init__(self, name: str, section: AxisSection, drive: Drive, events, ut1: Callable[[], float],
+                 dt: float, status_sink=None, main_power: Callable[[], bool] = lambda: True):
+        module = section.module + (f"[{section.index}]" if section.index is not None else "")
+        super().__init__(module, events, hw_type=section.hw_type, status_sink=status_sink)
+        self.name = name
+        self.section = section
+        self.drive = drive
+        self.ut1 = ut1
+        self.dt = dt
+        self.main_power = main_power
+        self.discrete = section.module in DISCRETE_MODULES
+        self.reference_order = REFERENCE_ORDER.get(section.module, 2)
+        self.positions = {int(k): v for k, v in section.positions.items()}
+        cycle = section.cyclic or None
+        self.limits = SoftLimits(section.min, section.max, cycle)
+        stop = section.stop_deceleration or 2 * section.max_acceleration
+        self.dynamics = AxisDynamics(section.max_velocity, section.max_acceleration, section.max_jerk,
+                                     quick_stop_acceleration=max(stop, section.max_acceleration),
+                                     quick_stop_jerk=section.max_jerk * max(stop, section.max_acceleration)
+                                     / section.max_acceleration)
+        self.planner = MotionPlanner(self.dynamics, self.limits, dt)
+        self.queue = TrajectoryQueue(section.trajectory_buffer, cycle)
+        self.follower: TrajectoryFollower | None = None
+        self.trajectory: AxisTrajectory | None = None
+        if section.module in TRAJECTORY_MODULES and not self.discrete:
+            self.follower = TrajectoryFollower(self.queue, self.dynamics, self.limits, dt)
+            self.trajectory = AxisTrajectory(self, section.trajectory_buffer)
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._commands: collections.deque = collections.deque()
+        self._lock = threading.Lock()
+        # -- published by the loop (read from any thread) --
+        self.power_state = 0.0
+        self.referenced = 0.0
+        self.real_position = 0.0
+        self.current_speed = 0.0
+        self.current_acc = 0.0
+        self.current_jerk = 0.0
+        self.motion_state = 0
+        self.limit_state = 0
+        self.target_position = 0.0
+        self.offset = 0.0
+        self.last_status: DriveStatus | None = None
+        # -- loop-thread state --
+        self._powered = False
+        self._want_power: bool | None = None
+        self._power_since = 0.0
+        self._homing = False
+        self._sp = Setpoint(0.0)
+        self._running = False  # follower in charge
+        self._fault: TcsError | None = None
+        self._discrete_target: int | None = None
+        self._pending: dict[str, tuple[asyncio.Future, Any]] = {}
+        self._completions: list[tuple[asyncio.Future, TcsError | None]] = []
+
+    # ================================================================ asyncio side
+
+    def bind_loop(self, loop: asyncio.AbstractEventLoop) -> None:
+        self._loop = loop
+
+    @property
+    def cyclic(self) -> float:
+        return self.section.cyclic
+
+    @property
+    def current_position(self) -> float:
+        return self.real_position - self.offset
+
+    @property
+    def target_distance(self) -> float:
+        d = self.target_position - self.current_position
+        c = self.section.cyclic
+        if c:
+            d = (d + c / 2) % c - c / 2
+        return d
+
+    @property
+    def trajectory_running(self) -> bool:
+        return bool(self.motion_state & TRAJECTORY)
+
+    def _future(self) -> asyncio.Future:
+        loop = self._loop or asyncio.get_running_loop()
+        self._loop = loop
+        return loop.create_future()
+
+    def _send(self, kind: str, value: Any = None, future: asyncio.Future | None = None) -> None:
+        with self._lock:
+            self._commands.append((kind, value, future, current_cause.get()))
+
+    def _require(self, *, powered: bool = True, referenced: bool = True, what: str = "move") -> None:
+        if self._fault is not None:
+            raise TcsError(f"{self.module_name}: cannot {what}: {self._fault.message}", self._fault.number)
+        if powered and self.power_state != 1.0:
+            raise TcsError(f"{self.module_name}: cannot {what}: power is off", ErrorNumber.INVMODE)
+        if referenced and self.referenced < 1.0:
+            raise TcsError(f"{self.module_name}: cannot {what}: not referenced (REINIT first)",
+                           ErrorNumber.INVMODE)
+
+    def set_power(self, value: int):
+        """``POWER`` (long-running)."""
+        return self.power(bool(int(value)))
+
+    def power(self, on: bool):
+        if on and not self.main_power():
+            raise TcsError(f"{self.module_name}: main power (CABINET.POWER) is off", ErrorNumber.INVMODE)
+        if on and self._fault is not None:
+            raise TcsError(f"{self.module_name}: {self._fault.message}; acknowledge with "
+                           f"ERROR_STATE=0 first", self._fault.number)
+        future = self._future()
+        self._send("power", on, future)
+        return future
+
+    def set_target(self, value: float):
+        """``TARGETPOS`` (long-running; a newer target supersedes this one with 10)."""
+        self._require(what="move")
+        value = float(value)
+        if self.discrete:
+            index = round(value)
+            if abs(value - index) > 1e-9 or index not in self.positions:
+                raise RangeRefused(f"{self.module_name}: positions are {sorted(self.positions)}")
+        elif not self.limits.contains(value + self.offset):
+            raise RangeRefused(f"{self.module_name}: {value} (+ offset {self.offset}) is outside "
+                               f"[{self.section.min}, {self.section.max}]")
+        future = self._future()
+        self._send("target", value, future)
+        return future
+
+    def set_offset(self, value: float):
+        """``OFFSET`` (long-running)."""
+        self._require(what="apply an offset")
+        if self.discrete:
+            raise RequestRefused(f"{self.module_name} moves between discrete positions: no offset")
+        value = float(value)
+        base = self.target_position
+        if not self.trajectory_running and not self.limits.contains(base + value):
+            raise RangeRefused(f"{self.module_name}: offset {value} puts the target outside the limits")
+        future = self._future()
+        self._send("offset", value, future)
+        return future
+
+    def set_stop(self, value: int) -> None:
+        """``STOP``: quick stop, cancel targets and trajectories (returns at once)."""
+        self.stop()
+
+    def stop(self) -> None:
+        self._send("stop")
+
+    def shutdown(self) -> None:
+        """Service stopping: stop, then power off (no reply is waited for)."""
+        self._send("stop")
+        self._send("power", False)
+
+    def set_speed(self, value: float) -> None:
+        """``CURRSPEED`` written: lowers the speed of new motion."""
+        value = float(value)
+        if not 0 < value <= self.section.max_velocity:
+            raise RangeRefused(f"{self.module_name}: speed must be in (0, {self.section.max_velocity}]")
+        self._send("speed", value)
+
+    def set_reinit(self, value: int) -> None:
+        """``REINIT``: 0 = reference if not referenced, 1 = force (returns at once)."""
+        self.reference(bool(int(value)), wait=False)
+
+    def reference(self, force: bool = False, wait: bool = True):
+        """Start homing; the future completes when referenced (cabinet REINIT awaits it)."""
+        if self._fault is not None:
+            raise TcsError(f"{self.module_name}: cannot reference: {self._fault.message}", self._fault.number)
+        if self.power_state != 1.0:
+            raise TcsError(f"{self.module_name}: cannot reference: power is off", ErrorNumber.INVMODE)
+        future = self._future()
+        if self.referenced >= 1.0 and not force:
+            future.set_result(None)
+        else:
+            self._send("reference", force, future)
+        if not wait:
+            future.add_done_callback(lambda f: f.cancelled() or f.exception())
+        return future
+
+    def set_run(self, value: int):
+        """``TRAJECTORY.RUN``: 1 runs (long-running until the queue ran empty or was
+        aborted), 0 aborts and frees the buffers."""
+        if value == 0:
+            self._send("run", False)
+            return None
+        self._require(what="run a trajectory")
+        future = self._future()
+        self._send("run", True, future)
+        return future
+
+    def on_acknowledge(self) -> None:
+        """ERROR_STATE=0: forget a drive fault once the drive is reset (never re-enables)."""
+        self._send("acknowledge")
+
+    def drive_status(self) -> DriveStatus | None:
+        return self.last_status
+
+    def emit(self, level: str, number: int, text: str = "", cause=None) -> None:
+        if self._events is not None:
+            self._events.emit(level, self.module_name, number, text, cause)
+
+    # ================================================================ control-loop side
+
+    def _resolve(self, key: str, error: TcsError | None = None) -> None:
+        entry = self._pending.pop(key, None)
+        if entry is None:
+            return
+        future, _ = entry
+        self._complete(future, error)
+
+    def _complete(self, future: asyncio.Future | None, error: TcsError | None = None) -> None:
+        """Queue a completion; :meth:`_flush` hands them to the event loop at the end of the
+        cycle, after the readbacks were published (so a client that gets ``DATA OK`` reads
+        the new state) and after this cycle's events."""
+        if future is not None:
+            self._completions.append((future, error))
+
+    def _flush(self) -> None:
+        if not self._completions or self._loop is None:
+            return
+        batch, self._completions = self._completions, []
+
+        def done() -> None:
+            for future, error in batch:
+                if future.done():
+                    continue
+                if error is None:
+                    future.set_result(None)
+                else:
+                    future.set_exception(error)
+
+        try:
+            self._loop.call_soon_threadsafe(done)
+        except RuntimeError:  # loop closed at shutdown
+            pass
+
+    def _hold(self, key: str, future, cause) -> None:
+        old = self._pending.get(key)
+        if old is not None:
+            self._complete(old[0], TcsError(f"{self.module_name}: target changed", ErrorNumber.TARGETCHANGE))
+            self.emit(ERROR, ErrorNumber.TARGETCHANGE, "target changed", old[1])
+        if future is not None:
+            self._pending[key] = (future, cause)
+
+    def _fail_motion(self, error: TcsError) -> None:
+        for key in ("target", "offset"):
+            self._resolve(key, error)
+        self._resolve("run", error if error.number not in (ErrorNumber.TARGETCHANGE,) else None)
+
+    def cycle(self, t: float, now: float) -> None:
+        """One control cycle: ``t`` is the UT1 time the setpoint applies, ``now`` the monotonic
+        time. Control-loop thread only."""
+        st = self.drive.status()
+        self.last_status = st
+        with self._lock:
+            commands = list(self._commands)
+            self._commands.clear()
+        for kind, value, future, cause in commands:
+            try:
+                self._apply(kind, value, future, cause, st, t, now)
+            except TcsError as exc:
+                self._complete(future, exc)
+        self._watch_drive(st, now)
+        setpoint = self._motion(st, t)
+        if setpoint is not None:
+            self.drive.set_setpoint(setpoint.position, setpoint.velocity)
+        self.drive.step()
+        self._publish(st, t)
+        self._flush()
+
+    def _apply(self, kind, value, future, cause, st: DriveStatus, t: float, now: float) -> None:
+        if kind == "power":
+            self._hold("power", future, cause)
+            self._want_power = value
+            self._power_since = now
+            if value:
+                self.drive.set_mode(Mode.PP if self.discrete else Mode.CSP)
+                self.drive.enable()
+            else:
+                self._stop_motion(TcsError(f"{self.module_name}: power off", ErrorNumber.INVMODE))
+                self.drive.disable()
+        elif kind == "target":
+            self._hold("target", future, cause)
+            if self.discrete:
+                self._discrete_target = int(round(value))
+                self.target_position = float(self._discrete_target)
+                self.drive.move_to(self.positions[self._discrete_target])
+            else:
+                if self._running:
+                    self.follower.abort()
+                    self._running = False
+                    self._resolve("run")
+                if not self.planner.moving:
+                    self.planner.take_over(self._sp)
+                self.planner.set_target(value)
+            self.emit(INFO, ErrorNumber.MOTIONCHANGE, f"moving to {value:g}", cause)
+        elif kind == "offset":
+            self._hold("offset", future, cause)
+            self.offset = value
+            if self._running:
+                self.follower.set_offset(value)
+            else:
+                self.planner.set_offset(value)
+        elif kind == "stop":
+            self._stop_motion(TcsError(f"{self.module_name}: stopped", ErrorNumber.TARGETCHANGE))
+        elif kind == "speed":
+            self.planner.set_speed(value)
+            if self.follower is not None:
+                self.follower.set_speed(value)
+        elif kind == "reference":
+            if future is not None:
+                self._pending.setdefault("reference", (future, cause))
+            if self._homing:
+                return
+            self._homing = True
+            self.referenced = 0.0
+            self.drive.start_homing()
+            self.emit(INFO, ErrorNumber.REFERENCE_EXECUTE, "referencing", cause)
+        elif kind == "run":
+            if not value:
+                if self._running:
+                    self.follower.abort()
+                self._resolve("run")
+                self.queue.clear()
+                return
+            self._hold("run", future, cause)
+            if self.planner.moving:
+                self.planner.stop(quick=False)
+            self.follower.set_offset(self.offset)
+            dropped = self.follower.start(t, self._sp)
+            self._running = True
+            if dropped:
+                self.emit(INFO, POINTS_DROPPED, f"{dropped} trajectory points in the past dropped", cause)
+        elif kind == "acknowledge":
+            if self._fault is not None:
+                self.drive.fault_reset()
+                if self.drive.status().fault is None:
+                    self._fault = None
+                    self.clear_condition("drive fault")
+
+    def _stop_motion(self, error: TcsError) -> None:
+        self.planner.stop(quick=True)
+        if self._running:
+            self.follower.abort(quick=True)
+        self._running = False
+        self._fail_motion(error)
+        self._resolve("run")
+        self.queue.clear()
+
+    def _watch_drive(self, st: DriveStatus, now: float) -> None:
+        fault = st.fault
+        if fault is not None and self._fault is None:
+            self._fault = fault
+            self._powered = False
+            self._want_power = None
+            self.raise_condition("drive fault", ERROR_BIT, fault.message)
+            self.emit(ERROR, fault.number, fault.message)
+            self._stop_motion(fault)
+            for key in ("power", "reference"):
+                self._resolve(key, fault)
+            self._homing = False
+            self.drive.disable()
+        if self._fault is not None and st.fault is None and st.state is DriveState.SWITCH_ON_DISABLED:
+            # the drive was reset (acknowledge): the condition's cause is gone
+            if self.conditions().get("drive fault", (0, False))[1]:
+                self.clear_condition("drive fault")
+        # power
+        if self._want_power is True and st.enabled and not self._powered and (
+                self.discrete or st.mode == Mode.CSP):
+            self._powered = True
+            self._sp = Setpoint(st.position)
+            self.planner.take_over(self._sp)
+            if self.referenced < 1.0 and st.homed:
+                self.referenced = 1.0
+            self.emit(INFO, ErrorNumber.POWERCHANGE, "power on", self._pending.get("power", (0, None))[1])
+            self._resolve("power")
+        elif self._want_power is False and not st.enabled and st.state is not DriveState.QUICK_STOP_ACTIVE:
+            if self._powered or "power" in self._pending:
+                self._powered = False
+                self.emit(INFO, ErrorNumber.POWERCHANGE, "power off", self._pending.get("power", (0, None))[1])
+                self._resolve("power")
+            self._want_power = None
+        elif self._want_power is not None and now - self._power_since > POWER_TIMEOUT:
+            error = st.request_error or TcsError(
+                f"{self.module_name}: drive did not reach {'on' if self._want_power else 'off'} "
+                f"within {POWER_TIMEOUT:g} s (state {st.state.value})", ErrorNumber.TIMEOUT)
+            self._resolve("power", error)
+            self._want_power = None
+        if self._powered and not st.enabled and not self._homing and self._fault is None:
+            self._powered = False  # dropped out (e.g. limit switch quick stop)
+            self._stop_motion(TcsError(f"{self.module_name}: drive left operation enabled", ErrorNumber.LIMIT))
+            self.emit(ERROR, ErrorNumber.POWERCHANGE, f"drive {st.state.value}")
+        # homing
+        if self._homing:
+            if st.homing is Progress.DONE:
+                self._homing = False
+                self.referenced = 1.0
+                self._sp = Setpoint(st.position)
+                self.planner.take_over(self._sp)
+                self._resolve("reference")
+                self.emit(INFO, ErrorNumber.REFERENCE_GOOD, "referenced")
+            elif st.homing is Progress.FAILED:
+                self._homing = False
+                self.referenced = 0.0
+                error = st.request_error or TcsError(f"{self.module_name}: homing failed", ErrorNumber.TIMEOUT)
+                self._resolve("reference", error)
+                self.emit(ERROR, ErrorNumber.REFERENCE_BAD, error.message)
+            else:
+                self.referenced = min(0.99, st.homing_progress)
+
+    def _motion(self, st: DriveStatus, t: float) -> Setpoint | None:
+        if not self._powered or self._homing or self.discrete or not st.enabled:
+            if not self._homing:
+                self._sp = Setpoint(st.position)
+            return None
+        if self._running:
+            step = self.follower.step(t, self._sp)
+            self._sp = step.setpoint
+            for number in step.events:
+                self.emit(ERROR if number == ErrorNumber.SOFTLIMIT else INFO, number,
+                          self.follower.end_reason or "", self._pending.get("run", (None, None))[1])
+            if self.follower.state.value == "ended":
+                self._running = False
+                if self.follower.end_reason == "softlimit":
+                    self._resolve("run", TcsError(f"{self.module_name}: trajectory stopped at the "
+                                                  f"software limit", ErrorNumber.SOFTLIMIT))
+                else:
+                    self._resolve("run")
+                self.planner.take_over(self._sp)
+        else:
+            self._sp = self.planner.step()
+            if self.planner.softlimit is not None and ("target" in self._pending or "offset" in self._pending):
+                self._fail_motion(TcsError(f"{self.module_name}: software limit {self.planner.softlimit}",
+                                           ErrorNumber.SOFTLIMIT))
+                self.emit(ERROR, ErrorNumber.SOFTLIMIT, f"software limit {self.planner.softlimit}")
+        return self._sp
+
+    def _publish(self, st: DriveStatus, t: float) -> None:
+        prev_motion, prev_limit = self.motion_state, self.limit_state
+        sp = self._sp
+        if self.discrete:
+            self.real_position = self._discrete_position(st.position)
+        else:
+            self.real_position = st.position
+        self.current_speed = st.velocity
+        self.current_acc = sp.acceleration
+        self.current_jerk = sp.jerk
+        error = abs(st.position - sp.position)
+        # power state
+        self.power_state = 1.0 if self._powered else 0.0
+        # target position in the user frame
+        if self._running:
+            self.target_position = self.follower.path_position(t) - self.offset
+        elif not self.discrete:
+            self.target_position = self.planner.target
+        motion = 0
+        if abs(st.velocity) > 1e-9 or (not self.discrete and self.planner.moving) or \
+                (self.discrete and st.move is Progress.RUNNING) or self._homing:
+            motion |= MOVING
+        if self._running:
+            motion |= TRAJECTORY
+            if self.follower.on_path:
+                motion |= ON_TARGET
+            if self.follower.limited:
+                motion |= LIMITED
+        elif self.discrete:
+            if self._discrete_target is not None and st.move is not Progress.RUNNING and \
+                    abs(st.position - self.positions[self._discrete_target]) <= max(self.section.tolerance, 1e-9):
+                motion |= ON_TARGET
+        elif self._powered and self.planner.at_target and error <= self.section.tolerance:
+            motion |= ON_TARGET
+        if not self.discrete and self.planner.limited:
+            motion |= LIMITED
+        limit = 0
+        if st.limit_negative:
+            limit |= HW_MIN
+        if st.limit_positive:
+            limit |= HW_MAX
+        if limit and (self._fault is not None or not st.enabled):
+            limit |= HW_BLOCKING
+        if not self.discrete:
+            tol = max(self.section.tolerance, 1e-9)
+            if st.position <= self.section.min + tol or self.planner.softlimit == "min":
+                limit |= SW_MIN
+            if st.position >= self.section.max - tol or self.planner.softlimit == "max":
+                limit |= SW_MAX
+            if self.planner.softlimit is not None or (self.follower and self.follower.softlimit):
+                limit |= SW_BLOCKING
+        if limit & (HW_MIN | HW_MAX | HW_BLOCKING):
+            motion |= BLOCKED
+        self.motion_state, self.limit_state = motion, limit
+        # completions
+        if motion & ON_TARGET and not motion & MOVING:
+            self._resolve("target")
+            self._resolve("offset")
+        if self.discrete and st.move is Progress.FAILED and "target" in self._pending:
+            self._resolve("target", st.request_error or TcsError(f"{self.module_name}: move failed",
+                                                                ErrorNumber.TIMEOUT))
+        # events
+        if (motion ^ prev_motion) & (MOVING | TRAJECTORY | BLOCKED):
+            self.emit(INFO, ErrorNumber.MOTIONCHANGE, "moving" if motion & MOVING else "stopped")
+        if limit != prev_limit:
+            level = ERROR if limit & (HW_MIN | HW_MAX) and not prev_limit & (HW_MIN | HW_MAX) else INFO
+            self.emit(level, ErrorNumber.LIMITCHANGE, f"limit state {limit}")
+            if limit & (HW_MIN | HW_MAX):
+                self.raise_condition("limit switch", WARNING, "hardware limit switch active")
+                self._fail_motion(TcsError(f"{self.module_name}: limit switch", ErrorNumber.LIMIT))
+            elif prev_limit & (HW_MIN | HW_MAX):
+                self.clear_condition("limit switch")
+
+    def _discrete_position(self, drive_position: float) -> float:
+        """REALPOS of a discrete axis: the integer position within tolerance, else an
+        interpolation between the neighbouring positions."""
+        items = sorted(self.positions.items(), key=lambda kv: kv[1])
+        tol = max(self.section.tolerance, 1e-6)
+        for index, pos in items:
+            if abs(drive_position - pos) <= tol:
+                return float(index)
+        xs = [p for _, p in items]
+        i = bisect.bisect_left(xs, drive_position)
+        if i == 0 or i == len(xs):
+            return float(items[0][0] if i == 0 else items[-1][0])
+        (i0, p0), (i1, p1) = items[i - 1], items[i]
+        return i0 + (i1 - i0) * (drive_position - p0) / (p1 - p0)
+
