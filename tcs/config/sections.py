@@ -90,3 +90,8 @@ class CabinetSection:
     hw_version: str = setting("1", doc="CABINET.SETUP.HW_VERSION")
     config_id: str = setting("", doc="CABINET.SETUP.CONFIG_ID")
     config_version: str = setting("1", doc="CABINET.SETUP.CONFIG_VERSION")
+    hw_type: int = setting(1, min=1, doc="CABINET.TYPE: identifies the cabinet and its CORE layout")
+    param_name: str = setting("", doc="CABINET.SETUP.PARAM_NAME (empty = the hardware file's name)")
+    param_version: str = setting("", doc="CABINET.SETUP.PARAM_VERSION (empty = the file's "
+                                         "modification time, UTC)")
+    log_lines: int = setting(20, min=1, max=1000, doc="size of CABINET.STATUS.LOG[] (newest first)")
