@@ -1,0 +1,158 @@
+"""Enable/disable, CSP streaming, profile-position moves and modes, against simulated drives."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import can
+import pytest
+from cia402_rig import AxisSpec, Rig
+
+from tcs.drivers.drive import DriveState, Mode, Progress
+from tcs.sim.cia402_drive import SimDriveParams
+
+
+def test_enable_disable_and_quick_stop(can_channel):
+    with Rig(can_channel, {"az": AxisSpec(1), "alt": AxisSpec(2)}) as rig:
+        assert rig.boot_and_start() == {}
+        rig.enable("az", "alt")
+        assert rig.sims["az"].state == "OPERATION ENABLED"
+        assert rig.status("alt").controlword == 0x000F
+        rig.drive("az").disable()
+        rig.wait_state("az", DriveState.SWITCH_ON_DISABLED)
+        assert rig.status("alt").state is DriveState.OPERATION_ENABLED  # only az was disabled
+        rig.drive("alt").quick_stop()
+        rig.wait(lambda: rig.status("alt").state in (DriveState.QUICK_STOP_ACTIVE,
+                                                    DriveState.SWITCH_ON_DISABLED), what="quick stop")
+        rig.enable("alt")  # from quick stop: 12, 2, 3+4
+        assert rig.status("alt").fault is None and rig.status("alt").request_error is None
+
+
+def test_csp_holds_the_actual_position_when_enabled(can_channel):
+    params = SimDriveParams(position=3.75)
+    with Rig(can_channel, {"az": AxisSpec(1, params=params)}) as rig:
+        assert rig.boot_and_start() == {}
+        assert rig.status("az").position == pytest.approx(3.75)
+        rig.enable("az")
+        cycles = rig.system.cycle.stats().cycles
+        rig.wait(lambda: rig.system.cycle.stats().cycles > cycles + 20, what="20 cycles")
+        status = rig.status("az")
+        assert status.state is DriveState.OPERATION_ENABLED and status.fault is None
+        assert status.setpoint == pytest.approx(3.75) and rig.sims["az"].position == pytest.approx(3.75)
+
+
+def test_csp_streaming_follows_a_moving_profile(can_channel):
+    axes = {"az": AxisSpec(1), "alt": AxisSpec(2, params=SimDriveParams(position=-2.0))}
+    with Rig(can_channel, axes) as rig:
+        assert rig.boot_and_start() == {}
+        rig.enable("az", "alt")
+        start = {name: rig.status(name).position for name in axes}
+        profile = {}
+
+        def stream(cycle):
+            if "t0" not in profile:
+                profile["t0"] = cycle.sync_time
+            t = cycle.sync_time - profile["t0"]
+            for name in axes:  # 1 - cos: starts at rest; up to 0.79 units/s and 1.2 units/s²
+                rig.drive(name).set_setpoint(start[name] + 0.5 * (1 - math.cos(math.pi / 2 * t)))
+            profile["t"] = t
+
+        samples = []
+        rig.cycle_hooks.append(stream)
+        deadline = time.monotonic() + 30
+        while profile.get("t", 0) < 2.5 and time.monotonic() < deadline:
+            time.sleep(0.03)
+            for name in axes:
+                status = rig.status(name)
+                samples.append((name, status.setpoint, rig.sims[name].position, status.position))
+        rig.cycle_hooks.remove(stream)
+        assert profile["t"] > 1.0
+        for name, setpoint, sim_position, reported in samples:
+            # Sim and TCS agree, and the axis is where the stream put it (within a few cycles).
+            assert abs(sim_position - setpoint) < 0.05, (name, setpoint, sim_position)
+            assert abs(reported - sim_position) < 0.05
+        moved = {name: max(abs(s[2] - start[name]) for s in samples if s[0] == name) for name in axes}
+        assert all(m > 0.4 for m in moved.values()), moved
+        for name in axes:
+            assert rig.status(name).fault is None
+
+
+def test_exactly_one_rpdo_per_cycle(can_channel):
+    with Rig(can_channel, {"az": AxisSpec(1), "alt": AxisSpec(2)}) as rig:
+        assert rig.boot_and_start() == {}
+        rig.enable("az", "alt")
+        tap = can.Bus(**can_channel)
+        try:
+            first = rig.system.cycle.stats().cycles
+            rig.wait(lambda: rig.system.cycle.stats().cycles > first + 50, what="50 cycles")
+            rig.system.stop()  # no more SYNC: what the tap holds is a closed record
+            counts = {}
+            end = time.monotonic() + 0.5  # heartbeats go on: read what is queued, and a bit more
+            while (msg := tap.recv(0.01)) is not None or time.monotonic() < end:
+                if msg is not None:
+                    counts[msg.arbitration_id] = counts.get(msg.arbitration_id, 0) + 1
+                if time.monotonic() > end + 10:
+                    break
+        finally:
+            tap.shutdown()
+        syncs = counts.get(0x080, 0)
+        assert syncs >= 50
+        # Each drive sent one RPDO per SYNC (the first SYNC may precede the tap's start).
+        for cob in (0x201, 0x202):
+            assert abs(counts.get(cob, 0) - syncs) <= 1, counts
+
+
+def test_profile_position_move(can_channel):
+    axes = {"wheel": AxisSpec(4, section={"default_mode": "pp"})}
+    with Rig(can_channel, axes) as rig:
+        assert rig.boot_and_start() == {}
+        rig.enable("wheel")
+        drive = rig.drive("wheel")
+        drive.move_to(2.5)
+        rig.wait(lambda: rig.status("wheel").move is not Progress.IDLE, what="move started")
+        rig.wait(lambda: rig.status("wheel").move is not Progress.RUNNING, timeout=20, what="move end")
+        status = rig.status("wheel")
+        assert status.move is Progress.DONE, status.request_error
+        assert status.position == pytest.approx(2.5, abs=1e-3) and status.target_reached
+        drive.move_to(-1.0, velocity=1.0)  # slower: a profile-velocity write first
+        rig.wait(lambda: rig.status("wheel").move is Progress.RUNNING, what="second move")
+        rig.wait(lambda: rig.status("wheel").move is not Progress.RUNNING, timeout=20, what="move end")
+        assert rig.status("wheel").move is Progress.DONE
+        assert rig.sims["wheel"].read_object(0x6081) == 10000
+        assert rig.sims["wheel"].position == pytest.approx(-1.0, abs=1e-3)
+
+
+def test_move_outside_the_software_limits_is_refused(can_channel):
+    with Rig(can_channel, {"wheel": AxisSpec(4, section={"default_mode": "pp"})}) as rig:
+        assert rig.boot_and_start() == {}
+        from tcs.errors import ErrorNumber, TcsError
+        with pytest.raises(TcsError) as info:
+            rig.drive("wheel").move_to(150.0)
+        assert info.value.number == ErrorNumber.SOFTLIMIT
+
+
+def test_move_when_not_enabled_fails_clearly(can_channel):
+    with Rig(can_channel, {"wheel": AxisSpec(4, section={"default_mode": "pp"})}) as rig:
+        assert rig.boot_and_start() == {}
+        rig.drive("wheel").move_to(1.0)
+        rig.wait(lambda: rig.status("wheel").move is Progress.FAILED, what="move refused")
+        assert "needs the drive enabled" in str(rig.status("wheel").request_error)
+
+
+def test_mode_switch_is_read_back_and_csp_resumes_at_the_actual_position(can_channel):
+    with Rig(can_channel, {"m3": AxisSpec(6)}) as rig:
+        assert rig.boot_and_start() == {}
+        rig.enable("m3")
+        drive = rig.drive("m3")
+        drive.move_to(1.5)  # switches to PP by itself
+        rig.wait(lambda: rig.status("m3").move is Progress.DONE, timeout=20, what="PP move")
+        assert rig.status("m3").mode is Mode.PP and rig.sims["m3"].mode_display == 1
+        drive.set_mode(Mode.CSP)
+        rig.wait(lambda: rig.status("m3").mode is Mode.CSP, what="CSP read back")
+        cycles = rig.system.cycle.stats().cycles
+        rig.wait(lambda: rig.system.cycle.stats().cycles > cycles + 10, what="10 cycles")
+        status = rig.status("m3")
+        assert status.state is DriveState.OPERATION_ENABLED and status.fault is None
+        assert status.setpoint == pytest.approx(1.5, abs=1e-3)  # no jump back to the old hold
+        assert rig.sims["m3"].position == pytest.approx(1.5, abs=1e-3)
