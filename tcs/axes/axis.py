@@ -419,6 +419,9 @@ class Axis(ModuleHealth):
 
     def _apply(self, kind, value, future, cause, st: DriveStatus, t: float, now: float) -> None:
         if kind == "power":
+            if bool(value) == self._powered and self._want_power is None:
+                self._complete(future)  # already there
+                return
             self._hold("power", future, cause)
             self._want_power = value
             self._power_since = now
@@ -517,6 +520,7 @@ class Axis(ModuleHealth):
         if self._want_power is True and st.enabled and not self._powered and (
                 self.discrete or st.mode == Mode.CSP):
             self._powered = True
+            self._want_power = None
             self._sp = Setpoint(st.position)
             self.planner.take_over(self._sp)
             if self.referenced < 1.0 and st.homed:

@@ -81,6 +81,9 @@ class ModuleHealth:
             for entry in self._conditions.values():
                 entry[2] = False
         self.on_acknowledge()
+        acknowledged = getattr(self._status_sink, "acknowledged", None)
+        if acknowledged is not None:  # STATUS.LIST: the Count column restarts
+            acknowledged(self.module_name)
         self._changed(before, "acknowledged")
 
     def on_acknowledge(self) -> None:

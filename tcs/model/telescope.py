@@ -21,7 +21,9 @@ from concurrent.futures import ThreadPoolExecutor
 
 from tcs.config import HwConfig
 from tcs.errors import TcsError
+from tcs.model.cabinet import Cabinet
 from tcs.model.events import EventHub
+from tcs.model.log_buffer import LogBuffer
 from tcs.model.health import ERROR
 from tcs.model.local import LocalTime
 from tcs.model.mount_config import MountConfig
@@ -40,8 +42,10 @@ class Telescope:
         self.store = StateStore(self.state_dir)
         self.local = LocalTime(config, self.store, self.events)
         self.mount_config = MountConfig(config, self.store, self.events)
-        self.cabinet = None
-        self.status_sink = None
+        self.log_buffer = LogBuffer(config.cabinet.log_lines)
+        self.cabinet = Cabinet(config, self.store, self.events, log_buffer=self.log_buffer)
+        self.cabinet.attach(modules=[self.local, self.mount_config])
+        self.status_sink = self.cabinet.status_sink
         self.axes: list = []
         self.can = None
         self.sims = None
@@ -86,6 +90,7 @@ class Telescope:
     async def start(self) -> None:
         """Bring up the simulators (if any), the bus, the drives, the axes and the loop."""
         self.events.bind_loop()
+        await self.cabinet.start()
         if self.config.can is not None and self.config.drives:
             try:
                 await self._start_can()
@@ -113,7 +118,9 @@ class Telescope:
             if section.drive in failures:
                 axis.raise_condition("drive offline", ERROR, failures[section.drive].message)
             self.axes.append(axis)
+        self.cabinet.attach(axes=self.axes)
         self.control_loop = ControlLoop(self.axes, self.can.cycle, self.local.ut1)
+        self.cabinet.loop_stats = self.control_loop.stats
         self.can.start()
 
     async def stop(self) -> None:
@@ -135,6 +142,7 @@ class Telescope:
         if self.sims is not None:
             await self.run_blocking(self.sims.stop)
             self.sims = None
+        await self.cabinet.close()
         if self._blocking is not None:
             self._blocking.shutdown(wait=True)
             self._blocking = None

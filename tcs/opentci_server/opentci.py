@@ -15,6 +15,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from tcs.opentci_server.opentci_axes import AXES
+from tcs.opentci_server.opentci_cabinet import CABINET
+from tcs.opentci_server.opentci_common import common
 from tcs.opentci_server.tree import (CONFIGURE, FLOAT, INT, OPERATE, READ_ALL, STRING, Tree, module,
                                      sysvar, var)
 
@@ -23,16 +26,6 @@ from tcs.opentci_server.tree import (CONFIGURE, FLOAT, INT, OPERATE, READ_ALL, S
 class Root:
     telescope: Any
     server: Any
-
-
-def common(type_info: str = "hardware type (≥ 1)"):
-    """VERSION, TYPE and ERROR_STATE, which every OpenTCI module has (spec §3.2)."""
-    return (
-        var("VERSION", INT, get="version", info="interface version 0x..IIAARR (version 24)"),
-        var("TYPE", INT, get="hw_type", info=type_info),
-        var("ERROR_STATE", INT, get="error_state", set="acknowledge_errors", min=0, max=0,
-            info="error bits 0 PANIC, 1 ERROR, 2 WARNING, 3 INFO, 4 DEBUG; write 0 to acknowledge"),
-    )
 
 
 SERVER = module(
@@ -102,10 +95,8 @@ CONFIG = module(
     bind=lambda root: root.telescope.mount_config,
 )
 
-from tcs.opentci_server.opentci_axes import AXES  # noqa: E402  (uses common() above)
-
 #: The modules of the OpenTCI tree in the order they are numbered.
-OPENTCI = (SERVER, LOCAL, CONFIG, *AXES)
+OPENTCI = (SERVER, LOCAL, CONFIG, CABINET, *AXES)
 
 
 def build_tree(telescope: Any, server: Any) -> Tree:

@@ -8,13 +8,8 @@ hardware file's ``[axes]`` (and so the mount). Part of the one declaration of th
 
 from __future__ import annotations
 
+from tcs.opentci_server.opentci_common import common
 from tcs.opentci_server.tree import FLOAT, INT, OPERATE, module, module_array, var
-
-
-def _common():
-    from tcs.opentci_server.opentci import common
-
-    return common()
 
 
 def _lo(axis):
@@ -47,7 +42,7 @@ TRAJECTORY = module(
 def axis_members():
     """The variables of the generic axis (§5.1), in the spec's order."""
     return (
-        *_common(),
+        *common(),
         var("POWER", INT, get=lambda a: 1 if a.power_state == 1.0 else 0, set="set_power", min=0, max=1,
             long=True, info="0 off, 1 on; returns when reached"),
         var("POWER_STATE", FLOAT, get="power_state", info="-1 emergency off, 0 off, 0.75 standby, 1 on"),
