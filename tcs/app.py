@@ -14,6 +14,7 @@ import logging
 
 from tcs.config import HwConfig
 from tcs.model.telescope import Telescope
+from tcs.notify import Notifier
 from tcs.opentci_server.opentci import build_tree
 from tcs.opentci_server.server import Tpl2Server
 
@@ -57,11 +58,38 @@ class Service:
         await self.stop()
 
 
-async def serve_until_signalled(service: Service, stop: asyncio.Event) -> None:
-    """Run ``service`` until ``stop`` is set (by SIGINT/SIGTERM)."""
-    await service.start()
+async def serve_until_signalled(service: Service, stop: asyncio.Event, notifier: Notifier | None = None) -> None:
+    """Run ``service`` until ``stop`` is set (by SIGINT/SIGTERM), telling systemd about it:
+    ``READY=1`` once it serves, ``WATCHDOG=1`` while the control loop is healthy, ``STATUS=``
+    lines, ``STOPPING=1``."""
+    notifier = notifier or Notifier()
+    notifier.send("STATUS=starting: booting the hardware")
+    port = await service.start()
+    host = service.host or service.config.server.host
+    notifier.send("READY=1", f"STATUS=serving OpenTCI on {host}:{port}")
+    watchdog = asyncio.get_running_loop().create_task(_watchdog(service, notifier))
     try:
         await stop.wait()
     finally:
         log.info("stopping")
+        notifier.send("STOPPING=1", "STATUS=stopping: ending commands, stopping motion, disabling drives")
+        watchdog.cancel()
+        try:
+            await watchdog
+        except asyncio.CancelledError:
+            pass
         await service.stop()
+        notifier.close()
+
+
+async def _watchdog(service: Service, notifier: Notifier) -> None:
+    interval = notifier.watchdog_interval()
+    if interval is None or not notifier.enabled:
+        return
+    while True:
+        await asyncio.sleep(interval)
+        loop = service.telescope.control_loop if service.telescope else None
+        if loop is None or loop.healthy():
+            notifier.send("WATCHDOG=1")
+        else:
+            log.error("control loop is not running: withholding the systemd watchdog")

@@ -104,7 +104,9 @@ class Telescope:
         from tcs.drivers.can_system import CanDrives
 
         config = self.config
-        if config.simulation is not None and config.simulation.drives:
+        if config.simulation is not None and config.simulation.drives and config.can.interface == "virtual":
+            # simulated drives on an in-process bus live here; on any other bus they are
+            # somebody else's (tcs-sim, a gateway), and only the bus settings differ
             self.sims = start_simulated_drives(config)
         self.can = CanDrives.from_config(config)
         await self.run_blocking(self.can.open)

@@ -1,0 +1,56 @@
+"""systemd's notify protocol (``Type=notify``): READY, WATCHDOG, STATUS, STOPPING.
+
+A datagram to the AF_UNIX socket named in ``$NOTIFY_SOCKET`` (a leading ``@`` means the
+abstract namespace). Without ``$NOTIFY_SOCKET`` every call does nothing, so the service runs
+the same by hand. ``WATCHDOG=1`` is sent by :class:`tcs.app.Service` only while the control
+loop is healthy (never from an independent timer): a hung loop lets systemd restart us.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+
+log = logging.getLogger(__name__)
+
+
+class Notifier:
+    """Sends notify messages; a no-op when the service is not started by systemd."""
+
+    def __init__(self, address: str | None = None):
+        address = os.environ.get("NOTIFY_SOCKET") if address is None else address
+        self.address = None
+        self.sock = None
+        if address:
+            self.address = "\0" + address[1:] if address.startswith("@") else address
+            self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+
+    @property
+    def enabled(self) -> bool:
+        return self.sock is not None
+
+    @staticmethod
+    def watchdog_interval() -> float | None:
+        """Half of ``$WATCHDOG_USEC`` in seconds (how often to send WATCHDOG=1), or None."""
+        usec = os.environ.get("WATCHDOG_USEC")
+        pid = os.environ.get("WATCHDOG_PID")
+        if not usec or (pid and pid != str(os.getpid())):
+            return None
+        try:
+            return int(usec) / 2e6
+        except ValueError:
+            return None
+
+    def send(self, *lines: str) -> None:
+        if self.sock is None:
+            return
+        try:
+            self.sock.sendto("\n".join(lines).encode(), self.address)
+        except OSError as exc:
+            log.warning("cannot notify systemd at %s: %s", self.address, exc)
+
+    def close(self) -> None:
+        if self.sock is not None:
+            self.sock.close()
+            self.sock = None
