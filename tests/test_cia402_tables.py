@@ -132,3 +132,68 @@ def test_remap_procedure_order():
         (0x1802, 1, "<I", 0x383),        # validate
     ]
     assert configuration_writes(None, "rpdo2", 3) == [(0x1401, 1, "<I", 0x80000303)]
+
+
+# --- the handshakes, fed statuswords by hand ---------------------------------------------
+from tcs.drivers.drive import Progress  # noqa: E402
+from tcs.drivers.handshakes import HomingRun, ProfileMove  # noqa: E402
+
+OE = 0x0027  # Operation enabled
+
+
+def test_homing_handshake_sequence():
+    run = HomingRun("d", 17, timeout=10.0, now=0.0)
+    script = [  # (statusword seen, bit 4 expected)
+        (OE | 0x0400, 0),            # idle (001): bit 4 stays low one cycle
+        (OE | 0x0400, 0x10),         # start: bit 4 high
+        (OE, 0x10),                  # running (000)
+        (OE | 0x1000, 0x10),         # attained, still moving (010)
+        (OE | 0x1400, 0),            # done (011): bit 4 low
+        (OE | 0x1400, 0),            # finished
+    ]
+    for i, (sw, bits) in enumerate(script):
+        assert run.step(0.01 * i, sw) == bits, i
+    assert run.progress is Progress.DONE and run.fraction == 1.0
+
+
+def test_homing_ignores_the_previous_runs_error_but_not_a_new_one():
+    run = HomingRun("d", 17, timeout=10.0, now=0.0)
+    assert run.step(0.0, OE | 0x2400) == 0     # old "error at rest" while bit 4 is low
+    assert run.step(0.01, OE | 0x2400) == 0x10  # start, the drive has not reacted yet
+    assert run.progress is Progress.RUNNING
+    assert run.step(0.02, OE) == 0x10           # running
+    assert run.step(0.03, OE | 0x2000) == 0     # error while moving
+    assert run.progress is Progress.FAILED and "homing error (method 17" in str(run.error)
+
+
+def test_homing_time_out_and_instant_methods():
+    run = HomingRun("d", 33, timeout=1.0, now=0.0)
+    run.step(0.0, OE | 0x0400)
+    run.step(0.1, OE)
+    assert run.step(1.5, OE) == 0 and run.progress is Progress.FAILED
+    assert run.error.number == ErrorNumber.TIMEOUT
+    run = HomingRun("d", 37, timeout=1.0, now=0.0)  # already "done" from an earlier run
+    run.step(0.0, OE | 0x1400)
+    run.step(0.01, OE | 0x1400)
+    run.step(0.1, OE | 0x1400)  # still done after bit 4: the drive re-homed at once
+    assert run.step(0.11, OE | 0x1400) == 0  # bit 4 low again
+    run.step(0.12, OE | 0x1400)
+    assert run.progress is Progress.DONE
+
+
+def test_profile_move_handshake():
+    move = ProfileMove("d", target=1000, window=5, deadline=10.0, now=0.0, velocity_job=None, scale=1.0)
+    assert move.step(0.0, OE | 0x0400, 0) == 0          # idle: no acknowledge pending
+    assert move.step(0.01, OE | 0x0400, 0) == 0x30      # new set-point + change immediately
+    assert move.step(0.02, OE | 0x1000, 10) == 0        # acknowledged: bit 4 low
+    assert move.step(0.03, OE, 500) == 0 and move.progress is Progress.RUNNING
+    assert move.step(0.04, OE | 0x0400, 998) == 0
+    assert move.progress is Progress.DONE
+
+
+def test_profile_move_without_acknowledge_fails():
+    move = ProfileMove("d", target=1000, window=5, deadline=10.0, now=0.0, velocity_job=None, scale=1.0)
+    move.step(0.0, OE, 0)
+    move.step(0.01, OE, 0)
+    move.step(2.0, OE, 0)
+    assert move.progress is Progress.FAILED and "not acknowledged" in str(move.error)

@@ -17,11 +17,15 @@ Sequence:
 4. SDO configuration (:func:`configuration`): heartbeat producer (0x1017) and consumer of the
    TCS heartbeat (0x1016), SYNC period (0x1006, optional object) and interpolation period
    (0x60C2), software limits (0x607D), following-error window and time-out (0x6065/0x6066),
-   profile velocity / acceleration / deceleration / quick-stop deceleration
-   (0x6081/0x6083/0x6084/0x6085), homing method / speeds / acceleration / offset
+   max profile velocity (0x607F, optional), profile velocity / acceleration / deceleration /
+   quick-stop deceleration (0x6081/0x6083/0x6084/0x6085), homing method / speeds / acceleration / offset
    (0x6098/0x6099/0x609A/0x607C), the PDO mapping (:mod:`tcs.drivers.pdo`), and the default
    mode of operation (0x6060, read back from 0x6061);
 5. read statusword, position and error code, NMT *start*, wait for heartbeat "operational".
+
+Units: the driver scales user units to the drive's position units itself
+(``increments_per_unit``); it does not touch the drive's factor group (0x608F/0x6091/0x6092),
+which stays as commissioned — ``increments_per_unit`` is "drive position units per user unit".
 """
 
 from __future__ import annotations
@@ -66,7 +70,7 @@ SDO_ABORTS = {
 }
 
 #: Objects whose absence (abort 0x06020000 / 0x06090011) is no error: optional in CiA 301/402.
-OPTIONAL = {0x1006}
+OPTIONAL = {0x1006, 0x607F}
 
 NAMES = {
     0x1000: "device type", 0x1006: "SYNC period", 0x1016: "consumer heartbeat time",
@@ -74,6 +78,7 @@ NAMES = {
     0x6041: "statusword", 0x6060: "modes of operation", 0x6061: "modes of operation display",
     0x6064: "position actual value", 0x6065: "following-error window",
     0x6066: "following-error time-out", 0x607C: "home offset", 0x607D: "software position limit",
+    0x607F: "max profile velocity",
     0x6081: "profile velocity", 0x6083: "profile acceleration", 0x6084: "profile deceleration",
     0x6085: "quick-stop deceleration", 0x6098: "homing method", 0x6099: "homing speeds",
     0x609A: "homing acceleration", 0x60C2: "interpolation time period",
@@ -243,6 +248,7 @@ def configuration(section: DriveSection, can: CanSection, device: str) -> list[t
         (0x607D, 2, "<i", hi),
         (0x6065, 0, "<I", _u32(section.following_error_window * k, "following-error window", device)),
         (0x6066, 0, "<H", round(section.following_error_timeout * 1000)),
+        (0x607F, 0, "<I", _u32(section.max_velocity * k, "max profile velocity", device)),
         (0x6081, 0, "<I", _u32(section.max_velocity * k, "profile velocity", device)),
         (0x6083, 0, "<I", _u32(section.max_acceleration * k, "profile acceleration", device)),
         (0x6084, 0, "<I", _u32(section.max_acceleration * k, "profile deceleration", device)),

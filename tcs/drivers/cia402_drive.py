@@ -44,19 +44,18 @@ from tcs.drivers import cia402 as sm
 from tcs.drivers.boot import (HB_OPERATIONAL, NMT_STATE_NAMES, BootResult, HeartbeatWatch, Sdo,
                               boot_node, set_mode)
 from tcs.drivers.canbus import HEARTBEAT_BASE, CanBus
-from tcs.drivers.cia402 import HomingBits, Want, homing_bits
+from tcs.drivers.cia402 import Want
 from tcs.drivers.drive import DriveState, DriveStatus, Mode, Progress
 from tcs.drivers.emcy import DriveFault, decode_emcy
+from tcs.drivers.handshakes import HomingRun, ProfileMove
 from tcs.drivers.pdo import PdoLayout, layouts
 from tcs.drivers.worker import Job, SdoWorker
-from tcs.errors import (CommunicationError, ErrorNumber, HardwareError, RangeRefused,
-                        RequestRefused, TcsError)
+from tcs.errors import CommunicationError, ErrorNumber, HardwareError, RangeRefused, TcsError
 
 log = logging.getLogger(__name__)
 
 ENABLE_TIMEOUT = 2.0          # s from enable() to Operation enabled
 FAULT_RESET_TIMEOUT = 1.0     # s for the drive to leave Fault after the rising edge
-HANDSHAKE_TIMEOUT = 1.0       # s for a PP set-point acknowledge / homing start
 EMCY_BASE = 0x080
 
 
@@ -132,20 +131,10 @@ class Cia402Drive:
         self._cw = 0
         self._target_sent: int | None = None
         self._request_error: TcsError | None = None
-        self._homing = Progress.IDLE
-        self._homing_phase = ""
-        self._homing_since = 0.0
-        self._homing_phase_since = 0.0
-        self._homing_progress = 0.0
+        self._homing: HomingRun | None = None
         self._homing_mode_before: Mode | None = None
-        self._homing_before = HomingBits.IDLE
         self._homed = False
-        self._move = Progress.IDLE
-        self._move_phase = ""
-        self._move_target = 0
-        self._move_since = 0.0
-        self._move_deadline = 0.0
-        self._move_job: Job | None = None
+        self._move: ProfileMove | None = None
         self._profile_velocity = round(abs(section.max_velocity * self._scale))
         self.rpdos_sent = 0
         self.steps = 0
@@ -187,8 +176,8 @@ class Cia402Drive:
         self._mode_job = None
         self._reset_phase = 0
         self._reached_enabled = False
-        self._homing = self._move = Progress.IDLE
-        self._homing_phase = self._move_phase = ""
+        self._homing = self._move = None
+        self._homed = False
         self._setpoint = None
         if result.error_code and not self._emcy:
             self._emcy = DriveFault(self.device, result.error_code)
@@ -372,6 +361,7 @@ class Cia402Drive:
         sw = raw.get(0x6041, 0)
         inputs = raw.get(0x60FD, 0)
         k = self._scale
+        homing, move = self._homing, self._move
         mode = raw.get(0x6061, self._mode)
         try:
             mode = Mode(mode) if mode is not None else None
@@ -384,8 +374,10 @@ class Cia402Drive:
             warning=self._emcy if fault is not self._emcy else None,
             request_error=self._request_error,
             limit_negative=bool(inputs & 1), limit_positive=bool(inputs & 2),
-            home_switch=bool(inputs & 4), homing=self._homing,
-            homing_progress=self._homing_progress, homed=self._homed, move=self._move,
+            home_switch=bool(inputs & 4),
+            homing=homing.progress if homing else Progress.IDLE,
+            homing_progress=homing.fraction if homing else 0.0, homed=self._homed,
+            move=move.progress if move else Progress.IDLE,
             target_reached=bool(sw & sm.SW_TARGET_REACHED),
             setpoint=self._target_sent / k if self._target_sent is not None else None,
             heartbeat_ok=hb_ok, heartbeat_age=now - self._hb.time if self._hb.time is not None
@@ -428,8 +420,8 @@ class Cia402Drive:
         if fault is not None or want is not Want.ENABLED:
             why = fault or TcsError(f"{self.device}: aborted ({want.value} requested)",
                                     ErrorNumber.LIBFAIL)
-            self._abort_homing(why)
-            self._abort_move(why)
+            self._end_homing(why)
+            self._end_move(why)
 
         if state is DriveState.OFFLINE:
             # Heartbeat lost or node not operational: if it still listens, it powers off and
@@ -454,31 +446,36 @@ class Cia402Drive:
                 cw = sm.DISABLE_VOLTAGE if self._reset_phase == 1 else sm.FAULT_RESET
                 self._reset_phase = 2
 
-        # --- mode of operation ------------------------------------------------------------
+        # --- long requests and the mode of operation they need ----------------------------
         if homing_req and self._begin_homing(now, want):
             mode_wanted = Mode.HM
         if move_req is not None and self._begin_move(now, want, *move_req):
             mode_wanted = Mode.PP
-        mode_wanted = self._drive_mode(mode_wanted)
+        self._drive_mode(mode_wanted)
 
         # --- target: hold the actual position unless commanding in OE --------------------
         enabled = state is DriveState.OPERATION_ENABLED and want is Want.ENABLED
         mode = self._mode
-        if not (enabled and mode == Mode.CSP and self._mode_job is None):
+        ready = enabled and self._mode_job is None
+        if not (ready and mode == Mode.CSP):
             self._hold = actual
             self._setpoint = None
         target = self._hold
-        if enabled and self._mode_job is None:
-            if mode == Mode.CSP:
-                if self._setpoint is not None:
-                    target = self._setpoint
-            elif mode == Mode.HM:
-                cw |= self._homing_step(now, sw, state)
-            elif mode == Mode.PP:
-                bits, target = self._move_step(now, sw, actual)
-                cw |= bits
-        elif self._homing is Progress.RUNNING:
-            self._homing_wait(now, state)
+        homing, move = self._homing, self._move
+        if ready and mode == Mode.CSP and self._setpoint is not None:
+            target = self._setpoint
+        if homing is not None and homing.progress is Progress.RUNNING:
+            if ready and mode == Mode.HM:
+                cw |= homing.step(now, sw)
+            else:
+                homing.waiting(now, "operation enabled in homing mode")
+            if homing.progress is not Progress.RUNNING:
+                self._homing_ended(homing)
+        if move is not None and move.progress is Progress.RUNNING and ready and mode == Mode.PP:
+            cw |= move.step(now, sw, actual)
+            target = move.target
+            if move.progress is not Progress.RUNNING:
+                self._move_ended(move)
         self._send(cw, target)
 
     def _set_want(self, want: Want, now: float) -> Want:
@@ -497,12 +494,12 @@ class Cia402Drive:
         self.rpdos_sent += 1
 
     # ----------------------------------------------------------------- mode switching
-    def _drive_mode(self, wanted: Mode | None) -> Mode | None:
+    def _drive_mode(self, wanted: Mode | None) -> None:
         """Start/finish the SDO mode switch; the mode counts only once 0x6061 reads it."""
         job = self._mode_job
         if job is not None:
             if not job.done:
-                return wanted
+                return
             self._mode_job = None
             if job.error is not None:
                 err = job.error if isinstance(job.error, TcsError) else HardwareError(
@@ -510,9 +507,9 @@ class Cia402Drive:
                 self._request_error = err
                 with self._lock:
                     self._mode_wanted = None
-                self._abort_homing(err)
-                self._abort_move(err)
-                return None
+                self._end_homing(err)
+                self._end_move(err)
+                return
             self._mode = job.result
         shown = self._raw.get(0x6061)
         if shown is not None:
@@ -523,188 +520,73 @@ class Cia402Drive:
         with self._lock:
             if self._mode_wanted == wanted:
                 self._mode_wanted = None
-        return wanted
 
     # ----------------------------------------------------------------- homing
     def _begin_homing(self, now: float, want: Want) -> bool:
-        """Start the homing handshake (True), or fail it at once when not enabling."""
-        self._move_fail(TcsError(f"{self.device}: move superseded by homing", ErrorNumber.TARGETCHANGE))
+        """Start a homing run (True), or fail it at once when the drive is not being enabled."""
+        self._end_move(TcsError(f"{self.device}: move superseded by homing", ErrorNumber.TARGETCHANGE))
+        home = self.section.homing
+        previous = self._homing
+        self._homing = HomingRun(self.device, home.method, home.timeout, now)
+        self._request_error = None
         if want is not Want.ENABLED:
-            self._homing = Progress.RUNNING
-            self._homing_fail(RequestRefused(f"{self.device}: homing needs the drive enabled "
+            self._homing.fail(TcsError(f"{self.device}: homing needs the drive enabled "
                                              "(request enable first)", ErrorNumber.INVMODE))
+            self._homing_ended(self._homing)
             return False
-        if self._homing is not Progress.RUNNING:
+        if previous is None or previous.progress is not Progress.RUNNING:
             current = self._mode if self._mode in (Mode.CSP, Mode.PP) else None
             self._homing_mode_before = Mode(current) if current is not None else self._default_mode
-        self._homing = Progress.RUNNING
-        self._homing_phase = "mode"
-        self._homing_since = self._homing_phase_since = now
-        self._homing_progress = 0.0
         self._homed = False
-        self._request_error = None
         return True
 
-    def _homing_wait(self, now: float, state: DriveState) -> None:
-        """Homing requested while not (yet) enabled in HM: time out."""
-        if now - self._homing_since > self.section.homing.timeout:
-            self._homing_fail(TcsError(f"{self.device}: homing timed out waiting for "
-                                       f"operation enabled (state {state.value})", ErrorNumber.TIMEOUT))
-
-    def _homing_phase_to(self, phase: str, now: float) -> None:
-        self._homing_phase, self._homing_phase_since = phase, now
-
-    def _homing_step(self, now: float, sw: int, state: DriveState) -> int:
-        """Controlword bits for this cycle of the homing handshake (docs/cia402.md)."""
-        if self._homing is not Progress.RUNNING:
-            return 0
-        home = self.section.homing
-        bits = homing_bits(sw)
-        phase = self._homing_phase
-        elapsed = now - self._homing_since
-        if phase not in ("finish",) and elapsed > home.timeout:
-            self._homing_fail(TcsError(f"{self.device}: homing (method {home.method}) did not "
-                                       f"finish within {home.timeout:g} s", ErrorNumber.TIMEOUT))
-            return 0
-        if phase == "mode":  # mode HM active and enabled: make sure bit 4 is low first
-            self._homing_progress = 0.05
-            self._homing_phase_to("idle", now)
-            return 0
-        if phase == "idle":  # wait until the drive shows no homing in progress
-            if bits is not HomingBits.RUNNING or now - self._homing_phase_since > HANDSHAKE_TIMEOUT:
-                self._homing_phase_to("start", now)
-                self._homing_before = bits
-            return 0
-        if phase == "start":  # bit 4 high; wait until the drive started
-            self._homing_progress = 0.1
-            instant = home.method in (35, 37)
-            if bits is HomingBits.RUNNING or (bits is not self._homing_before and bits in (
-                    HomingBits.ATTAINED, HomingBits.DONE)):
-                self._homing_phase_to("running", now)
-            elif bits in (HomingBits.ERROR_MOVING, HomingBits.ERROR_AT_REST):
-                self._homing_fail(HardwareError(self.device, f"homing error at start "
-                                                             f"(statusword 0x{sw:04X})"))
-                return 0
-            elif instant and bits is HomingBits.DONE and now - self._homing_phase_since > 0.05:
-                self._homing_phase_to("running", now)
-            elif now - self._homing_phase_since > HANDSHAKE_TIMEOUT:
-                self._homing_fail(HardwareError(self.device, f"homing did not start (statusword "
-                                                             f"0x{sw:04X}, {bits.value})"))
-                return 0
-            return sm.CW_NEW_SETPOINT
-        if phase == "running":  # wait for attained or error
-            self._homing_progress = 0.1 + 0.8 * min(1.0, elapsed / home.timeout)
-            if bits in (HomingBits.ERROR_MOVING, HomingBits.ERROR_AT_REST):
-                self._homing_fail(HardwareError(self.device, f"homing error (method {home.method}, "
-                                                             f"statusword 0x{sw:04X}, {bits.value})"))
-                return 0
-            if bits is HomingBits.DONE:
-                self._homing_progress = 0.95
-                self._homing_phase_to("finish", now)
-                return 0
-            if bits is HomingBits.ATTAINED:
-                self._homing_progress = 0.95  # wait for standstill
-            return sm.CW_NEW_SETPOINT
-        if phase == "finish":  # bit 4 cleared this cycle; back to the mode before homing
-            self._homing = Progress.DONE
-            self._homing_progress = 1.0
+    def _homing_ended(self, run: HomingRun) -> None:
+        """Done or failed: remember the result, go back to the mode used before homing."""
+        if run.progress is Progress.DONE:
             self._homed = True
-            self._homing_phase = ""
-            self._homing_restore_mode()
-            return 0
-        return 0
-
-    def _homing_restore_mode(self) -> None:
+        elif run.error is not None:
+            self._request_error = run.error
+            log.warning("%s", run.error)
         with self._lock:
             if self._mode_wanted is None and self._homing_mode_before is not None:
                 self._mode_wanted = self._homing_mode_before
 
-    def _homing_fail(self, error: TcsError) -> None:
-        if self._homing is not Progress.RUNNING:
-            return
-        self._homing = Progress.FAILED
-        self._homing_phase = ""
-        self._request_error = error
-        log.warning("%s", error)
-        self._homing_restore_mode()
-
-    def _abort_homing(self, error: TcsError) -> None:
-        self._homing_fail(error)
+    def _end_homing(self, error: TcsError) -> None:
+        run = self._homing
+        if run is not None and run.progress is Progress.RUNNING:
+            run.fail(error)
+            self._homing_ended(run)
 
     # ----------------------------------------------------------------- profile position
     def _begin_move(self, now: float, want: Want, target: int, velocity: float | None) -> bool:
-        """Start a profile move (True), or fail it at once when not enabling."""
-        self._homing_fail(TcsError(f"{self.device}: homing superseded by a move", ErrorNumber.TARGETCHANGE))
-        if want is not Want.ENABLED:
-            self._move = Progress.RUNNING
-            self._move_fail(RequestRefused(f"{self.device}: a move needs the drive enabled "
-                                           "(request enable first)", ErrorNumber.INVMODE))
-            return False
-        self._move = Progress.RUNNING
-        self._move_phase = "speed"
-        self._move_target = target
-        self._move_since = now
+        """Start a profile move (True), or fail it at once when the drive is not being enabled."""
+        self._end_homing(TcsError(f"{self.device}: homing superseded by a move", ErrorNumber.TARGETCHANGE))
         self._request_error = None
         speed = round(abs((velocity or self.section.max_velocity) * self._scale))
         distance = abs(target - self._raw.get(0x6064, 0))
         accel = abs(self.section.max_acceleration * self._scale) or 1
-        self._move_deadline = now + 5.0 + 2.0 * (distance / max(speed, 1) + speed / accel)
-        if speed != self._profile_velocity and self._sdo is not None:
+        deadline = now + 5.0 + 2.0 * (distance / max(speed, 1) + speed / accel)
+        window = round(abs(self.section.following_error_window * self._scale))
+        job = None
+        if want is Want.ENABLED and speed != self._profile_velocity and self._sdo is not None:
             sdo = self._sdo
-            self._move_job = self._worker.submit(lambda: sdo.write(0x6081, 0, "<I", speed),
-                                                 f"{self.name} velocity")
+            job = self._worker.submit(lambda: sdo.write(0x6081, 0, "<I", speed), f"{self.name} velocity")
             self._profile_velocity = speed
-        else:
-            self._move_job = None
+        self._move = ProfileMove(self.device, target, window, deadline, now, job, self._scale)
+        if want is not Want.ENABLED:
+            self._move.fail(TcsError(f"{self.device}: a move needs the drive enabled "
+                                           "(request enable first)", ErrorNumber.INVMODE))
+            self._move_ended(self._move)
+            return False
         return True
 
-    def _move_step(self, now: float, sw: int, actual: int) -> tuple[int, int]:
-        """(controlword bits, target) for this cycle of the PP set-point handshake."""
-        if self._move is not Progress.RUNNING:
-            return 0, self._hold
-        target = self._move_target
-        phase = self._move_phase
-        if now > self._move_deadline:
-            self._move_fail(TcsError(f"{self.device}: move to {target / self._scale:g} timed out",
-                                     ErrorNumber.TIMEOUT))
-            return 0, self._hold
-        if phase == "speed":
-            job = self._move_job
-            if job is not None and not job.done:
-                return 0, self._hold
-            if job is not None and job.error is not None:
-                self._move_fail(job.error if isinstance(job.error, TcsError) else
-                                HardwareError(self.device, f"profile velocity: {job.error!r}"))
-                return 0, self._hold
-            self._move_job = None
-            self._move_phase = "idle"
-        if self._move_phase == "idle":  # bit 4 low and no acknowledge pending
-            if not sw & sm.SW_MODE_12:
-                self._move_phase, self._move_since = "set", now
-            return 0, target
-        if phase == "set":  # new set-point, change immediately; wait for the acknowledge
-            if sw & sm.SW_MODE_12:
-                self._move_phase = "moving"
-                return 0, target
-            if now - self._move_since > HANDSHAKE_TIMEOUT:
-                self._move_fail(HardwareError(self.device, "set-point not acknowledged (bit 12)"))
-                return 0, self._hold
-            return sm.CW_NEW_SETPOINT | sm.CW_CHANGE_IMMEDIATELY, target
-        if phase == "moving":
-            window = abs(self.section.following_error_window * self._scale)
-            if sw & sm.SW_TARGET_REACHED and not sw & sm.SW_MODE_12 and abs(actual - target) <= window:
-                self._move = Progress.DONE
-                self._move_phase = ""
-            return 0, target
-        return 0, target
+    def _move_ended(self, move: ProfileMove) -> None:
+        if move.error is not None:
+            self._request_error = move.error
+            log.warning("%s", move.error)
 
-    def _move_fail(self, error: TcsError) -> None:
-        if self._move is not Progress.RUNNING:
-            return
-        self._move = Progress.FAILED
-        self._move_phase = ""
-        self._request_error = error
-        log.warning("%s", error)
-
-    def _abort_move(self, error: TcsError) -> None:
-        self._move_fail(error)
+    def _end_move(self, error: TcsError) -> None:
+        move = self._move
+        if move is not None and move.progress is Progress.RUNNING:
+            move.fail(error)
+            self._move_ended(move)

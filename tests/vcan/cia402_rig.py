@@ -53,18 +53,19 @@ class Rig:
     """Sims + TCS ``CanDrives`` on one bus; use as a context manager (stops everything)."""
 
     def __init__(self, can_channel: dict, axes: dict[str, AxisSpec], *, sync_period: float = 0.01,
-                 heartbeat_period: float = 0.05, boot_timeout: float = 3.0, callback=None):
+                 heartbeat_period: float = 0.05, boot_timeout: float = 3.0,
+                 kernel_sync: bool | None = None, options: dict | None = None):
         self.channel = dict(can_channel)
         self.axes = axes
         self.can = CanSection(interface=self.channel["interface"], channel=self.channel["channel"],
                               sync_period=sync_period, heartbeat_period=heartbeat_period,
-                              boot_timeout=boot_timeout, sdo_timeout=0.3)
+                              boot_timeout=boot_timeout, sdo_timeout=0.3, options=options or {})
+        self.kernel_sync = kernel_sync
         self.sections = {name: drive_section(spec.node_id, **spec.section)
                          for name, spec in axes.items()}
         self.sim_bus: can.BusABC | None = None
         self.sims: dict[str, SimDrive] = {}
         self.system: CanDrives | None = None
-        self.callback = callback
         self.cycle_hooks: list[Callable] = []
 
     # ---------------------------------------------------------------- life cycle
@@ -78,6 +79,8 @@ class Rig:
                     self.sims[name] = sim
                     sim.start()
             self.system = CanDrives(self.can, self.sections)
+            if self.kernel_sync is not None:
+                self.system.cycle.kernel_sync = self.kernel_sync
             self.system.open()
             self.system.cycle.add_callback(self._on_cycle)
         except BaseException:

@@ -156,3 +156,20 @@ def test_mode_switch_is_read_back_and_csp_resumes_at_the_actual_position(can_cha
         assert status.state is DriveState.OPERATION_ENABLED and status.fault is None
         assert status.setpoint == pytest.approx(1.5, abs=1e-3)  # no jump back to the old hold
         assert rig.sims["m3"].position == pytest.approx(1.5, abs=1e-3)
+
+
+def test_sync_from_send_periodic_drives_the_cycle(can_channel):
+    """The socketcan path: SYNC from send_periodic, the runner wakes on each SYNC it hears.
+
+    On the virtual bus the TCS's bus must hear its own frames (as a SocketCAN raw socket hears
+    the broadcast manager's); on socketcan this is the default path.
+    """
+    options = {"receive_own_messages": "true"} if can_channel["interface"] == "virtual" else {}
+    with Rig(can_channel, {"az": AxisSpec(1)}, kernel_sync=True, options=options) as rig:
+        assert rig.boot_and_start() == {}
+        rig.enable("az")
+        base = rig.status("az").position
+        rig.cycle_hooks.append(lambda cycle: rig.drive("az").set_setpoint(base + 0.2))
+        rig.wait(lambda: abs(rig.sims["az"].position - (base + 0.2)) < 1e-6, what="moved")
+        stats = rig.system.cycle.stats()
+        assert stats.cycles > 10 and rig.status("az").fault is None
