@@ -30,7 +30,6 @@ import argparse
 import json
 import math
 import sys
-import threading
 import time
 import uuid
 from pathlib import Path
