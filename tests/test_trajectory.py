@@ -77,8 +77,9 @@ def check_stream(out, dyn, start: Setpoint, limits: SoftLimits | None = None):
     for _, sp, _, _ in out:
         assert abs(sp.velocity) <= dyn.max_velocity * (1 + 1e-6), sp
         assert abs(sp.acceleration) <= dyn.max_acceleration * (1 + 1e-6), sp
-        # finite-difference jerk; the follower accepts path samples up to 0.1 % over
-        assert abs(sp.acceleration - prev.acceleration) / DT <= dyn.max_jerk * 1.002, (prev, sp)
+        # the jerk of the stream: the acceleration change over the cycle. UT1 floats near 1.7e9 s
+        # resolve 2.4e-7 s, so a "10 ms" step is 10 ms +- 2.4e-5 relative: that much slack
+        assert abs(sp.acceleration - prev.acceleration) / DT <= dyn.max_jerk * (1 + 1e-4), (prev, sp)
         # continuity: no position step larger than the velocity allows
         assert abs(sp.position - prev.position) <= dyn.max_velocity * DT * 1.001
         if limits is not None:

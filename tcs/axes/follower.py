@@ -84,8 +84,11 @@ _USAGE_MARGIN = 0.02
 _MIN_SHARE = 0.02
 #: how far ahead a chased path must be feasible again before an intercept is tried, s
 _CHASE_WINDOW = 10.0
-#: relative slack on the v/a/j checks of a followed path (sampling and rounding)
+#: relative slack of the continuity check of a followed path (rounding)
 _TOL = 1e-3
+#: the limits of a followed path are strict, up to rounding (jerk: a finite difference)
+_STRICT = 1.0 + 1e-12
+_STRICT_JERK = 1.0 + 1e-6
 
 
 class FollowerState(enum.Enum):
@@ -320,20 +323,23 @@ class TrajectoryFollower:
         """The path sample at ``t`` if it is a continuous, feasible continuation of ``cur``."""
         p, v, a = self._ref(t, freeze=True)
         d = self.dynamics
+        vmax, amax, jmax = self._speed * _STRICT, d.max_acceleration * _STRICT, d.max_jerk
         jerk = (a - cur.acceleration) / dt
-        speed_ok = (abs(v) <= self._speed * (1 + _TOL) and abs(a) <= d.max_acceleration * (1 + _TOL)
-                    and abs(jerk) <= d.max_jerk * (1 + _TOL))
-        jdt = d.max_jerk * (1 + _TOL)
+        # within the limits, and not in a state that must overshoot vmax (accelerating outwards
+        # faster than the jerk limit can take the acceleration back to zero)
+        feasible = (abs(v) <= vmax and abs(a) <= amax and abs(jerk) <= jmax * _STRICT_JERK
+                    and (a * v <= 0.0 or abs(v) + a * a / (2.0 * jmax) <= vmax))
+        slack = jmax * (1 + _TOL)
         pred_p = cur.position + dt * (cur.velocity + 0.5 * dt * cur.acceleration)
         pred_v = cur.velocity + dt * cur.acceleration
-        continuous = (abs(p - pred_p) <= jdt * dt ** 3 / 6 + 1e-12 * (1 + abs(p))
-                      and abs(v - pred_v) <= jdt * dt * dt / 2 + 1e-12 * (1 + abs(v)))
-        if speed_ok and continuous:
+        continuous = (abs(p - pred_p) <= slack * dt ** 3 / 6 + 1e-12 * (1 + abs(p))
+                      and abs(v - pred_v) <= slack * dt * dt / 2 + 1e-12 * (1 + abs(v)))
+        if feasible and continuous:
             self.limited = False
             self._state = FollowerState.FOLLOWING
             self._plan, self._plan_kind = None, ""
             return Setpoint(p, v, a, jerk)
-        if not speed_ok:
+        if not feasible:
             self.limited = True
         return None
 

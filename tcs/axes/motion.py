@@ -17,12 +17,13 @@ exactly on the target, on a cycle.
 States (``PlannerState``) and what moves between them::
 
     state      event                                   next
-    IDLE       set_target / set_offset (a move)        MOVING
+    any        set_target / set_offset                 MOVING      (planned from the current
+                                                                    setpoint, whatever it is)
     MOVING     profile finished                        IDLE        (at_target)
-    MOVING     set_target / set_offset                 MOVING      (re-planned from the setpoint)
     any        the direct profile would cross a limit  BRAKING     (stop first, move afterwards)
     BRAKING    at rest                                 MOVING      (the pending goal)
     any        stop(quick)                             STOPPING    (target := where it will rest)
+    any        take_over(moving setpoint)              STOPPING    (normal deceleration)
     STOPPING   at rest                                 IDLE
     any        a setpoint beyond a limit (guard)       LIMIT       (braking to rest at the limit,
                                                                     ``softlimit`` = "min"/"max")
@@ -32,8 +33,8 @@ States (``PlannerState``) and what moves between them::
 afterwards; a running move keeps its profile. ``STOP`` uses the quick-stop deceleration and
 jerk of :class:`AxisDynamics`.
 
-Used by the axis module from the control-loop thread only (not thread-safe); about 2 µs per
-:meth:`MotionPlanner.step` (see ``tools/bench/motion_cost.py``).
+Used by the axis module from the control-loop thread only (not thread-safe); about 1.5 µs per
+:meth:`MotionPlanner.step`, 5 µs per new target (see ``tools/bench/motion_cost.py``).
 """
 
 from __future__ import annotations

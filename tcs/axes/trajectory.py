@@ -23,17 +23,19 @@ when a point is appended, so the segment being followed would jump each time a c
 refills the queue. Here a knot's derivatives only change while its right-hand neighbours are
 still arriving, and a knot is *frozen* the first time a follower samples a segment touching
 it (``sample(t, freeze=True)``), so the path under the axis never changes. Accuracy (maximum
-error, points every 2 s): a 2° sinusoid of period 60 s is reproduced to 0.014″ (a cubic
-Hermite with centred-difference slopes, Catmull-Rom, gives 1.1″, a natural spline about 0.1″);
-a sidereal-rate path with curvature to < 1e-6″. At the first and last knots the stencil is
-one-sided and the error is a few times larger.
+error away from the ends, points every 2 s): a 2° sinusoid of period 60 s (0.21°/s) is
+reproduced to 0.014″ (0.0004″ with 1 s points); a cubic Hermite with centred-difference
+slopes (Catmull-Rom) gives 1.07″ and a global natural cubic spline 0.036″; a sidereal-rate
+path with curvature is exact to the float resolution of the UT1 time stamps (< 1e-5″). At the
+first and last knots the stencil is one-sided and the error is a few times larger (0.08″ on
+that sinusoid). ``tools/bench/motion_cost.py`` prints these figures.
 
 On a cyclic axis each new point is unwrapped to within half a cycle of the point before it,
 so 359.9 → 0.1 is a step of +0.2, not −359.8; where the whole path sits (``k·cycle``) is the
 follower's choice.
 
-Shared between the asyncio side (``add_points``, ``clear``) and the control loop (``sample``,
-``drop_before``): every public method takes an internal lock (uncontended: ~0.1 µs).
+``add_points`` may run on the asyncio side while the control loop samples: every public
+method takes an internal lock (uncontended: ~0.1 µs). ``sample`` costs ~1 µs.
 """
 
 from __future__ import annotations
