@@ -2,9 +2,16 @@
 
 :class:`ControlLoop` is a callback of the drivers' :class:`~tcs.drivers.cycle.CycleSource`
 (the ``tcs-cycle`` thread): each SYNC period it computes the UT1 time at which this cycle's
-setpoints apply (the next SYNC), then runs :meth:`tcs.axes.axis.Axis.cycle` of every axis —
+setpoints will be *reached*, then runs :meth:`tcs.axes.axis.Axis.cycle` of every axis —
 which reads its drive's status, computes and hands over the setpoint and steps the drive. The
 asyncio world never runs here: axes take commands through their own lock-protected queues.
+
+When a setpoint is reached (docs/cia402.md, "The CSP cycle"): the RPDO sent in cycle k is
+latched by the drives at SYNC k+1, and a CSP drive then interpolates linearly from its
+previous demand to it over the interpolation period 0x60C2 (= the SYNC period), so the
+demand equals the setpoint at SYNC k+1 + one period. Computing the setpoint for the next SYNC
+instead would make every trajectory lag by one period (36″ at 1°/s). The delay is
+``reach_delay`` (default: one SYNC period).
 
 Health is reported, not assumed: the loop counts its own exceptions (an axis whose step raises
 is logged, counted and stopped; the other axes go on) and the cycle source counts late and
@@ -23,12 +30,14 @@ log = logging.getLogger(__name__)
 
 
 class ControlLoop:
-    """Steps ``axes`` once per cycle of ``source``; ``ut1()`` is the telescope's time base."""
+    """Steps ``axes`` once per cycle of ``source``; ``ut1()`` is the telescope's time base;
+    ``reach_delay`` is how long after the next SYNC a drive reaches the setpoint (s)."""
 
     def __init__(self, axes: Sequence, source: CycleSource, ut1: Callable[[], float],
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.monotonic, reach_delay: float | None = None):
         self.axes = list(axes)
         self.source = source
+        self.reach_delay = source.period if reach_delay is None else float(reach_delay)
         self.ut1 = ut1
         self.clock = clock
         self.errors = 0
@@ -39,7 +48,7 @@ class ControlLoop:
 
     def step(self, cycle: Cycle) -> None:
         now = self.clock()
-        t = self.ut1() + (cycle.next_sync - now)
+        t = self.ut1() + (cycle.next_sync - now) + self.reach_delay
         for axis in self.axes:
             try:
                 axis.cycle(t, now)
