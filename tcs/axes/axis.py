@@ -199,6 +199,7 @@ class Axis(ModuleHealth):
         self._sp = Setpoint(0.0)
         self._running = False  # follower in charge
         self._fault: TcsError | None = None
+        self._ack_pending = False  # ERROR_STATE=0 asked for a fault reset
         self._discrete_target: int | None = None
         self._pending: dict[str, tuple[asyncio.Future, Any]] = {}
         self._completions: list[tuple[asyncio.Future, TcsError | None]] = []
@@ -328,10 +329,12 @@ class Axis(ModuleHealth):
 
     def set_run(self, value: int):
         """``TRAJECTORY.RUN``: 1 runs (long-running until the queue ran empty or was
-        aborted), 0 aborts and frees the buffers."""
+        aborted), 0 aborts and frees the buffers (done within one cycle: the awaitable ends
+        when the buffers are free, so a GET of FREEPOINTS after the reply sees them)."""
         if value == 0:
-            self._send("run", False)
-            return None
+            future = self._future()
+            self._send("run", False, future)
+            return future
         self._require(what="run a trajectory")
         future = self._future()
         self._send("run", True, future)
@@ -474,6 +477,7 @@ class Axis(ModuleHealth):
                     self.follower.abort()
                 self._resolve("run")
                 self.queue.clear()
+                self._complete(future)
                 return
             self._hold("run", future, cause)
             if self.planner.moving:
@@ -485,10 +489,17 @@ class Axis(ModuleHealth):
                 self.emit(INFO, POINTS_DROPPED, f"{dropped} trajectory points in the past dropped", cause)
         elif kind == "acknowledge":
             if self._fault is not None:
-                self.drive.fault_reset()
-                if self.drive.status().fault is None:
-                    self._fault = None
-                    self.clear_condition("drive fault")
+                if st.fault is None:  # gone already (e.g. a heartbeat that came back)
+                    self._forget_fault()
+                else:  # reset it; _watch_drive forgets it once the drive left Fault
+                    self._ack_pending = True
+                    self.drive.fault_reset()
+
+    def _forget_fault(self) -> None:
+        self._fault = None
+        self._ack_pending = False
+        if self.conditions().get("drive fault", (0, False))[1]:
+            self.clear_condition("drive fault")
 
     def _stop_motion(self, error: TcsError) -> None:
         self.planner.stop(quick=True)
@@ -513,8 +524,11 @@ class Axis(ModuleHealth):
             self._homing = False
             self.drive.disable()
         if self._fault is not None and st.fault is None and st.state is DriveState.SWITCH_ON_DISABLED:
-            # the drive was reset (acknowledge): the condition's cause is gone
-            if self.conditions().get("drive fault", (0, False))[1]:
+            # the drive was reset: the condition's cause is gone; after an acknowledge the
+            # axis may be powered again (it is never re-enabled by itself)
+            if self._ack_pending:
+                self._forget_fault()
+            elif self.conditions().get("drive fault", (0, False))[1]:
                 self.clear_condition("drive fault")
         # power
         if self._want_power is True and st.enabled and not self._powered and (
@@ -565,6 +579,8 @@ class Axis(ModuleHealth):
         if not self._powered or self._homing or self.discrete or not st.enabled:
             if not self._homing:
                 self._sp = Setpoint(st.position)
+                if self.planner.moving:  # power lost mid-move: the demand is where it stands
+                    self.planner.take_over(self._sp)
             return None
         if self._running:
             step = self.follower.step(t, self._sp)
@@ -653,12 +669,13 @@ class Axis(ModuleHealth):
         if (motion ^ prev_motion) & (MOVING | TRAJECTORY | BLOCKED):
             self.emit(INFO, ErrorNumber.MOTIONCHANGE, "moving" if motion & MOVING else "stopped")
         if limit != prev_limit:
-            level = ERROR if limit & (HW_MIN | HW_MAX) and not prev_limit & (HW_MIN | HW_MAX) else INFO
-            self.emit(level, ErrorNumber.LIMITCHANGE, f"limit state {limit}")
-            if limit & (HW_MIN | HW_MAX):
+            hw, prev_hw = limit & (HW_MIN | HW_MAX), prev_limit & (HW_MIN | HW_MAX)
+            hit = hw & ~prev_hw  # a switch that became active (not the blocking bit changing)
+            self.emit(ERROR if hit else INFO, ErrorNumber.LIMITCHANGE, f"limit state {limit}")
+            if hit:
                 self.raise_condition("limit switch", WARNING, "hardware limit switch active")
                 self._fail_motion(TcsError(f"{self.module_name}: limit switch", ErrorNumber.LIMIT))
-            elif prev_limit & (HW_MIN | HW_MAX):
+            elif prev_hw and not hw:
                 self.clear_condition("limit switch")
 
     def _discrete_position(self, drive_position: float) -> float:
