@@ -1,0 +1,181 @@
+"""A socketcand server: offers an in-process CAN bus to other processes over TCP.
+
+The simulated cabinet (``tcs-sim``) runs its drives on a python-can ``virtual`` bus; this
+server bridges that bus to TCP clients speaking socketcand's "rawmode" text protocol — the one
+python-can's ``socketcand`` interface (and real CAN-Ethernet gateways) use — so a separate
+``tcs-server`` drives the simulated hardware exactly like a remote CAN bus.
+
+Protocol (the part clients use)::
+
+    server: < hi >
+    client: < open <bus> >         server: < ok >
+    client: < rawmode >            server: < ok >
+    client: < send ID LEN B0 B1 … >           (ID hex, 3 digits standard / 8 extended)
+    server: < frame ID SEC.USEC HEXDATA >
+
+A frame from a client goes onto the virtual bus and to every *other* client (SocketCAN
+semantics: no echo to the sender); every frame of the virtual bus goes to every client.
+python-can's client reads the ``< ok >`` of rawmode with a single ``recv``, so frames start to
+flow a short moment after it. Malformed lines are answered with ``< error … >`` and the
+connection goes on. Threads: one python-can notifier thread hands bus frames to the event loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import re
+import time
+
+import can
+
+log = logging.getLogger(__name__)
+
+SEND = re.compile(r"send\s+([0-9A-Fa-f]{1,8})\s+([0-9A-Fa-f])((?:\s+[0-9A-Fa-f]{1,2})*)\s*$")
+RAWMODE_SETTLE = 0.1  # s between "< ok >" of rawmode and the first frame
+
+
+def format_frame(msg: can.Message) -> bytes:
+    ident = f"{msg.arbitration_id:08X}" if msg.is_extended_id else f"{msg.arbitration_id:03X}"
+    ts = msg.timestamp
+    return f"< frame {ident} {int(ts)}.{int((ts % 1) * 1e6):06d} {bytes(msg.data).hex().upper()} >".encode()
+
+
+def parse_send(body: str) -> can.Message | None:
+    """The frame of a ``send`` command body, or None when malformed."""
+    m = SEND.match(body.strip())
+    if not m:
+        return None
+    ident_text, length = m.group(1), int(m.group(2), 16)
+    data = bytes(int(b, 16) for b in m.group(3).split())
+    if length != len(data) or length > 8:
+        return None
+    ident = int(ident_text, 16)
+    extended = len(ident_text) > 3
+    if (not extended and ident > 0x7FF) or ident > 0x1FFFFFFF:
+        return None
+    return can.Message(arbitration_id=ident, data=data, is_extended_id=extended)
+
+
+class _Client(asyncio.Protocol):
+    def __init__(self, server: "SocketcandServer"):
+        self.server = server
+        self.transport: asyncio.Transport | None = None
+        self.buffer = ""
+        self.raw = False
+        self.opened = False
+
+    def connection_made(self, transport) -> None:
+        self.transport = transport
+        transport.write(b"< hi >")
+
+    def data_received(self, data: bytes) -> None:
+        self.buffer += data.decode("ascii", "replace")
+        if len(self.buffer) > 65536:
+            self.transport.write(b"< error line too long >")
+            self.transport.close()
+            return
+        while True:
+            start = self.buffer.find("<")
+            end = self.buffer.find(">", start + 1)
+            if start < 0 or end < 0:
+                if start < 0:
+                    self.buffer = ""
+                return
+            body = self.buffer[start + 1:end].strip()
+            self.buffer = self.buffer[end + 1:]
+            self.command(body)
+
+    def command(self, body: str) -> None:
+        word = body.split(" ", 1)[0]
+        if word == "open":
+            self.opened = True
+            self.transport.write(b"< ok >")
+        elif word == "rawmode" and self.opened:
+            self.transport.write(b"< ok >")
+            asyncio.get_running_loop().call_later(RAWMODE_SETTLE, self._go_raw)
+        elif word == "send" and self.raw:
+            msg = parse_send(body)
+            if msg is None:
+                self.transport.write(b"< error malformed send >")
+            else:
+                self.server.from_client(self, msg)
+        else:
+            self.transport.write(f"< error unsupported {word[:20]} >".encode("ascii", "replace"))
+
+    def _go_raw(self) -> None:
+        if self.transport is not None and not self.transport.is_closing():
+            self.raw = True
+
+    def connection_lost(self, exc) -> None:
+        self.server.clients.discard(self)
+        self.transport = None
+
+
+class SocketcandServer:
+    """Bridge between the virtual CAN bus ``channel`` and socketcand clients on ``host:port``."""
+
+    def __init__(self, channel: str, host: str = "127.0.0.1", port: int = 0):
+        self.channel = channel
+        self.host = host
+        self.port = port
+        self.clients: set[_Client] = set()
+        self._bus: can.BusABC | None = None
+        self._notifier: can.Notifier | None = None
+        self._server: asyncio.base_events.Server | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self.frames_in = self.frames_out = 0
+
+    async def start(self) -> int:
+        """Open the bridge and listen; returns the bound port."""
+        self._loop = asyncio.get_running_loop()
+        self._bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
+        self._notifier = can.Notifier(self._bus, [self._on_bus_frame], timeout=0.1)
+        self._server = await self._loop.create_server(lambda: self._track(_Client(self)),
+                                                      self.host, self.port, reuse_address=True)
+        self.port = self._server.sockets[0].getsockname()[1]
+        log.info("socketcand server for virtual bus %r on %s:%d", self.channel, self.host, self.port)
+        return self.port
+
+    def _track(self, client: _Client) -> _Client:
+        self.clients.add(client)
+        return client
+
+    def _on_bus_frame(self, msg: can.Message) -> None:  # notifier thread
+        loop = self._loop
+        if loop is not None and not msg.is_error_frame:
+            try:
+                loop.call_soon_threadsafe(self._to_clients, msg, None)
+            except RuntimeError:
+                pass
+
+    def _to_clients(self, msg: can.Message, sender: _Client | None) -> None:
+        line = format_frame(msg)
+        for client in list(self.clients):
+            if client is not sender and client.raw and client.transport is not None:
+                client.transport.write(line)
+                self.frames_out += 1
+
+    def from_client(self, client: _Client, msg: can.Message) -> None:
+        self.frames_in += 1
+        try:
+            self._bus.send(msg)
+        except can.CanError as exc:
+            log.warning("socketcand: cannot forward frame %03X: %s", msg.arbitration_id, exc)
+        msg.timestamp = time.time()
+        self._to_clients(msg, client)
+
+    async def stop(self) -> None:
+        if self._server is not None:
+            self._server.close()
+            for client in list(self.clients):
+                if client.transport is not None:
+                    client.transport.close()
+            await self._server.wait_closed()
+            self._server = None
+        if self._notifier is not None:
+            self._notifier.stop()
+            self._notifier = None
+        if self._bus is not None:
+            self._bus.shutdown()
+            self._bus = None
