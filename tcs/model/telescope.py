@@ -152,20 +152,6 @@ class Telescope:
 
 def start_simulated_drives(config: HwConfig):
     """Start the ``[simulation]`` drives on the ``[can]`` bus of ``config`` (same process)."""
-    from tcs.sim.drive_network import SimDriveNetwork
-    from tcs.sim.drive_params import SimDriveParams
+    from tcs.sim.drive_network import SimDriveNetwork, params_from_config
 
-    params = {}
-    for name, sim in config.simulation.drives.items():
-        drive = config.drives[name]
-        ident = drive.identity
-        params[drive.node_id] = SimDriveParams(
-            increments_per_unit=abs(drive.increments_per_unit),
-            max_velocity=sim.max_velocity, max_acceleration=sim.max_acceleration,
-            position=sim.position, negative_limit_switch=sim.negative_limit_switch,
-            positive_limit_switch=sim.positive_limit_switch, home_switch=sim.home_switch,
-            home_switch_active_below=sim.home_switch_active_below,
-            index_pulse_spacing=sim.index_pulse_spacing,
-            identity=(ident.vendor, ident.product, ident.revision,
-                      ident.serial if ident.serial is not None else sim.serial))
-    return SimDriveNetwork(config.can.bus_kwargs(), params)
+    return SimDriveNetwork(config.can.bus_kwargs(), params_from_config(config))

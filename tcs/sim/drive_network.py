@@ -73,3 +73,21 @@ def start_sim_drives(bus: Any, drives: Mapping[int, SimDriveParams | None],
                      eds: str | Path = DEFAULT_EDS) -> SimDriveNetwork:
     """Start simulated drives ``{node_id: params}`` on ``bus``; ``.stop()`` the result."""
     return SimDriveNetwork(bus, drives, clock=clock, eds=eds)
+
+
+def params_from_config(config) -> dict[int, SimDriveParams]:
+    """``{node_id: SimDriveParams}`` of the ``[simulation]`` drives (identity from ``[drives]``)."""
+    params = {}
+    for name, sim in config.simulation.drives.items():
+        drive = config.drives[name]
+        ident = drive.identity
+        params[drive.node_id] = SimDriveParams(
+            increments_per_unit=abs(drive.increments_per_unit),
+            max_velocity=sim.max_velocity, max_acceleration=sim.max_acceleration,
+            position=sim.position, negative_limit_switch=sim.negative_limit_switch,
+            positive_limit_switch=sim.positive_limit_switch, home_switch=sim.home_switch,
+            home_switch_active_below=sim.home_switch_active_below,
+            index_pulse_spacing=sim.index_pulse_spacing,
+            identity=(ident.vendor, ident.product, ident.revision,
+                      ident.serial if ident.serial is not None else sim.serial))
+    return params

@@ -16,7 +16,8 @@ Protocol (the part clients use)::
 A frame from a client goes onto the virtual bus and to every *other* client (SocketCAN
 semantics: no echo to the sender); every frame of the virtual bus goes to every client.
 python-can's client reads the ``< ok >`` of rawmode with a single ``recv``, so frames start to
-flow a short moment after it. Malformed lines are answered with ``< error … >`` and the
+flow a short moment after it. Malformed or unsupported lines are logged, counted and ignored
+(python-can's client cannot parse an ``< error … >`` reply that is not an error frame); the
 connection goes on. Threads: one python-can notifier thread hands bus frames to the event loop.
 """
 
@@ -72,7 +73,7 @@ class _Client(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         self.buffer += data.decode("ascii", "replace")
         if len(self.buffer) > 65536:
-            self.transport.write(b"< error line too long >")
+            log.warning("socketcand: a client sent 64 KiB without a frame; closing it")
             self.transport.close()
             return
         while True:
@@ -94,14 +95,17 @@ class _Client(asyncio.Protocol):
         elif word == "rawmode" and self.opened:
             self.transport.write(b"< ok >")
             asyncio.get_running_loop().call_later(RAWMODE_SETTLE, self._go_raw)
-        elif word == "send" and self.raw:
+        elif word == "send" and self.opened:
             msg = parse_send(body)
             if msg is None:
-                self.transport.write(b"< error malformed send >")
+                self.server.refused += 1
+                log.warning("socketcand: malformed frame from a client ignored: <%s>", body[:80])
             else:
                 self.server.from_client(self, msg)
         else:
-            self.transport.write(f"< error unsupported {word[:20]} >".encode("ascii", "replace"))
+            # python-can's client would choke on a reply it cannot parse as a frame: log only
+            self.server.refused += 1
+            log.warning("socketcand: unsupported command ignored: <%s>", body[:80])
 
     def _go_raw(self) -> None:
         if self.transport is not None and not self.transport.is_closing():
@@ -124,7 +128,7 @@ class SocketcandServer:
         self._notifier: can.Notifier | None = None
         self._server: asyncio.base_events.Server | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
-        self.frames_in = self.frames_out = 0
+        self.frames_in = self.frames_out = self.refused = 0
 
     async def start(self) -> int:
         """Open the bridge and listen; returns the bound port."""

@@ -1,0 +1,63 @@
+"""``tcs-sim``: the simulated cabinet as its own process.
+
+    tcs-sim [--config hwconfig/sim-remote.toml] [--can-port N]
+
+Serves, from the hardware file, the ``[simulation]`` drives as a CAN bus over socketcand on
+the ``[can]`` host/port, each simulated PLC as Modbus TCP on its host/port, and the GPS as NMEA
+over TCP — so that ``tcs-server --config hwconfig/sim-remote.toml`` in another process drives
+it exactly like real hardware. Runs until SIGINT/SIGTERM. A bad file exits with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import signal
+import sys
+
+from tcs.cli.server import setup_logging
+from tcs.config import load_config
+from tcs.config.hwconfig import PACKAGE_ROOT
+from tcs.errors import ConfigErrors
+
+DEFAULT = PACKAGE_ROOT / "hwconfig" / "sim-remote.toml"
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="tcs-sim", description=__doc__.splitlines()[0])
+    p.add_argument("--config", default=str(DEFAULT), help="hardware file (default: %(default)s)")
+    p.add_argument("--can-port", type=int, help="socketcand port (overrides [can] port; 0 = any)")
+    p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    args = p.parse_args(argv)
+    setup_logging(args.log_level)
+    try:
+        config = load_config(args.config)
+        from tcs.sim.cabinet import SimCabinet
+
+        cabinet = SimCabinet(config, port=args.can_port)
+    except ConfigErrors as exc:
+        print(f"tcs-sim: the hardware file is not valid:\n{exc}", file=sys.stderr)
+        return 2
+
+    async def run() -> None:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+        await cabinet.start()
+        print(f"tcs-sim: ready (socketcand port {cabinet.can_port})", file=sys.stderr, flush=True)
+        try:
+            await stop.wait()
+        finally:
+            await cabinet.stop()
+
+    try:
+        asyncio.run(run())
+    except OSError as exc:
+        print(f"tcs-sim: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

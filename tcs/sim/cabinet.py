@@ -1,0 +1,100 @@
+"""The whole simulated cabinet of a hardware file, as hardware in another process would be.
+
+:class:`SimCabinet` starts, from one hardware file:
+
+* the ``[simulation]`` drives on a private ``virtual`` CAN bus, offered to other processes by a
+  :class:`~tcs.sim.socketcand_server.SocketcandServer` on the ``[can]`` host and port (the
+  file's bus must be ``socketcand``: that is how a separate ``tcs-server`` reaches it);
+* every ``[plcs.<name>]`` with a ``sim`` table as a Modbus TCP server on its host and port;
+* the ``[gps]`` receiver, when it has a ``sim`` table and a ``socket://host:port`` URL, as an
+  NMEA stream on that TCP port.
+
+This is what ``tcs-sim`` runs. It never imports the TCS's drivers: only the protocols.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import uuid
+from urllib.parse import urlparse
+
+from tcs.config import HwConfig
+from tcs.errors import ConfigError, ConfigErrors
+
+log = logging.getLogger(__name__)
+
+
+class SimCabinet:
+    """Simulated drives (socketcand), PLCs (Modbus TCP) and GPS (NMEA over TCP) of ``config``."""
+
+    def __init__(self, config: HwConfig, port: int | None = None):
+        self.config = config
+        self.can_port = port
+        self.drives = None
+        self.socketcand = None
+        self.plcs: dict = {}
+        self.gps = None
+        problems = []
+        if config.simulation and config.simulation.drives:
+            if config.can is None or config.can.interface != "socketcand":
+                problems.append(ConfigError(str(config.source), "can.interface",
+                                            "tcs-sim offers the drives over socketcand: set "
+                                            "interface = \"socketcand\" (see hwconfig/sim-remote.toml)"))
+        if problems:
+            raise ConfigErrors(problems)
+
+    async def start(self) -> None:
+        config = self.config
+        try:
+            if config.simulation and config.simulation.drives:
+                await self._start_drives()
+            for name, section in config.plcs.items():
+                if getattr(section, "sim", None) is not None:
+                    from tcs.sim.plc import SimPlc
+
+                    plc = SimPlc(name, section, host=section.host)
+                    await plc.start()
+                    self.plcs[name] = plc
+                    log.info("simulated PLC %s: Modbus TCP on %s:%d", name, section.host, plc.port)
+            gps = config.gps
+            if gps is not None and gps.sim is not None and gps.url.startswith("socket://"):
+                from tcs.sim.gps import SimGps
+
+                url = urlparse(gps.url)
+                self.gps = SimGps(gps.sim.latitude if gps.sim.latitude is not None else config.site.latitude,
+                                  gps.sim.longitude if gps.sim.longitude is not None else config.site.longitude,
+                                  gps.sim.height if gps.sim.height is not None else config.site.height,
+                                  rate=gps.sim.rate, satellites=gps.sim.satellites, mode="tcp",
+                                  port=url.port or 0)
+                await self.gps.start()
+                log.info("simulated GPS: NMEA on %s", self.gps.url)
+        except BaseException:
+            await self.stop()
+            raise
+
+    async def _start_drives(self) -> None:
+        from tcs.sim.drive_network import SimDriveNetwork, params_from_config
+        from tcs.sim.socketcand_server import SocketcandServer
+
+        channel = f"tcs-sim-{uuid.uuid4().hex[:8]}"
+        can = self.config.can
+        self.socketcand = SocketcandServer(channel, can.host, can.port if self.can_port is None else self.can_port)
+        self.can_port = await self.socketcand.start()
+        params = params_from_config(self.config)
+        self.drives = await asyncio.to_thread(SimDriveNetwork, {"interface": "virtual", "channel": channel}, params)
+        log.info("simulated drives %s on socketcand %s:%d", sorted(params), can.host, self.can_port)
+
+    async def stop(self) -> None:
+        if self.gps is not None:
+            await self.gps.stop()
+            self.gps = None
+        for plc in self.plcs.values():
+            await plc.stop()
+        self.plcs.clear()
+        if self.drives is not None:
+            await asyncio.to_thread(self.drives.stop)
+            self.drives = None
+        if self.socketcand is not None:
+            await self.socketcand.stop()
+            self.socketcand = None
