@@ -196,6 +196,7 @@ class Axis(ModuleHealth):
         self._want_power: bool | None = None
         self._power_since = 0.0
         self._homing = False
+        self._reference_cause = None  # the REINIT that started homing (events 19/20 name it)
         self._sp = Setpoint(0.0)
         self._running = False  # follower in charge
         self._fault: TcsError | None = None
@@ -468,6 +469,7 @@ class Axis(ModuleHealth):
             if self._homing:
                 return
             self._homing = True
+            self._reference_cause = cause
             self.referenced = 0.0
             self.drive.start_homing()
             self.emit(INFO, ErrorNumber.REFERENCE_EXECUTE, "referencing", cause)
@@ -565,13 +567,13 @@ class Axis(ModuleHealth):
                 self._sp = Setpoint(st.position)
                 self.planner.take_over(self._sp)
                 self._resolve("reference")
-                self.emit(INFO, ErrorNumber.REFERENCE_GOOD, "referenced")
+                self.emit(INFO, ErrorNumber.REFERENCE_GOOD, "referenced", self._reference_cause)
             elif st.homing is Progress.FAILED:
                 self._homing = False
                 self.referenced = 0.0
                 error = st.request_error or TcsError(f"{self.module_name}: homing failed", ErrorNumber.TIMEOUT)
                 self._resolve("reference", error)
-                self.emit(ERROR, ErrorNumber.REFERENCE_BAD, error.message)
+                self.emit(ERROR, ErrorNumber.REFERENCE_BAD, error.message, self._reference_cause)
             else:
                 self.referenced = min(0.99, st.homing_progress)
 
