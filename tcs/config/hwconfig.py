@@ -21,6 +21,7 @@ from tcs.config.can import CanSection, DriveSection, check_can_drives
 from tcs.config.schema import build, setting
 from tcs.config.gps import GpsSection
 from tcs.config.plc import PlcSection
+from tcs.config.pointing import PointingSection
 from tcs.config.sections import (CabinetSection, MountSection, ServerSection, SiteSection,
                                  StateSection, TimeSection, UserSection)
 from tcs.config.axes import AxisSection, SimulationSection, check_axes
@@ -45,6 +46,7 @@ class HwConfig:
     drives: dict[str, DriveSection] = setting(factory=dict, doc="CiA-402 drives by name (tcs.config.can)")
     axes: dict[str, AxisSection] = setting(factory=dict, doc="OpenTCI axes by name (tcs.config.axes)")
     simulation: SimulationSection | None = setting(None, doc="drives simulated in-process (tcs.config.axes)")
+    pointing: PointingSection = setting(factory=PointingSection, doc="the POINTING module (tcs.config.pointing)")
     # Set by load_config, not by the file.
     source: Path = field(default=Path("<memory>"), init=False, compare=False)
 
