@@ -126,11 +126,9 @@ class GpsReader:
     async def stop(self) -> None:
         task, self._task = self._task, None
         if task is not None:
-            task.cancel()
-            try:
-                await task
-            except asyncio.CancelledError:
-                pass
+            while not task.done():  # be sure the cancel is not lost in a coinciding wake-up
+                task.cancel()
+                await asyncio.wait([task], timeout=0.05)
         self._detach()
         if self._timer is not None:
             self._timer.cancel()
