@@ -1,0 +1,155 @@
+"""``tcs-commission jog AXIS ±DISTANCE``: move one drive by a distance, inside its limits.
+
+The target (actual position + DISTANCE, user units) must lie inside the software limits —
+the ``[axes.<name>]`` min/max of the axis that uses the drive, inside the drive's own
+``min_position``/``max_position`` — or the jog is refused before anything moves (exit 2).
+Drives whose ``default_mode`` is ``csp`` are moved by a jerk-limited profile streamed in CSP
+(:class:`~tcs.commission.motion.CspMover`); ``pp`` drives by a profile-position move of the
+driver (``move_to``). Speed: ``--speed`` (default a tenth of the drive's ``max_velocity``).
+
+A drive that was not referenced in this run works in its current position frame (the note
+says so); ``--home`` references it first with the configured method.
+
+Exit codes: 0 moved, 1 the move failed, 2 refused (outside the limits, bad speed),
+3 the drive does not answer.
+"""
+
+from __future__ import annotations
+
+import math
+
+from tcs.axes.motion import SoftLimits
+from tcs.drivers.drive import Mode, Progress
+
+from tcs.commission.common import (CommissionError, ExitCode, Outcome, fmt, resolve_target,
+                                   software_limits)
+from tcs.commission.home import home_group
+from tcs.commission.motion import CspMover, jog_dynamics
+from tcs.commission.progress import ProgressBar
+from tcs.commission.session import DriveSession, prepare_config
+
+DEFAULT_SPEED_FRACTION = 0.1
+
+
+def add_parser(subparsers, parents) -> None:
+    p = subparsers.add_parser("jog", parents=parents, help="move a drive by ±DISTANCE within its limits",
+                              description=__doc__.split("\n\n")[0])
+    p.add_argument("axis", help="axis or drive name")
+    p.add_argument("distance", type=float, help="signed distance in user units (degrees, mm)")
+    p.add_argument("--speed", type=float, help="units/s (default: a tenth of the drive's max_velocity)")
+    p.add_argument("--home", action="store_true", help="reference the drive first")
+
+
+def jog_speed(target, speed: float | None) -> float:
+    """The speed to use; CommissionError (exit 2) when outside (0, max_velocity]."""
+    vmax = target.section.max_velocity
+    if speed is None:
+        return DEFAULT_SPEED_FRACTION * vmax
+    if not (math.isfinite(speed) and 0 < speed <= vmax):
+        raise CommissionError(f"--speed {speed:g} is not in (0, {vmax:g}] (max_velocity of drive "
+                              f"{target.drive})", ExitCode.USAGE)
+    return speed
+
+
+def move_csp(session: DriveSession, target, destination: float, speed: float,
+             limits: tuple[float, float], bar: ProgressBar) -> float:
+    """Move one enabled drive to ``destination`` in CSP; returns the position reached."""
+    name = target.drive
+    if session.status(name).mode != Mode.CSP:
+        session.set_mode(name, Mode.CSP)
+    session.enable([name])
+    start = session.status(name).position
+    lo, hi = min(limits[0], start), max(limits[1], start)
+    mover = CspMover(session.drive(name), jog_dynamics(target, speed), SoftLimits(lo, hi),
+                     session.config.can.sync_period)
+    session.add_hook(mover)
+    try:
+        seq = mover.move_to(destination)
+        span = abs(destination - start) or 1.0
+        timeout = 10.0 + 2.0 * abs(destination - start) / speed
+        ok = session.wait(lambda: mover.done(seq), timeout, lambda: bar.update(
+            name, 1 - abs(destination - session.status(name).position) / span,
+            fmt(session.status(name).position, 3)))
+        bar.close()
+        st = session.status(name)
+        if mover.error is not None:
+            raise CommissionError(mover.error.message)
+        if st.fault is not None:
+            raise CommissionError(st.fault.message)
+        if not ok or not st.enabled:
+            raise CommissionError(f"{session.drive(name).device}: move did not end within "
+                                  f"{timeout:.0f} s (state {st.state.value})")
+        session.wait(lambda: abs(session.status(name).velocity) < 1e-9, 2.0)
+        return session.status(name).position
+    finally:
+        session.remove_hook(mover)
+
+
+def move_pp(session: DriveSession, target, destination: float, speed: float,
+            bar: ProgressBar) -> float:
+    """Move one drive with the driver's profile-position move; returns the position reached."""
+    name = target.drive
+    session.enable([name])
+    drive = session.drive(name)
+    start = session.status(name).position
+    drive.move_to(destination, speed)
+    timeout = 10.0 + 2.0 * abs(destination - start) / speed
+    span = abs(destination - start) or 1.0
+    session.wait(lambda: session.status(name).move in (Progress.RUNNING, Progress.DONE,
+                                                        Progress.FAILED), 2.0)
+    ok = session.wait(lambda: session.status(name).move is not Progress.RUNNING, timeout,
+                      lambda: bar.update(name, 1 - abs(destination - session.status(name).position)
+                                         / span, fmt(session.status(name).position, 3)))
+    bar.close()
+    st = session.status(name)
+    if st.move is not Progress.DONE:
+        err = st.request_error or st.fault
+        raise CommissionError(err.message if err else f"{drive.device}: move did not end within "
+                                                      f"{timeout:.0f} s")
+    return st.position
+
+
+def run(args, config) -> Outcome:
+    out = Outcome("jog")
+    target = resolve_target(config, args.axis)
+    speed = jog_speed(target, args.speed)
+    if not math.isfinite(args.distance):
+        raise CommissionError("DISTANCE must be a finite number", ExitCode.USAGE)
+    config, simulate = prepare_config(config, args.simulate)
+    lo, hi = software_limits(target)
+    name = target.drive
+    bar = ProgressBar(enabled=None if not args.json else False)
+    out.data.update(drive=name, axis=target.axis, distance=args.distance, speed=speed,
+                    limits=[lo, hi])
+    with DriveSession(config, simulate=simulate, check_bus=not args.force) as session:
+        session.boot([name])
+        session.start()
+        cleared = session.clear_faults([name])
+        if cleared:
+            out.lines.append(f"{target.label}: fault reset ({'; '.join(cleared)})")
+        referenced = False
+        if args.home:
+            result = home_group(session, [target], bar)[0]
+            if result["result"] != "done":
+                raise CommissionError(f"homing failed: {result['error']}")
+            referenced = True
+        start = session.status(name).position
+        destination = start + args.distance
+        out.data.update(start=start, target=destination, referenced=referenced)
+        if not lo <= destination <= hi:
+            raise CommissionError(
+                f"refused: {target.label} target {destination:.4f} (from {start:.4f} by "
+                f"{args.distance:+g}) is outside the software limits [{lo:g}, {hi:g}]",
+                ExitCode.USAGE, out.data)
+        if target.section.default_mode == "pp":
+            reached = move_pp(session, target, destination, speed, bar)
+        else:
+            reached = move_csp(session, target, destination, speed, (lo, hi), bar)
+        session.disable([name])
+    out.data["position"] = reached
+    out.lines.append(f"{target.label}: moved {args.distance:+g} from {fmt(start)} to {fmt(reached)} "
+                     f"(target {fmt(destination)}, speed {speed:g}/s)")
+    if not referenced:
+        out.lines.append("  note: not referenced in this run: positions are in the drive's "
+                         "current frame (use --home to reference first)")
+    return out
