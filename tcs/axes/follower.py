@@ -309,13 +309,15 @@ class TrajectoryFollower:
 
     def _ref(self, t: float, freeze: bool = False) -> tuple[float, float, float]:
         """The reference ``path + shift + offset`` at ``t``; before the path's start, the start
-        state extrapolated with constant acceleration (so it can be met in motion)."""
+        state extrapolated with constant velocity (so it can be met in motion). Not with
+        constant acceleration: over ``lead_time`` a parabola can run far from the path (a path
+        starting at rest with 0.8°/s² put the axis 1.6° away, moving the wrong way, and the
+        intercept took 5 s); the acceleration step at the start is a short re-intercept."""
         q = self.queue
         start = q.start_time
         if t < start:
-            p, v, a = q.sample(start)
-            tau = t - start
-            return p + tau * (v + 0.5 * tau * a) + self.shift + self._offset, v + tau * a, a
+            p, v, _ = q.sample(start)
+            return p + (t - start) * v + self.shift + self._offset, v, 0.0
         p, v, a = q.sample(t, freeze)
         return p + self.shift + self._offset, v, a
 
