@@ -223,6 +223,10 @@ class GpsReader:
 
     def _attach(self, ser) -> None:
         loop = asyncio.get_running_loop()
+        try:
+            ser.reset_input_buffer()  # bytes the kernel kept while nobody read are stale
+        except (OSError, serial.SerialException):
+            pass
         self._serial = ser
         self._buffer = b""
         self._port_error = ""
