@@ -182,6 +182,19 @@ def test_sentences_parsed_and_rejects_counted():
     assert reader.status.sentences == 4
 
 
+async def test_simulated_telescope_gps_from_the_hardware_file():
+    from tcs.config import load_config
+    config = load_config()
+    sim = SimGps.from_config(config.gps, config.site, port=0)
+    assert sim.mode == "tcp" and (sim.latitude, sim.longitude) == (config.site.latitude, config.site.longitude)
+    sim.rate = 20.0
+    async with sim:
+        reader = GpsReader(section(sim.url))
+        async with reader:
+            st = await reader.wait_for(lambda s: s.position_good, WAIT)
+            assert st.height == pytest.approx(config.site.height)
+
+
 def test_gps_section_is_validated():
     with pytest.raises(ConfigErrors) as info:
         parse_config('[gps]\nurl = ""\nreopen_min = 5.0\nreopen_max = 1.0\n', "hw.toml")

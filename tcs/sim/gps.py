@@ -111,6 +111,25 @@ class SimGps:
         self._timer: asyncio.TimerHandle | None = None
         self._next = 0.0
 
+    @classmethod
+    def from_config(cls, gps, site, *, port: int | None = None, **kwargs) -> SimGps:
+        """The receiver a hardware file describes: ``[gps.sim]``, position defaulting to ``[site]``.
+
+        A ``socket://host:port`` URL gives TCP mode on that port (``port`` overrides it; 0 picks
+        a free one), anything else a pty — the reader must then open :attr:`url`.
+        """
+        sim = gps.sim
+        lat = sim.latitude if sim and sim.latitude is not None else site.latitude
+        lon = sim.longitude if sim and sim.longitude is not None else site.longitude
+        height = sim.height if sim and sim.height is not None else site.height
+        mode, url_port = "pty", 0
+        if gps.url.startswith("socket://"):
+            mode = "tcp"
+            url_port = int(gps.url.rsplit(":", 1)[1].split("?")[0] or 0)
+        return cls(lat, lon, height, rate=sim.rate if sim else 1.0,
+                   satellites=sim.satellites if sim else 9, mode=mode,
+                   port=url_port if port is None else port, **kwargs)
+
     @property
     def url(self) -> str:
         """What a reader opens: the pty path, or ``socket://127.0.0.1:<port>``."""
