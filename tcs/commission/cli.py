@@ -90,8 +90,14 @@ def main(argv: list[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
         return int(exc.code or 0)
-    logging.basicConfig(stream=sys.stderr, level=getattr(logging, args.log_level),
-                        format="%(levelname)s %(name)s: %(message)s")
+    # Log to stderr for the duration of this call only (main() is also called in-process).
+    root = logging.getLogger()
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+    handler.setLevel(getattr(logging, args.log_level))
+    old_level = root.level
+    root.addHandler(handler)
+    root.setLevel(min(old_level or logging.WARNING, handler.level))
     logging.getLogger("can.interfaces.socketcand").setLevel(logging.ERROR)
     outcome = Outcome(args.command)
     try:
@@ -106,7 +112,10 @@ def main(argv: list[str] | None = None) -> int:
         outcome.fail(exc.message or str(exc), exit_code_of(exc))
     except KeyboardInterrupt:
         outcome.fail("interrupted (drives disabled)", ExitCode.FAILED)
-    emit(outcome, getattr(args, "json", False))
+    finally:
+        root.removeHandler(handler)
+        root.setLevel(old_level)
+    emit(outcome, args.json)
     return int(outcome.exit_code)
 
 

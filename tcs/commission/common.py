@@ -77,10 +77,10 @@ class Outcome:
     error: str | None = None
 
     def fail(self, message: str, exit_code: int = ExitCode.FAILED) -> Outcome:
-        """Record a failure; the first (most important) error message is kept."""
-        if self.error is None:
+        """Record a failure: the message of the highest exit code (the first among equals)
+        is kept as ``error``."""
+        if self.error is None or exit_code > self.exit_code:
             self.error = message
-        if self.exit_code == ExitCode.OK or exit_code > self.exit_code:
             self.exit_code = int(exit_code)
         return self
 

@@ -196,20 +196,23 @@ class DriveSession:
     def start(self) -> None:
         """Start SYNC and the cycle (hooks, then every drive's step)."""
         if not self._cycling:
+            self._step_all = self.system.step_all
             self.system.cycle.add_callback(self._on_cycle)
             self.system.start()
             self._cycling = True
 
     def close(self) -> None:
         """Disable, stop the cycle, park the drives, close the bus, stop the simulators."""
-        system, self.system = self.system, None
+        system = self.system
         if system is not None:
             try:
                 if self._cycling:
                     self._disable_all(system)
                 system.stop()
+                self._cycling = False
                 self._park(system)
             finally:
+                self.system = None
                 system.close()
         sims, self.sims = self.sims, None
         if sims is not None:
@@ -251,7 +254,7 @@ class DriveSession:
     def _on_cycle(self, cycle) -> None:
         for hook in self._hooks:
             hook(cycle)
-        self.system.step_all(cycle)
+        self._step_all(cycle)
 
     # ------------------------------------------------------------------ waiting (main thread)
     def wait(self, predicate: Callable[[], bool], timeout: float,
