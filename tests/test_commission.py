@@ -412,6 +412,42 @@ def test_other_master_is_heard(hw):
         master.shutdown()
 
 
+async def test_refuses_a_bus_with_another_master_over_socketcand(hw, capsys):
+    # The drives behind a socketcand gateway (the tcs-sim shape); a running "service" sends
+    # SYNC on that bus. The tool hears it and refuses; once it is gone, the tool works.
+    import asyncio
+
+    from tcs.model.telescope import start_simulated_drives
+    from tcs.sim.socketcand_server import SocketcandServer
+
+    config = load_config(hw)
+    server = SocketcandServer(config.can.channel)
+    port = await server.start()
+    remote = hw.with_name("remote.toml")
+    remote.write_text(hw.read_text().replace('interface = "virtual"',
+                                             f'interface = "socketcand"\nport = {port}'))
+    sims = start_simulated_drives(config)
+    service = can.Bus(interface="virtual", channel=config.can.channel)
+    sync = service.send_periodic(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False), 0.01)
+    try:
+        code = await asyncio.to_thread(main, ["scan", "--config", str(remote), "--json",
+                                              "--nodes", "1-3"])
+        out = json.loads(capsys.readouterr().out)
+        assert code == 3 and "another master is active (SYNC frames" in out["error"]
+        assert "stop the service" in out["error"]
+        sync.stop()
+        code = await asyncio.to_thread(main, ["scan", "--config", str(remote), "--json",
+                                              "--nodes", "1-6"])
+        out = json.loads(capsys.readouterr().out)
+        assert code == 0, out
+        assert [n["drive"] for n in out["nodes"]] == ["az", "zd", "focus"]
+    finally:
+        sync.stop()
+        service.shutdown()
+        sims.stop()
+        await server.stop()
+
+
 def test_progress_bar_draws_one_line():
     stream = io.StringIO()
     bar = ProgressBar(stream=stream, enabled=True, width=10)

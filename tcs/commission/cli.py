@@ -14,6 +14,7 @@ import argparse
 import json
 import logging
 import math
+import signal
 import sys
 
 from tcs.commission import home, info, jog, limits, pointing, scan
@@ -83,6 +84,16 @@ def emit(outcome: Outcome, as_json: bool, stdout=None, stderr=None) -> None:
         stderr.write(f"{PROG} {outcome.command}: {outcome.error}\n")
 
 
+def _interrupt_on_sigterm():
+    """SIGTERM ends a subcommand like Ctrl-C (drives disabled on the way out); the old handler."""
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+    try:
+        return signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread (called from a worker thread): leave it alone
+        return None
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one subcommand; returns the exit code (see :class:`ExitCode`)."""
     parser = build_parser()
@@ -99,6 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     root.addHandler(handler)
     root.setLevel(min(old_level or logging.WARNING, handler.level))
     logging.getLogger("can.interfaces.socketcand").setLevel(logging.ERROR)
+    previous_term = _interrupt_on_sigterm()
     outcome = Outcome(args.command)
     try:
         config = load_config(args.config)
@@ -115,6 +127,8 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         root.removeHandler(handler)
         root.setLevel(old_level)
+        if previous_term is not None:
+            signal.signal(signal.SIGTERM, previous_term)
     emit(outcome, args.json)
     return int(outcome.exit_code)
 
