@@ -368,6 +368,10 @@ def test_subprocess_scan_and_home(hw):
     assert proc.returncode == 0, proc.stderr
     data = json.loads(proc.stdout)
     assert data["command"] == "scan" and [n["drive"] for n in data["nodes"]] == ["az", "zd", "focus"]
+    proc = subprocess.run([*env_cmd, "scan", "--config", str(hw), "--json", "--nodes", "1-3"],
+                          capture_output=True, text=True, timeout=120, cwd=ROOT)
+    data = json.loads(proc.stdout)
+    assert proc.returncode == 0 and data["missing"] == [] and data["not_probed"] == ["focus"]
     proc = subprocess.run([*env_cmd, "home", "focus", "--config", str(hw)],
                           capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert proc.returncode == 1

@@ -10,8 +10,8 @@ How it works
    identity 0x1018:1..4, error register 0x1001, and, for CiA-402 devices, the statusword
    0x6041 (the power state), the error code 0x603F and the mode display 0x6061.
 3. Nodes are matched with the ``[drives]`` of the hardware file by node id: identity equal
-   (``ok``), different (``wrong identity``) or not configured; configured drives that did not
-   answer are listed as missing.
+   (``ok``), different (``wrong identity``) or not configured; configured drives whose node
+   id was probed and did not answer are listed as missing.
 
 Nothing is written and no drive is booted. The NMT state comes from heartbeats heard during
 the scan (a node whose heartbeat producer is off shows "no heartbeat"; answering SDO, it is
@@ -197,10 +197,12 @@ def run(args, config) -> Outcome:
             if not entry.get("cia402"):
                 wrong.insert(0, f"device type {entry['device_type']} is not a CiA-402 drive")
             entry["match"] = "ok" if not wrong else "wrong identity: " + ", ".join(wrong)
+    probed = set(node_ids)
     missing = [{"drive": name, "node_id": s.node_id} for name, s in config.drives.items()
-               if s.node_id not in answers]
+               if s.node_id in probed and s.node_id not in answers]
+    skipped = [name for name, s in config.drives.items() if s.node_id not in probed]
     out.data.update(bus=f"{config.can.interface}:{config.can.channel}", simulated=simulate,
-                    probed=len(node_ids), nodes=nodes, missing=missing)
+                    probed=len(node_ids), nodes=nodes, missing=missing, not_probed=skipped)
     out.lines.append(f"bus {config.can.interface}:{config.can.channel}: {len(nodes)} node(s) "
                      f"answered of {len(node_ids)} probed" + (" (simulated drives)" if simulate else ""))
     for e in nodes:
@@ -217,6 +219,8 @@ def run(args, config) -> Outcome:
         out.lines.append(f"            -> {'drive ' + e['drive'] + ': ' if e['drive'] else ''}{e['match']}")
     for m in missing:
         out.lines.append(f"  MISSING: drive {m['drive']} (node {m['node_id']}) did not answer")
+    if skipped:
+        out.lines.append(f"  not probed (outside --nodes): {', '.join(skipped)}")
     wrong = [e for e in nodes if e["drive"] and e["match"] != "ok"]
     if wrong:
         out.fail("; ".join(f"drive {e['drive']} (node {e['node_id']}): {e['match']}" for e in wrong))
