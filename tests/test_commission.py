@@ -244,6 +244,17 @@ def test_jog_moves_inside_limits_and_refuses_beyond(hw, capsys):
     assert code == 2 and "--speed" in out["error"]
 
 
+def test_jog_a_profile_position_drive(hw, capsys):
+    code, out = run(capsys, "jog", "focus", "-2", "--config", hw, "--speed", "4")
+    assert code == 0, out
+    assert out["start"] == pytest.approx(10.0) and out["position"] == pytest.approx(8.0, abs=0.01)
+
+
+def test_info_of_a_silent_drive_is_hardware_error(hw, capsys):
+    code, out = run(capsys, "info", "zd", "--config", hw, "--no-simulate")
+    assert code == 3 and "node 2" in out["error"]
+
+
 def test_drives_left_disabled_and_quiet_after_the_tool(hw, capsys):
     # The simulated drives run outside the tool here, as real hardware would.
     from tcs.model.telescope import start_simulated_drives

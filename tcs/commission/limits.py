@@ -257,10 +257,10 @@ def run(args, config) -> Outcome:
                            "drive": {"min_position": target.section.min_position,
                                      "max_position": target.section.max_position}}
     if proposal["drive"]:
-        out.lines.append(f"proposed (margin {margin:g}): " + ", ".join(
-            [f"axes.{target.axis}.{k} = {v:g}" for k, v in proposal["axis"].items()]
-            if target.axis else []) + ("; " if target.axis else "") + ", ".join(
-            f"drives.{name}.{k} = {v:g}" for k, v in proposal["drive"].items()))
+        keys = [f"drives.{name}.{k} = {v:g}" for k, v in proposal["drive"].items()]
+        if target.axis:
+            keys = [f"axes.{target.axis}.{k} = {v:g}" for k, v in proposal["axis"].items()] + keys
+        out.lines.append(f"proposed (margin {margin:g}): " + ", ".join(keys))
     out.data["written"] = None
     if args.write:
         if out.exit_code != ExitCode.OK or not proposal["drive"]:
