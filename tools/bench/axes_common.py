@@ -31,11 +31,12 @@ from tcs.config.sections import StateSection  # noqa: E402
 ARCSEC = 3600.0
 
 
-async def start_service(path: Path = DEFAULT_CONFIG) -> tuple[Service, int, tempfile.TemporaryDirectory]:
-    """The service of hardware file ``path`` on a free port; returns (service, port, state dir)."""
+async def start_service(path: Path = DEFAULT_CONFIG, **server) -> tuple[Service, int, tempfile.TemporaryDirectory]:
+    """The service of hardware file ``path`` on a free port (``server`` overrides other
+    ``[server]`` settings); returns (service, port, state dir)."""
     config = load_config(path)
     state = tempfile.TemporaryDirectory(prefix="tcs-bench-")
-    changes = dict(server=dataclasses.replace(config.server, port=0),
+    changes = dict(server=dataclasses.replace(config.server, **{"port": 0, **server}),
                    state=StateSection(path=state.name))
     if config.can is not None and config.can.interface == "virtual":
         changes["can"] = dataclasses.replace(config.can, channel=f"tcs-bench-{uuid.uuid4().hex[:12]}")
