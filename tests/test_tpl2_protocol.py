@@ -844,3 +844,15 @@ def test_float_wire_text_never_has_an_exponent():
 def test_quote_string_round_trip_simple():
     for s in ["", "a", 'x"y', "\\", "tab\t", "ünïcödé", "\x00\x01", "\ud800"]:
         assert unescape(quote_string(s)[1:-1]) == s
+
+
+def test_get_reply_is_the_same_bytes_as_its_messages():
+    from tcs.opentci_server.messages import CommandComplete, CommandOk, DataInline
+    from tcs.opentci_server.protocol import Tpl2Connection
+
+    for le in (b"\n", b"\r\n"):
+        conn = Tpl2Connection(line_ending=le)
+        items = [("AZ.REALPOS", "1.0"), ("x\u00e9y!TYPE", "2"), ("NO.SUCH", "UNKNOWN")]
+        expected = conn.send_all([CommandOk(7)] + [DataInline(7, o, (v,)) for o, v in items]
+                                 + [CommandComplete(7)])
+        assert conn.get_reply(7, items) == expected

@@ -184,11 +184,21 @@ class Session(asyncio.Protocol):
             if self._auth_task is not None or self._queue:
                 self._queue.append(msg)
             else:
-                self._handle(msg)
+                self._handle_safely(msg)
 
     def _drain_queue(self) -> None:
         while self._queue and self._auth_task is None and not self._closed:
-            self._handle(self._queue.popleft())
+            self._handle_safely(self._queue.popleft())
+
+    def _handle_safely(self, msg) -> None:
+        """A bug in handling one command must not cost the client its connection."""
+        try:
+            self._handle(msg)
+        except Exception:
+            log.exception("connection %d: handling %r failed", self.id, msg)
+            cmd_id = getattr(msg, "cmd_id", 0)
+            if cmd_id and cmd_id not in self.commands:
+                self.send(m.CommandFailed(cmd_id))
 
     def _handle(self, msg) -> None:
         kind = type(msg)
@@ -280,19 +290,19 @@ class Session(asyncio.Protocol):
 
     # -- GET -----------------------------------------------------------------------------------
     def _get(self, msg: m.Get) -> None:
-        cmd_id = msg.cmd_id
         tree = self.server.tree
-        send = self.proto.send
-        out = [send(m.CommandOk(cmd_id))]
+        items = []
         for ref in msg.objects:
             try:
                 targets = tree.resolve(ref)
-                value = ",".join([tree.read(t, ref.prop, self) for t in targets])
+                if len(targets) == 1:
+                    value = tree.read(targets[0], ref.prop, self)
+                else:
+                    value = ",".join([tree.read(t, ref.prop, self) for t in targets])
             except TcsError as exc:
                 value = exc.reply
-            out.append(send(m.DataInline(cmd_id, ref.text, (value,))))
-        out.append(send(m.CommandComplete(cmd_id)))
-        self.write(b"".join(out))
+            items.append((ref.text, value))
+        self.write(self.proto.get_reply(msg.cmd_id, items))
 
     # -- SET -----------------------------------------------------------------------------------
     def _set(self, msg: m.Set) -> None:

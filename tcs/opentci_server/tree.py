@@ -31,7 +31,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 from tcs.errors import AccessDenied, RangeRefused, RequestRefused, TcsError, UnknownObject
 from tcs.opentci_server.paths import ObjectRef
-from tcs.opentci_server.values import ErrorValue, Value, ValueType, convert, format_value
+from tcs.opentci_server.values import ErrorValue, Value, ValueType, convert, format_float, format_value
 
 log = logging.getLogger(__name__)
 
@@ -180,6 +180,10 @@ class ArrayNode(Node):
 class VarNode(Node):
     spec: VarSpec = None  # type: ignore[assignment]
     obj: Any = None
+    fast: Callable[[], str] | None = None  # plain variable: reads and formats its value
+
+    def __post_init__(self) -> None:
+        self.fast = _fast_reader(self.spec, self.obj)
 
     @property
     def cls_code(self):  # type: ignore[override]
@@ -287,6 +291,16 @@ class Tree:
 
     def read(self, target: Target, prop: str | None, conn: Any) -> str:
         """The wire text of one object (value or property), or an error keyword."""
+        node = target.node
+        fast = getattr(node, "fast", None) if prop is None and target.element is None else None
+        if fast is not None and conn.rlevel <= node.spec.rlevel:  # the common case: a plain variable
+            try:
+                return fast()
+            except TcsError as exc:
+                return exc.reply
+            except Exception:
+                log.exception("reading %s failed", node.path)
+                return "FAILED 13"
         try:
             if prop is not None:
                 return _format_property(target, prop)
@@ -344,6 +358,33 @@ class Tree:
         obj = conn if spec.per_connection else target.node.obj  # type: ignore[attr-defined]
         result = _call(spec.set, obj, value)
         return result if inspect.isawaitable(result) else None
+
+
+def _fast_reader(spec: VarSpec, obj: Any) -> Callable[[], str] | None:
+    """A closure reading and formatting a plain variable of ``obj`` with no per-read lookups
+    (the hot path of GET); None where the general path is needed (per-connection variables,
+    arrays, attributes whose kind cannot be told from the class)."""
+    if spec.per_connection or spec.count is not None or obj is None:
+        return None
+    get, vtype = spec.get, spec.type
+    if vtype is FLOAT:
+        fmt = _format_float_or_null
+    else:
+        def fmt(v):
+            return format_value(v, vtype)
+    if callable(get):
+        return lambda: fmt(get(obj))
+    member = getattr(type(obj), get, None)
+    if isinstance(member, property) and member.fget is not None:
+        fget = member.fget
+        return lambda: fmt(fget(obj))
+    if inspect.isfunction(member):
+        return lambda: fmt(member(obj))
+    return None  # instance attribute (plain value or a stored callable): the general path
+
+
+def _format_float_or_null(value) -> str:
+    return "NULL" if value is None else format_float(value)
 
 
 def _build_members(parent: ModuleNode, members, obj) -> None:

@@ -23,12 +23,13 @@ import sys
 import tempfile
 import time
 
-VARIABLES = [
-    "LOCAL.UTC", "LOCAL.UT1", "LOCAL.TAI", "LOCAL.UT1-UTC", "LOCAL.TAI-UTC", "LOCAL.LATITUDE",
-    "LOCAL.LONGITUDE", "LOCAL.HEIGHT", "LOCAL.SYNCPOS", "LOCAL.VERSION", "LOCAL.TYPE",
-    "LOCAL.ERROR_STATE", "CONFIG.MOUNT", "CONFIG.MOUNTOPTIONS", "CONFIG.ORIENTATION",
-    "CONFIG.VERSION", "CONFIG.ERROR_STATE", "SERVER.UPTIME", "SERVER.CONNECTION.ID",
-    "LOCAL.HEIGHT!TYPE",
+EXTRA: list[str] = []
+VARIABLES = [  # what a status display polls
+    "CABINET.POWER_STATE", "CABINET.ERROR_STATE", "CABINET.REFERENCED", "LOCAL.UT1",
+    "AZ.REALPOS", "AZ.TARGETPOS", "AZ.MOTION_STATE", "AZ.LIMIT_STATE", "AZ.CURRSPEED",
+    "ZD.REALPOS", "ZD.TARGETPOS", "ZD.MOTION_STATE", "ZD.LIMIT_STATE", "ZD.CURRSPEED",
+    "DEROTATOR[2].REALPOS", "FOCUS.REALPOS", "FILTER[2].REALPOS", "MIRROR.REALPOS",
+    "AZ.REALPOS!MIN", "ZD.REALPOS!MAX",
 ]
 
 ECHO_SERVER = r"""
@@ -71,16 +72,16 @@ async def client(port: int, tpl2: bool, seconds: float, latencies: list[float], 
         writer.write(b'AUTH PLAIN "admin" "admin"\n')
         assert (await reader.readline()).startswith(b"AUTH OK")
     request = ("1 GET " + ";".join(VARIABLES) + "\n").encode()
-    lines_per_reply = len(VARIABLES) + 2 if tpl2 else 1
+    # one read call per reply for both servers, so the client's own cost is the same
+    terminator = b"1 COMMAND COMPLETE\n" if tpl2 else b"\n"
     await start.wait()
     end = time.perf_counter() + seconds
     while time.perf_counter() < end:
         t0 = time.perf_counter()
         writer.write(request)
-        for _ in range(lines_per_reply):
-            line = await reader.readline()
-            if not line:
-                raise ConnectionError("server closed the connection")
+        reply = await reader.readuntil(terminator)
+        if tpl2 and b"FAILED" in reply:
+            raise RuntimeError(f"a variable failed: {reply[:200]!r}")
         latencies.append(time.perf_counter() - t0)
     writer.close()
 
@@ -109,12 +110,18 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--clients", type=int, default=50)
     p.add_argument("--seconds", type=float, default=5.0)
+    p.add_argument("--config", help="hardware file for tcs-server (default: the simulated telescope)")
+    p.add_argument("--vars", help="comma-separated variables to GET (default: a status display's 20)")
     args = p.parse_args()
+    if args.config:
+        EXTRA.extend(["--config", args.config])
+    if args.vars:
+        VARIABLES[:] = args.vars.split(",")
     results = {}
     with tempfile.TemporaryDirectory() as state:
         for name, cmd, tpl2 in (
             ("echo", [sys.executable, "-c", ECHO_SERVER], False),
-            ("tcs", [sys.executable, "-m", "tcs.cli.server", "--log-level", "WARNING"], True),
+            ("tcs", [sys.executable, "-m", "tcs.cli.server", "--log-level", "WARNING"] + EXTRA, True),
         ):
             port = free_port()
             env = dict(os.environ, XDG_STATE_HOME=state)
