@@ -20,6 +20,8 @@ from pathlib import Path
 from tcs.config.can import CanSection, DriveSection, check_can_drives
 from tcs.config.schema import build, setting
 from tcs.config.gps import GpsSection
+from tcs.config.modules import (CoverSection, DomeSection, InterlockSection, SensorSection,
+                                 SwitchSection, check_modules)
 from tcs.config.plc import PlcSection
 from tcs.config.pointing import PointingSection
 from tcs.config.sections import (CabinetSection, MountSection, ServerSection, SiteSection,
@@ -47,6 +49,11 @@ class HwConfig:
     axes: dict[str, AxisSection] = setting(factory=dict, doc="OpenTCI axes by name (tcs.config.axes)")
     simulation: SimulationSection | None = setting(None, doc="drives simulated in-process (tcs.config.axes)")
     pointing: PointingSection = setting(factory=PointingSection, doc="the POINTING module (tcs.config.pointing)")
+    dome: DomeSection | None = setting(None, doc="DOME[] and CONFIG.DOME on PLC axes (tcs.config.modules)")
+    covers: list[CoverSection] = setting(factory=tuple, doc="COVER / COVER[] on PLC axes (tcs.config.modules)")
+    sensors: list[SensorSection] = setting(factory=tuple, doc="SENSOR[] on PLC points (tcs.config.modules)")
+    switches: list[SwitchSection] = setting(factory=tuple, doc="SWITCH[] on PLC points (tcs.config.modules)")
+    interlocks: InterlockSection | None = setting(None, doc="weather interlock of dome and covers (tcs.config.modules)")
     # Set by load_config, not by the file.
     source: Path = field(default=Path("<memory>"), init=False, compare=False)
 
@@ -61,6 +68,7 @@ class HwConfig:
                              f"implicit_auth needs implicit_user to name one of the users {names}"))
         problems.extend(check_can_drives(self.can, self.drives))
         problems.extend(check_axes(self))
+        problems.extend(check_modules(self))
         return problems
 
     @property
