@@ -17,7 +17,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import uuid
-from urllib.parse import urlparse
 
 from tcs.config import HwConfig
 from tcs.errors import ConfigError, ConfigErrors
@@ -35,6 +34,7 @@ class SimCabinet:
         self.socketcand = None
         self.plcs: dict = {}
         self.gps = None
+        self.peripherals = None  # the PLC and GPS simulators (tcs.sim.peripherals)
         problems = []
         if config.simulation and config.simulation.drives:
             if config.can is None or config.can.interface != "socketcand":
@@ -49,26 +49,10 @@ class SimCabinet:
         try:
             if config.simulation and config.simulation.drives:
                 await self._start_drives()
-            for name, section in config.plcs.items():
-                if getattr(section, "sim", None) is not None:
-                    from tcs.sim.plc import SimPlc
+            from tcs.sim.peripherals import start_peripherals
 
-                    plc = SimPlc(name, section, host=section.host)
-                    await plc.start()
-                    self.plcs[name] = plc
-                    log.info("simulated PLC %s: Modbus TCP on %s:%d", name, section.host, plc.port)
-            gps = config.gps
-            if gps is not None and gps.sim is not None and gps.url.startswith("socket://"):
-                from tcs.sim.gps import SimGps
-
-                url = urlparse(gps.url)
-                self.gps = SimGps(gps.sim.latitude if gps.sim.latitude is not None else config.site.latitude,
-                                  gps.sim.longitude if gps.sim.longitude is not None else config.site.longitude,
-                                  gps.sim.height if gps.sim.height is not None else config.site.height,
-                                  rate=gps.sim.rate, satellites=gps.sim.satellites, mode="tcp",
-                                  port=url.port or 0)
-                await self.gps.start()
-                log.info("simulated GPS: NMEA on %s", self.gps.url)
+            self.peripherals = await start_peripherals(config, free_ports=False, gps_pty=False)
+            self.plcs, self.gps = self.peripherals.plcs, self.peripherals.gps
         except BaseException:
             await self.stop()
             raise
@@ -86,12 +70,10 @@ class SimCabinet:
         log.info("simulated drives %s on socketcand %s:%d", sorted(params), can.host, self.can_port)
 
     async def stop(self) -> None:
-        if self.gps is not None:
-            await self.gps.stop()
-            self.gps = None
-        for plc in self.plcs.values():
-            await plc.stop()
-        self.plcs.clear()
+        if self.peripherals is not None:
+            await self.peripherals.stop()
+            self.peripherals = None
+            self.plcs, self.gps = {}, None
         if self.drives is not None:
             await asyncio.to_thread(self.drives.stop)
             self.drives = None
