@@ -28,9 +28,12 @@ class PointingSection:
     pressure: float = setting(1010.0, min=0.0, max=1200.0, doc="REFRACTION.PRESSURE at first start, hPa")
     sample_spacing: float = setting(1.0, min=0.1, max=10.0,
                                     doc="seconds between the trajectory points the tracker computes")
-    horizon: float = setting(60.0, min=5.0, max=3600.0, doc="seconds of path kept queued ahead")
-    refill_below: float = setting(30.0, min=1.0, max=3600.0,
-                                  doc="seconds: the queue is refilled when less path than this remains")
+    horizon: float = setting(100.0, min=5.0, max=3600.0,
+                             doc="seconds of path kept queued ahead (at most the axes' trajectory_buffer "
+                                 "points)")
+    refill_below: float = setting(75.0, min=1.0, max=3600.0,
+                                  doc="seconds: the queue is refilled when less path than this remains "
+                                      "(above 60 s the axes never report TRAJ_LOWPOINTS)")
     plan_horizon: float = setting(14400.0, min=60.0, max=86400.0,
                                   doc="seconds of path checked against the axis limits when TRACK "
                                       "chooses orientation and cable-wrap turn")
