@@ -50,6 +50,7 @@ class Telescope:
         self.can = None
         self.sims = None
         self.control_loop = None
+        self.pointing = None  # POINTING (tcs.pointing.pointing_module), made after the axes
         self._blocking: ThreadPoolExecutor | None = None  # boot, bus open/close: off the loop
 
     # -- lookup for the declaration ---------------------------------------------------------
@@ -123,10 +124,16 @@ class Telescope:
         self.cabinet.attach(axes=self.axes)
         self.control_loop = ControlLoop(self.axes, self.can.cycle, self.local.ut1)
         self.cabinet.loop_stats = self.control_loop.stats
+        from tcs.pointing.pointing_module import make_pointing
+        self.pointing = make_pointing(self)
+        if self.pointing is not None:
+            self.cabinet.attach(modules=[self.pointing])
         self.can.start()
 
     async def stop(self) -> None:
         """Stop motion, disable the drives, stop the loop and the bus, stop the simulators."""
+        if self.pointing is not None:
+            await self.pointing.close()  # tracking ends before the axes are stopped
         if self.can is not None:
             for axis in self.axes:
                 axis.stop()
