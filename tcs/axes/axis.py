@@ -621,7 +621,8 @@ class Axis(ModuleHealth):
         self.power_state = 1.0 if self._powered else 0.0
         # target position in the user frame
         if self._running:
-            self.target_position = self.follower.path_position(t) - self.offset
+            if len(self.queue):  # (empty while stopping after RUN=0: keep the last demand)
+                self.target_position = self.follower.path_position(t) - self.offset
         elif not self.discrete:
             self.target_position = self.planner.target
         motion = 0
@@ -664,6 +665,8 @@ class Axis(ModuleHealth):
         if motion & ON_TARGET and not motion & MOVING:
             self._resolve("target")
             self._resolve("offset")
+        elif motion & ON_TARGET and self._running and error <= self.section.tolerance:
+            self._resolve("offset")  # an OFFSET while tracking: back on the path
         if self.discrete and st.move is Progress.FAILED and "target" in self._pending:
             self._resolve("target", st.request_error or TcsError(f"{self.module_name}: move failed",
                                                                 ErrorNumber.TIMEOUT))
