@@ -707,3 +707,39 @@ async def test_power_to_the_state_it_has(live):
         assert await c.num("DEROTATOR[2].POWER_STATE") == 1.0
     finally:
         await c.close()
+
+
+@pytest.mark.parametrize("how", ["RUN=0", "STOP=1"])
+async def test_trajectory_aborted(live, how):
+    """RUN=0 or STOP while a trajectory runs: the RUN SET ends, TRAJ_STOP is sent, the axis
+    comes to rest off the path, the buffers are free, and the loop had no error."""
+    c = await connect(live["port"])
+    svc = live["svc"]
+    try:
+        await ready(c, "DEROTATOR[2]")
+        errors = svc.telescope.control_loop.errors
+        p0 = await c.num("DEROTATOR[2].REALPOS")
+        sign = 1 if p0 < 0 else -1
+        free = int(await c.num("DEROTATOR[2].TRAJECTORY.FREEPOINTS"))
+        t0 = await c.num("LOCAL.UT1") + 0.5
+        points = [(t0 + i, p0 + sign * 5.0 * i) for i in range(11)]  # 5°/s for 10 s
+        assert done_ok(await upload(c, "DEROTATOR[2]", points), "DEROTATOR[2].TRAJECTORY.ADDPOINTS")
+        run = await c.start("DEROTATOR[2].TRAJECTORY.RUN=1")
+        await c.wait("DEROTATOR[2].REALPOS", lambda v: abs(v - p0) > 5)
+        assert done_ok(await c.set(f"DEROTATOR[2].{'TRAJECTORY.RUN=0' if how == 'RUN=0' else how}"),
+                       "DEROTATOR[2]." + ("TRAJECTORY.RUN" if how == "RUN=0" else "STOP"))
+        lines = await c.until(run, WAIT)
+        assert lines[-1] == f"{run} COMMAND COMPLETE" and f" DATA " in lines[-2], lines
+        await c.wait("DEROTATOR[2].MOTION_STATE", lambda v: not int(v) & (MOVING | TRAJ))
+        traj_stop = rf"^{run} EVENT INFO DEROTATOR\[2\]:32( |$)"  # under RUN's id, before or after its end
+        if not any(re.search(traj_stop, x) for x in lines):
+            await c.event(traj_stop)
+        assert await c.num("DEROTATOR[2].TRAJECTORY.RUN") == 0
+        assert await c.num("DEROTATOR[2].TRAJECTORY.FREEPOINTS") == free
+        pos = await c.num("DEROTATOR[2].REALPOS")
+        assert abs(pos - p0) < 45, pos  # stopped well before the path's end
+        assert await c.num("DEROTATOR[2].POWER_STATE") == 1.0
+        assert svc.telescope.control_loop.errors == errors
+        await move(c, "DEROTATOR[2]", p0)  # and it takes targets again
+    finally:
+        await c.close()

@@ -198,7 +198,8 @@ class Axis(ModuleHealth):
         self._homing = False
         self._reference_cause = None  # the REINIT that started homing (events 19/20 name it)
         self._sp = Setpoint(0.0)
-        self._running = False  # follower in charge
+        self._running = False  # follower in charge (also while it brakes after an abort)
+        self._run_cause = None  # the RUN=1 whose trajectory events (29-32) are sent
         self._fault: TcsError | None = None
         self._ack_pending = False  # ERROR_STATE=0 asked for a fault reset
         self._discrete_target: int | None = None
@@ -442,11 +443,12 @@ class Axis(ModuleHealth):
                 self.target_position = float(self._discrete_target)
                 self.drive.move_to(self.positions[self._discrete_target])
             else:
-                if self._running:
+                if self._running:  # direct positioning cancels the trajectory (spec §5.1)
                     self.follower.abort()
                     self._running = False
                     self._resolve("run")
-                if not self.planner.moving:
+                    self.planner.take_over(self._sp)  # from the follower's (moving) setpoint
+                elif not self.planner.moving:
                     self.planner.take_over(self._sp)
                 self.planner.set_target(value)
             self.emit(INFO, ErrorNumber.MOTIONCHANGE, f"moving to {value:g}", cause)
@@ -482,6 +484,7 @@ class Axis(ModuleHealth):
                 self._complete(future)
                 return
             self._hold("run", future, cause)
+            self._run_cause = cause
             if self.planner.moving:
                 self.planner.stop(quick=False)
             self.follower.set_offset(self.offset)
@@ -504,10 +507,14 @@ class Axis(ModuleHealth):
             self.clear_condition("drive fault")
 
     def _stop_motion(self, error: TcsError) -> None:
-        self.planner.stop(quick=True)
+        """Quick stop of whatever moves the axis; pending SETs end with ``error``. A running
+        trajectory is braked by the follower itself (from its own setpoint: the planner's
+        state is stale while the follower is in charge); :meth:`_motion` hands the axis back
+        to the planner when the follower has ended."""
         if self._running:
             self.follower.abort(quick=True)
-        self._running = False
+        else:
+            self.planner.stop(quick=True)
         self._fail_motion(error)
         self._resolve("run")
         self.queue.clear()
@@ -583,13 +590,16 @@ class Axis(ModuleHealth):
                 self._sp = Setpoint(st.position)
                 if self.planner.moving:  # power lost mid-move: the demand is where it stands
                     self.planner.take_over(self._sp)
+                if self._running:  # (the follower was aborted by _stop_motion)
+                    self._running = False
+                    self.planner.take_over(self._sp)
             return None
         if self._running:
             step = self.follower.step(t, self._sp)
             self._sp = step.setpoint
             for number in step.events:
                 self.emit(ERROR if number == ErrorNumber.SOFTLIMIT else INFO, number,
-                          self.follower.end_reason or "", self._pending.get("run", (None, None))[1])
+                          self.follower.end_reason or "", self._run_cause)
             if self.follower.state.value == "ended":
                 self._running = False
                 if self.follower.end_reason == "softlimit":
