@@ -709,10 +709,11 @@ async def test_power_to_the_state_it_has(live):
         await c.close()
 
 
-@pytest.mark.parametrize("how", ["RUN=0", "STOP=1"])
+@pytest.mark.parametrize("how", ["RUN=0", "STOP=1", "TARGETPOS"])
 async def test_trajectory_aborted(live, how):
-    """RUN=0 or STOP while a trajectory runs: the RUN SET ends, TRAJ_STOP is sent, the axis
-    comes to rest off the path, the buffers are free, and the loop had no error."""
+    """RUN=0, STOP or a TARGETPOS while a trajectory runs: the RUN SET ends, TRAJ_STOP is sent,
+    the axis comes to rest off the path (or at the target) without ever going back towards
+    where the trajectory began, the buffers are free, and the loop had no error."""
     c = await connect(live["port"])
     svc = live["svc"]
     try:
@@ -725,9 +726,18 @@ async def test_trajectory_aborted(live, how):
         points = [(t0 + i, p0 + sign * 5.0 * i) for i in range(11)]  # 5°/s for 10 s
         assert done_ok(await upload(c, "DEROTATOR[2]", points), "DEROTATOR[2].TRAJECTORY.ADDPOINTS")
         run = await c.start("DEROTATOR[2].TRAJECTORY.RUN=1")
-        await c.wait("DEROTATOR[2].REALPOS", lambda v: abs(v - p0) > 5)
-        assert done_ok(await c.set(f"DEROTATOR[2].{'TRAJECTORY.RUN=0' if how == 'RUN=0' else how}"),
-                       "DEROTATOR[2]." + ("TRAJECTORY.RUN" if how == "RUN=0" else "STOP"))
+        here = await c.wait("DEROTATOR[2].REALPOS", lambda v: abs(v - p0) > 5)
+        watcher = await connect(live["port"])
+        if how == "TARGETPOS":
+            target = here + sign * 3
+            cmd = await c.start(f"DEROTATOR[2].TARGETPOS={target}")
+        else:
+            cmd = await c.start(f"DEROTATOR[2].{'TRAJECTORY.RUN=0' if how == 'RUN=0' else how}")
+        seen = await sample_until_done(c, cmd, watcher, "DEROTATOR[2].REALPOS")
+        await watcher.close()
+        obj = {"RUN=0": "TRAJECTORY.RUN", "STOP=1": "STOP", "TARGETPOS": "TARGETPOS"}[how]
+        assert done_ok(await c.until(cmd, WAIT), f"DEROTATOR[2].{obj}")
+        assert all(sign * (x - here) > -0.01 for x in seen), (here, min(seen), max(seen))
         lines = await c.until(run, WAIT)
         assert lines[-1] == f"{run} COMMAND COMPLETE" and f" DATA " in lines[-2], lines
         await c.wait("DEROTATOR[2].MOTION_STATE", lambda v: not int(v) & (MOVING | TRAJ))
@@ -738,6 +748,8 @@ async def test_trajectory_aborted(live, how):
         assert await c.num("DEROTATOR[2].TRAJECTORY.FREEPOINTS") == free
         pos = await c.num("DEROTATOR[2].REALPOS")
         assert abs(pos - p0) < 45, pos  # stopped well before the path's end
+        if how == "TARGETPOS":
+            assert abs(pos - target) <= 0.001
         assert await c.num("DEROTATOR[2].POWER_STATE") == 1.0
         assert svc.telescope.control_loop.errors == errors
         await move(c, "DEROTATOR[2]", p0)  # and it takes targets again

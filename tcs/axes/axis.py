@@ -447,6 +447,7 @@ class Axis(ModuleHealth):
                     self.follower.abort()
                     self._running = False
                     self._resolve("run")
+                    self.emit(INFO, ErrorNumber.TRAJ_STOP, "cancelled by TARGETPOS", self._run_cause)
                     self.planner.take_over(self._sp)  # from the follower's (moving) setpoint
                 elif not self.planner.moving:
                     self.planner.take_over(self._sp)
