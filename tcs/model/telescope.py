@@ -27,6 +27,7 @@ from tcs.model.log_buffer import LogBuffer
 from tcs.model.health import ERROR
 from tcs.model.local import LocalTime
 from tcs.model.mount_config import MountConfig
+from tcs.model.peripherals import Peripherals
 from tcs.model.state_store import StateStore
 
 log = logging.getLogger(__name__)
@@ -46,6 +47,10 @@ class Telescope:
         self.cabinet = Cabinet(config, self.store, self.events, log_buffer=self.log_buffer)
         self.cabinet.attach(modules=[self.local, self.mount_config])
         self.status_sink = self.cabinet.status_sink
+        # DOME[], COVER, SENSOR[], SWITCH[] and GPS on PLCs and NMEA (tcs.model.peripherals)
+        self.peripherals = Peripherals(config, events=self.events, local=self.local,
+                                       mount_config=self.mount_config, cabinet=self.cabinet)
+        self.dome = None  # the DOME[] elements once started (None: no dome)
         self.axes: list = []
         self.can = None
         self.sims = None
@@ -92,6 +97,12 @@ class Telescope:
         """Bring up the simulators (if any), the bus, the drives, the axes and the loop."""
         self.events.bind_loop()
         await self.cabinet.start()
+        try:
+            await self.peripherals.start()  # PLC/GPS simulators (virtual bus), drivers, modules
+        except BaseException:
+            await self.stop()
+            raise
+        self.dome = self.peripherals.dome or None
         if self.config.can is not None and self.config.drives:
             try:
                 await self._start_can()
@@ -151,6 +162,7 @@ class Telescope:
         if self.sims is not None:
             await self.run_blocking(self.sims.stop)
             self.sims = None
+        await self.peripherals.stop()
         await self.cabinet.close()
         if self._blocking is not None:
             self._blocking.shutdown(wait=True)

@@ -18,6 +18,7 @@ from typing import Any
 from tcs.opentci_server.opentci_axes import AXES
 from tcs.opentci_server.opentci_cabinet import CABINET
 from tcs.opentci_server.opentci_common import common
+from tcs.opentci_server.opentci_enclosure import ENCLOSURE
 from tcs.opentci_server.opentci_pointing import POINTING
 from tcs.opentci_server.tree import (CONFIGURE, FLOAT, INT, OPERATE, READ_ALL, STRING, Tree, module,
                                      sysvar, var)
@@ -97,7 +98,7 @@ CONFIG = module(
 )
 
 #: The modules of the OpenTCI tree in the order they are numbered.
-OPENTCI = (SERVER, LOCAL, CONFIG, CABINET, *AXES, *POINTING)
+OPENTCI = (SERVER, LOCAL, CONFIG, CABINET, *AXES, *POINTING, *ENCLOSURE)
 
 
 def build_tree(telescope: Any, server: Any) -> Tree:
