@@ -170,6 +170,9 @@ class Axis(ModuleHealth):
                                      quick_stop_jerk=section.max_jerk * max(stop, section.max_acceleration)
                                      / section.max_acceleration)
         self.planner = MotionPlanner(self.dynamics, self.limits, dt)
+        # a drive at rest reports a velocity of a few increments/s (encoder noise): below the
+        # tolerance per second it counts as standing still (MOTION_STATE bit 0)
+        self._standstill = max(section.tolerance, 1e-9)
         self.queue = TrajectoryQueue(section.trajectory_buffer, cycle)
         self.follower: TrajectoryFollower | None = None
         self.trajectory: AxisTrajectory | None = None
@@ -455,11 +458,11 @@ class Axis(ModuleHealth):
             self.emit(INFO, ErrorNumber.MOTIONCHANGE, f"moving to {value:g}", cause)
         elif kind == "offset":
             self._hold("offset", future, cause)
-            self.offset = value
             if self._running:
                 self.follower.set_offset(value)
             else:
-                self.planner.set_offset(value)
+                self.planner.set_offset(value)  # (may refuse: then OFFSET keeps its value)
+            self.offset = value
         elif kind == "stop":
             self._stop_motion(TcsError(f"{self.module_name}: stopped", ErrorNumber.TARGETCHANGE))
         elif kind == "speed":
@@ -637,7 +640,7 @@ class Axis(ModuleHealth):
         elif not self.discrete:
             self.target_position = self.planner.target
         motion = 0
-        if abs(st.velocity) > 1e-9 or (not self.discrete and self.planner.moving) or \
+        if abs(st.velocity) > self._standstill or (not self.discrete and self.planner.moving) or \
                 (self.discrete and st.move is Progress.RUNNING) or self._homing:
             motion |= MOVING
         if self._running:
