@@ -31,7 +31,8 @@ from typing import Callable
 from tcs.config.modules import OPENING_PARTS, CoverSection, DomeSection, split_ref
 from tcs.drivers.modbus import PlcDriver
 from tcs.drivers.plc_axis import PlcAxis
-from tcs.model.plc_axis_module import AxisGroup, PlcAxisModule, PlcAxisSettings
+from tcs.model.plc_axis_group import AxisGroup, PlcAxisSettings
+from tcs.model.plc_axis_module import PlcAxisModule
 from tcs.model.plc_trajectory import PlcTrajectory
 
 #: CONFIG.DOME.CAPABILITIES bits (spec §7).

@@ -10,7 +10,8 @@ The PLC runs the motion; the TCS writes a target and a command and reads the sta
 loop: setters validate at once and return an ``asyncio.Future`` for long SETs; the PLC
 driver's poll listener (:meth:`PlcAxisModule._on_poll`, once per poll cycle) publishes the
 readbacks, emits the change events and resolves the futures. An :class:`AxisGroup` lets one
-module move several PLC axes as one (the petals of a mirror cover).
+module move several PLC axes as one (the petals of a mirror cover;
+:mod:`tcs.model.plc_axis_group`).
 
 Semantics, where a PLC axis differs from a drive:
 
@@ -61,15 +62,14 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
-from dataclasses import dataclass
 from typing import Callable
 
 from tcs.drivers.modbus import PlcConnectionEvent, PlcSnapshot
-from tcs.drivers.plc_axis import AxisState, PlcAxis
+from tcs.drivers.plc_axis import AxisState
 from tcs.errors import ErrorNumber, HardwareError, RangeRefused, RequestRefused, TcsError
 from tcs.model.events import ERROR, INFO, current_cause
 from tcs.model.health import ERROR as ERROR_BIT
+from tcs.model.plc_axis_group import AxisGroup, PlcAxisSettings
 from tcs.model.plc_link import PlcModule
 
 log = logging.getLogger(__name__)
@@ -80,71 +80,6 @@ HW_MIN, HW_MAX, HW_BLOCKING, SW_MIN, SW_MAX = 1, 2, 128, 256, 512
 #: Poll cycles an accepted command may show neither motion nor arrival before it counts as
 #: stopped short (a PLC may start the motor a cycle after accepting the command).
 START_GRACE = 3
-
-
-@dataclass(frozen=True)
-class PlcAxisSettings:
-    """The figures the generic axis declaration reads as ``axis.section``."""
-
-    min: float
-    max: float
-    max_velocity: float
-    max_acceleration: float
-    max_jerk: float
-    cyclic: float
-    tolerance: float
-    timeout: float
-
-    @classmethod
-    def from_section(cls, section, *, cyclic: bool = False) -> PlcAxisSettings:
-        """From a :class:`~tcs.config.modules.PlcMotionSection` (rotation: 0..360, cyclic)."""
-        hi = section.max if section.max is not None else 360.0
-        acc = section.max_acceleration or section.max_velocity
-        return cls(min=section.min, max=hi, max_velocity=section.max_velocity, max_acceleration=acc,
-                   max_jerk=10.0 * acc, cyclic=(hi - section.min) if cyclic else 0.0,
-                   tolerance=section.tolerance, timeout=section.timeout)
-
-
-class AxisGroup:
-    """PLC axes of one driver moved as one; a group of one is a plain axis.
-
-    The combined state follows App. C.3 (0 = closed, non-zero = not closed): the position is
-    the most open petal's, the group is moving while any petal moves, at target / closed /
-    open only when every petal is, faulted when any is.
-    """
-
-    def __init__(self, axes: list[PlcAxis]):
-        if not axes or len({id(a.driver) for a in axes}) != 1:
-            raise ValueError("an axis group needs one or more axes of one PLC")
-        self.axes = list(axes)
-        self.driver = axes[0].driver
-        self.device = "+".join(a.device for a in axes)
-
-    def state(self, snapshot: PlcSnapshot) -> AxisState:
-        states = [a.state(snapshot) for a in self.axes]
-        if len(states) == 1:
-            return states[0]
-        speeds = [s.speed for s in states if s.speed is not None]
-        return AxisState(
-            position=max(s.position for s in states), target=max(s.target for s in states),
-            speed=max(speeds, key=abs) if speeds else None,
-            moving=any(s.moving for s in states), at_target=all(s.at_target for s in states),
-            closed=all(s.closed for s in states), open=all(s.open for s in states),
-            fault=any(s.fault for s in states), stalled=any(s.stalled for s in states),
-            cycle=snapshot.cycle, time=snapshot.time)
-
-    def accepted(self, snapshot: PlcSnapshot) -> bool:
-        """The PLC took the last command (``X_command`` reads 0 again) on every axis."""
-        return all(not snapshot.get(f"{a.name}_command", 0) for a in self.axes)
-
-    async def move(self, target: float) -> int:
-        return max(await asyncio.gather(*(a.move(target) for a in self.axes)))
-
-    async def stop(self) -> int:
-        return max(await asyncio.gather(*(a.stop() for a in self.axes)))
-
-    async def reset(self) -> int:
-        return max(await asyncio.gather(*(a.reset() for a in self.axes)))
 
 
 class PlcAxisModule(PlcModule):
@@ -650,11 +585,3 @@ class PlcAxisModule(PlcModule):
         if state != self.power_state:
             self.power_state = state
             self.emit(INFO, ErrorNumber.POWERCHANGE, "power on" if state else "power off")
-
-    def arrived(self, goal: float) -> bool:
-        """Whether the axis stands within ``tolerance`` of ``goal`` (PLC frame)."""
-        d = self.real_position - goal
-        c = self.section.cyclic
-        if c:
-            d = math.remainder(d, c)
-        return abs(d) <= self.section.tolerance
