@@ -274,7 +274,7 @@ async def test_dome_follows_a_trajectory(live, c):
     await ready(c, "DOME[0]")
     start = await c.num("DOME[0].REALPOS")
     now = float(await c.value("LOCAL.UT1"))
-    points = [(now + 1.0 + 0.25 * i, (start + 2.0 * i) % 360) for i in range(9)]
+    points = [(now + 1.5 + 0.25 * i, (start + 2.0 * i) % 360) for i in range(9)]
     for i, (t, p) in enumerate(points):
         assert done_ok(await c.set(f"DOME[0].TRAJECTORY.BUFFER[{i}].TIME={t!r};"
                                    f"DOME[0].TRAJECTORY.BUFFER[{i}].TARGETPOS={p!r}"),
