@@ -536,6 +536,38 @@ def test_bad_module_mapping_is_refused_naming_the_key(change, key, words):
     assert f"hw.toml: {key}: " in text and words in text, text
 
 
+def _dome_variant(kind: str, parts: dict[str, str]) -> str:
+    """hw_enclosure.toml with its [dome] replaced by a ``kind`` dome of ``parts`` (part -> axis)."""
+    head, rest = BASE.split("[dome]\n", 1)
+    tail = rest[rest.index("[[covers]]"):]
+    body = f'[dome]\ntype = "{kind}"\n\n'
+    for part, axis in parts.items():
+        top = "" if part == "rotation" else "max = 100.0\n"
+        body += f'[dome.{part}]\naxis = "dome.{axis}"\n{top}max_velocity = 1.0\n\n'
+    return head + body + tail
+
+
+@pytest.mark.parametrize("kind, parts, indices, capabilities", [
+    ("classic", {"rotation": "az", "slit": "slit"}, [0, 1], 1 | 2),
+    ("classic", {"rotation": "az", "slit": "slit", "flap": "flap", "seal": "seal"}, [0, 1, 2, 3], 15),
+    ("roll-roof", {"roof": "slit", "seal": "seal"}, [1, 3], 2 | 8 | 16),
+    ("fold", {"fold": "slit"}, [1], 2),
+    ("clamshell", {"shell1": "slit", "shell2": "flap"}, [1, 2], 2 | 4 | 32),
+])
+def test_dome_types_give_their_indices_and_capabilities(kind, parts, indices, capabilities):
+    from tcs.model.enclosure import DomeInfo
+
+    config = parse_config(_dome_variant(kind, parts), "hw.toml")
+    assert sorted(config.dome.parts()) == indices
+    assert DomeInfo.from_section(config.dome).capabilities == capabilities
+
+
+def test_a_dome_type_needs_its_parts():
+    with pytest.raises(ConfigErrors) as info:
+        parse_config(_dome_variant("clamshell", {"shell1": "slit"}), "hw.toml")
+    assert "hw.toml: dome.shell2: missing: a clamshell dome needs [dome.shell2]" in str(info.value)
+
+
 def test_tcs_server_refuses_a_bad_mapping_at_start(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text(BASE.replace('axis = "dome.slit"', 'axis = "dome.nope"'))
