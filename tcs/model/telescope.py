@@ -7,9 +7,11 @@ loop) and, where the file has a ``[simulation]`` section, the simulated drives o
 :meth:`stop` on the server's event loop; attributes that are ``None`` (or empty lists) are
 modules the hardware file does not configure, and so do not exist in the tree.
 
-Start order: simulators (they are "the hardware") → bus → boot every drive in parallel (a
-drive that fails to boot leaves its axis in ERROR_STATE, the others work) → axes → control
-loop and SYNC. Stop order is the reverse; axes are stopped and their drives disabled first.
+Start order: the PLC and GPS side (:class:`~tcs.model.peripherals.Peripherals`: their
+simulators on a virtual bus, drivers, then DOME[], COVER, SENSOR[], SWITCH[], GPS) → drive
+simulators (they are "the hardware") → bus → boot every drive in parallel (a drive that fails
+to boot leaves its axis in ERROR_STATE, the others work) → axes → control loop and SYNC. Stop
+order is the reverse; axes are stopped and their drives disabled first.
 """
 
 from __future__ import annotations
