@@ -241,6 +241,13 @@ async def target_near(c: Client, sky: Sky, az: float, zd: float, ahead: float = 
     return ra, dec
 
 
+async def retrack(c: Client, value: int = 1) -> None:
+    """TRACK written while tracking: returns at once; wait for the re-plan to run."""
+    cmd = await c.start(f"POINTING.TRACK={value}")
+    assert ok(await c.until(cmd), "POINTING.TRACK")
+    await c.event(rf"^{cmd} EVENT INFO POINTING:23 ")
+
+
 async def on_target(c: Client, *axes: str, timeout: float = WAIT) -> None:
     for ax in axes:
         await c.wait(f"{ax}.MOTION_STATE", lambda v: int(v) & (TRAJ | ON_TARGET) == TRAJ | ON_TARGET,
@@ -367,7 +374,7 @@ async def test_target_setting_ends_tracking(live, sky):
     c = await connect(live)
     try:
         await ready(c)
-        t_set = time.time() + 15.0
+        t_set = time.time() + 10.0
         ra, dec = sky.star_at(265.0, 75.0, t_set)                # in the west, setting
         assert ok(await c.set(f"POINTING.TARGET.RA={ra!r};POINTING.TARGET.DEC={dec!r}"),
                   "POINTING.TARGET.DEC")
@@ -410,7 +417,7 @@ async def test_derotator_follows_field_rotation(live, sky):
         assert not int(await c.num("DEROTATOR[3].MOTION_STATE")) & TRAJ
         # M3 to port 3: a new TRACK write moves the sync to DEROTATOR[3] (q - ZD)
         assert ok(await c.set("MIRROR.TARGETPOS=3"), "MIRROR.TARGETPOS")
-        assert ok(await c.set("POINTING.TRACK=257"), "POINTING.TRACK")
+        await retrack(c, 257)
         await on_target(c, "DEROTATOR[3]")
         await c.wait("POINTING.TARGETDISTANCE", lambda v: v < 0.5 * ARCSEC)
         await c.wait("DEROTATOR[2].MOTION_STATE", lambda v: not int(v) & TRAJ)
@@ -423,6 +430,38 @@ async def test_derotator_follows_field_rotation(live, sky):
         assert any(x.endswith("DATA ERROR POINTING.TRACK FAILED 10") for x in lines), lines
         assert await c.num("POINTING.TRACK") == 0
         assert ok(await c.set("MIRROR.TARGETPOS=2"), "MIRROR.TARGETPOS")
+    finally:
+        await c.close()
+
+
+async def test_zenith_passage_stays_within_limits(live, sky):
+    """A star passing 0.0015° from the zenith needs ~140°/s of azimuth (the axis has 60): the
+    axis follows within its limits (MOTION_STATE "limited", no fault), WARN POINTING:1010
+    reports it, INFO POINTING:1011 when it follows again; tracking goes on."""
+    c = await connect(live)
+    try:
+        await ready(c)
+        t_transit = time.time() + 12.0
+        ra, dec = sky.star_at(0.0, 0.0015, t_transit)           # north of the zenith
+        assert ok(await c.set(f"POINTING.TARGET.RA={ra!r};POINTING.TARGET.DEC={dec!r}"),
+                  "POINTING.TARGET.DEC")
+        cmd = await c.start("POINTING.TRACK=1")
+        line = await c.event(rf"^{cmd} EVENT WARN POINTING:1010 ")
+        assert "AZ" in line
+        seen = 0
+        deadline = time.time() + WAIT
+        while time.time() < t_transit + 3.0:
+            assert time.time() < deadline
+            seen |= int(await c.num("AZ.MOTION_STATE"))
+        assert seen & LIMITED
+        await c.event(r" EVENT INFO POINTING:1011 ", timeout=WAIT)
+        await on_target(c, "AZ", "ZD")
+        assert await c.num("POINTING.TRACK") == 1
+        assert not int(await c.num("AZ.ERROR_STATE")) & 3
+        az = await c.num("AZ.REALPOS")
+        assert abs(wrap(az - 270.0)) < 30.0                      # came round to the west
+        assert ok(await c.set("POINTING.TRACK=0"), "POINTING.TRACK")
+        assert ok(await c.until(cmd, WAIT), "POINTING.TRACK")
     finally:
         await c.close()
 
@@ -461,7 +500,7 @@ async def test_model_from_samples(live, sky):
             if cmd is None:
                 cmd = await c.start("POINTING.TRACK=1")
             else:
-                assert ok(await c.set("POINTING.TRACK=1"), "POINTING.TRACK")
+                await retrack(c)
             await on_target(c, "AZ", "ZD")
             a_az, a_zd, _ = sky.observed(ra, dec, time.time())
             d1, d2 = (float(x) for x in true_correction(a_az[0], a_zd[0]))
@@ -490,7 +529,7 @@ async def test_model_from_samples(live, sky):
         # tracking now puts the axes at the model's demand (the star "centred" without offsets)
         await on_target(c, "AZ", "ZD")
         ra, dec = await target_near(c, sky, 150.0, 45.0)
-        assert ok(await c.set("POINTING.TRACK=1"), "POINTING.TRACK")
+        await retrack(c)
         await on_target(c, "AZ", "ZD")
         await c.wait("POINTING.TARGETDISTANCE", lambda v: v < 0.4 * ARCSEC)
         ut1, az, zd = await c.nums("LOCAL.UT1", "AZ.REALPOS", "ZD.REALPOS")

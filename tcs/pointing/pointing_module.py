@@ -32,8 +32,9 @@ DA/DZ/DH/DD, TARGETDISTANCE and DOME_DEVIATION in degrees; SLEWINGTIME in second
   STOP: FAILED 10, by the target setting: FAILED 9 with an event).
 * **TARGETDISTANCE**: while tracking, the largest distance of the controlled axes from their
   demand: the two main axes together as an angle on the sky (AZ scaled by sin ZD, HA by
-  cos Dec), a synchronised derotator by its own angle; otherwise the angle on the sky between
-  TARGET and CURRENT (0 without a target).
+  cos Dec), a synchronised derotator by its own angle; otherwise — also from a TRACK write
+  until the axes run the new path — the angle on the sky between TARGET and CURRENT (0
+  without a target). So a client may poll it right after its TRACK write.
 * **SLEWINGTIME**: seconds until the controlled axes reach the demand, the longest of each
   axis's rest-to-rest time over its distance (0 for an axis on its path).
 * **REFRACTION** (§14.3): MODE 0 none, 1 defaults (10 °C, 1010 hPa reduced to the site height),
@@ -446,10 +447,12 @@ class Pointing(ModuleHealth):
 
     # -- distances ------------------------------------------------------------------------------
     def _controlled(self) -> list:
+        """The axes tracking runs, once they run the current plan (before: none, so that
+        TARGETDISTANCE and SLEWINGTIME describe the new target, not the old path)."""
         session = self._tracking()
-        if session is None:
+        if session is None or not session.settled:
             return []
-        return [lane.axis for lane in (session.lanes or session.plan.lanes)]
+        return [lane.axis for lane in session.lanes]
 
     @property
     def targetdistance(self) -> float:

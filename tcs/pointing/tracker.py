@@ -255,6 +255,7 @@ class TrackSession:
         self._zenith = False
         self._zenith_until = 0.0
         self._after = after
+        self._starting = False
         self.active = True
         result.add_done_callback(self._result_done)
         self.task = asyncio.get_running_loop().create_task(self._main(), name="pointing-track")
@@ -273,6 +274,11 @@ class TrackSession:
     def running(self) -> bool:
         """True from the start until an end was asked for or happened."""
         return self.active and self._stop is False
+
+    @property
+    def settled(self) -> bool:
+        """The axes run the current plan (no re-plan waiting or being started)."""
+        return self._pending is None and not self._starting and bool(self.lanes)
 
     def retarget(self, plan: Plan, cause=None) -> None:
         """A new plan while tracking (new target, mode, flags, model or refraction);
@@ -307,7 +313,11 @@ class TrackSession:
                     break
                 if self._pending is not None:
                     plan, self._pending = self._pending, None
-                    await self._start(plan, self._pending_cause)
+                    self._starting = True
+                    try:
+                        await self._start(plan, self._pending_cause)
+                    finally:
+                        self._starting = False
                     continue
                 ended = [lane for lane in self.lanes if lane.future is not None and lane.future.done()]
                 if ended:
