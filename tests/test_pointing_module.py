@@ -87,6 +87,25 @@ class Sky:
         pa = np.degrees(np.arctan2(np.sin(h), math.tan(phi) * np.cos(d) - np.sin(d) * np.cos(h)))
         return aa.az.deg, 90.0 - aa.alt.deg, pa
 
+    def hadec(self, ra_h, dec, utc):
+        """Observed (refracted) hour angle and declination, degrees, arrays over ``utc``."""
+        u = self.u
+        _, hadec = self._frames(utc)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            hd = self.SkyCoord(ra_h * u.hourangle, dec * u.deg, frame="icrs").transform_to(hadec)
+        return wrap(hd.ha.deg), hd.dec.deg
+
+    def star_at_hadec(self, ha, dec, utc):
+        """ICRS (ra hours, dec degrees) seen at observed (ha degrees, dec) at ``utc``."""
+        u = self.u
+        _, hadec = self._frames(utc)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            c = self.SkyCoord(ha=[ha] * u.deg, dec=[dec] * u.deg, frame=hadec)
+            icrs = c.transform_to(self.ICRS())
+        return float(icrs.ra.hour[0]), float(icrs.dec.deg[0])
+
     def star_at(self, az, zd, utc):
         """ICRS (ra hours, dec degrees) seen at observed (az, zd) at ``utc``."""
         u = self.u
@@ -603,4 +622,53 @@ async def test_models_and_settings_survive_a_restart(tmp_path):
         assert await c.num("POINTING.POINTINGPARAMS.IE") == 0.02
         await c.close()
     finally:
+        await svc.stop()
+
+
+# ----------------------------------------------------------------------------- RA-DEC mount
+
+async def test_equatorial_mount(tmp_path, sky):
+    """RA-DEC: the tree has DH/DD and the equatorial terms; HA/DEC REALPOS follow astropy's
+    observed hour angle (degrees) and declination within 2"; TRACK=3 goes through the pole
+    (HA + 180°, 180° - Dec); CURRENT ≈ TARGET."""
+    svc, port = await start_service(tmp_path / "state", CONFIG.with_name("hw_pointing_eq.toml"))
+    c = await Client.connect(port)
+    try:
+        assert await c.get("POINTING.TARGET!MEMBERS") == '"RA,DEC,HA,PA,DH,DD,SIDEREAL_TIME"'
+        assert "IH,ID,CH,NP,MA,ME,TF" in await c.get("POINTING.POINTINGPARAMS!MEMBERS")
+        assert await c.get("POINTING.TARGET.DA") == "UNKNOWN"
+        assert ok(await c.set("CABINET.POWER=1"), "CABINET.POWER")
+        await c.set("CABINET.REINIT=0")
+        await c.wait("CABINET.REFERENCED", lambda v: v == 1.0)
+        ra, dec = sky.star_at_hadec(-8.0, 35.0, time.time() + 5.0)
+        assert ok(await c.set(f"POINTING.TARGET.RA={ra!r};POINTING.TARGET.DEC={dec!r}"),
+                  "POINTING.TARGET.DEC")
+        cmd = await c.start("POINTING.TRACK=1")
+        await c.event(rf"^{cmd} EVENT INFO POINTING:23 .*normal")
+        await on_target(c, "HA", "DEC")
+        await c.wait("POINTING.TARGETDISTANCE", lambda v: v < 0.5 * ARCSEC)
+        for _ in range(4):
+            ut1, ha, de, cra, cdec, tha = await c.nums(
+                "LOCAL.UT1", "HA.REALPOS", "DEC.REALPOS", "POINTING.CURRENT.RA",
+                "POINTING.CURRENT.DEC", "POINTING.TARGET.HA")
+            a_ha, a_dec = sky.hadec(ra, dec, ut1 - DUT1)
+            assert abs(wrap(ha - a_ha[0])) * math.cos(math.radians(dec)) < 2.0 * ARCSEC
+            assert abs(de - a_dec[0]) < 2.0 * ARCSEC
+            assert abs(tha * 15.0 - a_ha[0]) < 0.5                  # TARGET.HA in hours
+            assert sky_sep(cra * 15.0, 90.0 - cdec, ra * 15.0, 90.0 - dec) < 1.0 * ARCSEC
+            await asyncio.sleep(0.2)
+        await retrack(c, 3)
+        assert await c.num("POINTING.TRACK") == 3
+        await on_target(c, "HA", "DEC")
+        await c.wait("POINTING.TARGETDISTANCE", lambda v: v < 0.5 * ARCSEC)
+        ut1, ha, de = await c.nums("LOCAL.UT1", "HA.REALPOS", "DEC.REALPOS")
+        a_ha, a_dec = sky.hadec(ra, dec, ut1 - DUT1)
+        assert abs(wrap(ha - a_ha[0] - 180.0)) * math.cos(math.radians(dec)) < 2.0 * ARCSEC
+        assert abs(de - (180.0 - a_dec[0])) < 2.0 * ARCSEC
+        cra, cdec = await c.nums("POINTING.CURRENT.RA", "POINTING.CURRENT.DEC")
+        assert sky_sep(cra * 15.0, 90.0 - cdec, ra * 15.0, 90.0 - dec) < 1.0 * ARCSEC
+        assert ok(await c.set("POINTING.TRACK=0"), "POINTING.TRACK")
+        assert ok(await c.until(cmd, WAIT), "POINTING.TRACK")
+    finally:
+        await c.close()
         await svc.stop()
