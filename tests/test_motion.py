@@ -343,6 +343,8 @@ def test_property_setpoints_stay_inside_limits(lo, width, frac, v, a, cyclic, cm
     guard = LimitGuard(limits, AZ, DT)
     low, high = guard.stop_extent(start)
     assume(lo <= low and high <= hi)                 # a start the axis can still stop from
+    # ... and one that can stay within the speed limit: accelerating at v = vmax must overshoot
+    assume(abs(v + a * abs(a) / (2 * AZ.max_jerk)) <= AZ.max_velocity)
     planner = MotionPlanner(AZ, limits, DT)
     planner.take_over(start)
     stream = []
