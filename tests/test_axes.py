@@ -14,6 +14,7 @@ simulator faults are injected through the simulated hardware (``telescope.sims[n
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import itertools
 import math
 import re
@@ -23,8 +24,9 @@ from pathlib import Path
 
 import pytest
 
-from support.service import start_service
+from support.service import make_config, start_service
 from support.tpl2 import RawClient
+from tcs.app import Service
 
 FAST = Path(__file__).with_name("hw_axes_fast.toml")
 NODE = {"AZ": 1, "ZD": 2, "DEROTATOR[2]": 3, "DEROTATOR[3]": 4, "FOCUS": 5, "FILTER[2]": 6, "MIRROR": 7}
@@ -192,11 +194,23 @@ async def move(c: Client, ax: str, target: float) -> list[str]:
 
 # ------------------------------------------------------------------------ sim.toml, as shipped
 
+def tolerant_heartbeats(config):
+    """``config`` with drive heartbeats every 1 s (lost after 1.5 s) instead of 0.1 s: on a
+    loaded 2-core machine the simulator's timer thread was seen 0.66 s late, and the tests
+    are not about lost heartbeats (see hw_axes_fast.toml). Everything else stays as in the file."""
+    drives = {name: dataclasses.replace(d, heartbeat_period=1.0, heartbeat_consumer_timeout=5.0)
+              for name, d in config.drives.items()}
+    new = dataclasses.replace(config, drives=drives)
+    object.__setattr__(new, "source", config.source)
+    return new
+
+
 async def test_sim_toml_power_reference_move(tmp_path):
     """The bundled telescope: POWER completes when on with POWERCHANGE under the SET's id;
     REINIT returns at once, REFERENCED climbs to 1.0 with events 18 and 19; a move completes
     on arrival."""
-    svc, port = await start_service(tmp_path / "state")
+    svc = Service(tolerant_heartbeats(make_config(tmp_path / "state")))
+    port = await svc.start()
     c = await connect(port)
     watcher = await connect(port)
     try:
@@ -316,12 +330,15 @@ async def test_stop_in_mid_move(live):
         lines = await c.until(cmd, WAIT)
         assert re.fullmatch(rf"{cmd} DATA ERROR AZ.TARGETPOS FAILED \d+", lines[-2]), lines
         await c.wait("AZ.MOTION_STATE", lambda v: not int(v) & MOVING)
-        pos, speed, target = await c.nums("AZ.REALPOS", "AZ.CURRSPEED", "AZ.TARGETPOS")
-        assert speed == 0.0
+        # at rest: below the tolerance per second (0.0005), settling onto where it stopped
+        pos, speed = await c.nums("AZ.REALPOS", "AZ.CURRSPEED")
+        assert abs(speed) <= 0.0005
         assert min(start, far) + 5 < pos < max(start, far), (start, pos, far)
+        await c.wait("AZ.MOTION_STATE", lambda v: int(v) & ON_TARGET)
+        pos, target = await c.nums("AZ.REALPOS", "AZ.TARGETPOS")
         assert abs(target - pos) <= 0.0005  # TARGETPOS: where it came to rest
         await asyncio.sleep(0.2)
-        assert await c.num("AZ.REALPOS") == pos  # and it stays there
+        assert abs(await c.num("AZ.REALPOS") - pos) <= 0.0005  # and it stays there
     finally:
         await c.close()
 
@@ -351,7 +368,7 @@ async def test_refused_targets_change_nothing(live):
         lines = await c.set("ZD.TARGETPOS=5")
         assert re.fullmatch(r"\d+ DATA ERROR ZD.TARGETPOS FAILED 5", lines[1]), lines
         await asyncio.sleep(0.1)
-        assert await c.nums("AZ.REALPOS", "ZD.REALPOS", "FOCUS.REALPOS") == before
+        assert await c.nums("AZ.REALPOS", "ZD.REALPOS", "FOCUS.REALPOS") == pytest.approx(before, abs=0.001)
         assert not int(await c.num("DEROTATOR[3].MOTION_STATE")) & MOVING
         await ready(c, "ZD")  # power back on: still referenced, works
         await move(c, "ZD", before[1] + 1)
@@ -407,7 +424,7 @@ async def test_cable_wrap_goes_the_allowed_way(live):
         # a direction the axis already points to is reached without moving (the nearest
         # turn): at -80, 280 is outside the limits and -80 itself is where it is
         await move(c, "AZ", 280 - 360)
-        assert await c.nums("AZ.REALPOS", "AZ.TARGETPOS") == [-80, -80]
+        assert await c.nums("AZ.REALPOS", "AZ.TARGETPOS") == pytest.approx([-80, -80], abs=0.0005)
         # a request itself outside the limits is refused, though its direction is reachable
         lines = await c.set("AZ.TARGETPOS=280")
         assert re.fullmatch(r"\d+ DATA ERROR AZ.TARGETPOS RANGE", lines[1]), lines
@@ -530,7 +547,7 @@ async def test_trajectory_follows_a_sinusoid(live):
         assert any(re.fullmatch(rf"{run} EVENT INFO AZ:32( .*)?", x) for x in lines), lines
         assert not int(await c.num("AZ.MOTION_STATE")) & TRAJ
         assert await c.num("AZ.TRAJECTORY.RUN") == 0
-        assert abs(await c.num("AZ.REALPOS") - points[-1][1]) <= 0.001
+        await c.wait("AZ.REALPOS", lambda v: abs(v - points[-1][1]) <= 0.0005)  # at rest at the end
         # following error against the analytic path, from t0 + 0.5 s to its end
         sp = rec.errors(rec.setpoints, path, t0 + 0.5, points[-1][0])
         act = rec.errors(rec.actual, path, t0 + 0.5, points[-1][0])
@@ -595,7 +612,7 @@ async def test_limit_switch_stops_the_axis(live):
         assert 14 < pos < 20, pos
         assert int(await c.num("FOCUS.MOTION_STATE")) & BLOCKED
         await asyncio.sleep(0.2)
-        assert await c.num("FOCUS.REALPOS") == pos
+        assert await c.num("FOCUS.REALPOS") == pytest.approx(pos, abs=0.001)
         # the drive faulted (position limit): acknowledge, power on, move back out
         assert await c.num("FOCUS.ERROR_STATE")
         await ready(c, "FOCUS")
