@@ -332,17 +332,19 @@ class Axis(ModuleHealth):
             future.add_done_callback(lambda f: f.cancelled() or f.exception())
         return future
 
-    def set_run(self, value: int):
+    def set_run(self, value: int, shift: float | None = None):
         """``TRAJECTORY.RUN``: 1 runs (long-running until the queue ran empty or was
         aborted), 0 aborts and frees the buffers (done within one cycle: the awaitable ends
-        when the buffers are free, so a GET of FREEPOINTS after the reply sees them)."""
+        when the buffers are free, so a GET of FREEPOINTS after the reply sees them).
+        ``shift``: whole cycles to add to the queued path of a cyclic axis, chosen by the
+        caller (POINTING's cable-wrap choice); ``None``: the follower chooses."""
         if value == 0:
             future = self._future()
             self._send("run", False, future)
             return future
         self._require(what="run a trajectory")
         future = self._future()
-        self._send("run", True, future)
+        self._send("run", True if shift is None else (True, float(shift)), future)
         return future
 
     def on_acknowledge(self) -> None:
@@ -492,7 +494,7 @@ class Axis(ModuleHealth):
             if self.planner.moving:
                 self.planner.stop(quick=False)
             self.follower.set_offset(self.offset)
-            dropped = self.follower.start(t, self._sp)
+            dropped = self.follower.start(t, self._sp, value[1] if isinstance(value, tuple) else None)
             self._running = True
             if dropped:
                 self.emit(INFO, POINTS_DROPPED, f"{dropped} trajectory points in the past dropped", cause)

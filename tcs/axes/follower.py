@@ -216,8 +216,9 @@ class TrajectoryFollower:
     def set_limits(self, limits: SoftLimits) -> None:
         self._guard.limits = limits
 
-    def start(self, t: float, current: Setpoint) -> int:
-        """``RUN=1``: begin at time ``t`` from the axis state ``current``.
+    def start(self, t: float, current: Setpoint, shift: float | None = None) -> int:
+        """``RUN=1``: begin at time ``t`` from the axis state ``current``; ``shift`` (whole
+        cycles added to the path) as given, or ``None`` to choose it (:meth:`_choose_shift`).
 
         Returns
         -------
@@ -236,7 +237,7 @@ class TrajectoryFollower:
             raise TcsError("trajectory cannot start: no points after now", ErrorNumber.NOPOINTS)
         self._reset_run()
         self._guard.reset()
-        self.shift = self._choose_shift(t, current.position)
+        self.shift = self._choose_shift(t, current.position) if shift is None else float(shift)
         self._state = FollowerState.INTERCEPTING
         return dropped
 
