@@ -17,10 +17,10 @@ the moving path with ruckig and then follows it, checking speed, acceleration an
    or not referenced (FAILED 5), no derotator at the active port for flag 256 (FAILED 5).
 2. **Start** (:class:`TrackSession`, an asyncio task): ``RUN=0`` on the axes (frees their
    queues, ends whatever ran), points from the last whole ``sample_spacing`` before now to
-   ``horizon`` ahead, ``add_points``, ``RUN=1``. On a cyclic axis the follower picks the
-   turn nearest the axis among those keeping the queued points inside the limits; where
-   that is not the turn chosen here (the longer view), the axis is first moved with
-   ``TARGETPOS`` to the chosen turn's path, so the follower picks it.
+   ``horizon`` ahead, ``add_points``, ``RUN=1`` with the turn chosen here (``shift`` 0: the
+   points are queued on it). Left alone, a cyclic axis's follower would take the turn
+   nearest the axis that keeps the queued ~100 s inside the limits, and run into the cable
+   wrap later; a TARGETPOS cannot help (it too takes the nearest turn).
 3. **Refill**: once per ``sample_spacing`` (or at once when an axis reports) the session
    tops each queue up to ``horizon`` ahead when less than ``refill_below`` remains.
    Every point is checked: observed altitude above the limit, demand + OFFSET inside the
@@ -396,19 +396,6 @@ class TrackSession:
         self._t_end, self._end_reason, self._last_t = None, "", None
         lanes = [Lane(lane.axis, lane.role, lane.port, lane.start) for lane in plan.lanes]
         points = self._points(plan, lanes, owner.ut1(), first=True)
-        moved = [lane for lane in lanes if not self._follower_agrees(lane, points)]
-        if moved:   # put the axis on the chosen turn: the follower then picks it
-            slew = plan.slew_time + 2.0
-            targets = []
-            for lane in moved:
-                at = float(np.interp(owner.ut1() + slew, points.times, points.values[lane.role]))
-                log.info("tracking: moving %s to %.4f first (cable-wrap turn)", lane.axis.module_name, at)
-                targets.append(lane.axis.set_target(at))
-            await asyncio.gather(*targets)
-            for lane in lanes:
-                lane.last = None
-            self._t_end, self._end_reason = None, ""
-            points = self._points(plan, lanes, owner.ut1(), first=True)
         if points.times.size < 2:
             raise self._planned_end()
         now = owner.ut1()
@@ -417,7 +404,7 @@ class TrackSession:
         self._last_t = float(points.times[-1])
         try:
             for lane in lanes:
-                lane.future = lane.axis.set_run(1)
+                lane.future = lane.axis.set_run(1, shift=0.0)   # the points are on the chosen turn
                 self.lanes.append(lane)
                 lane.future.add_done_callback(self._lane_done)
         except TcsError:
@@ -440,25 +427,6 @@ class TrackSession:
                    for lane in lanes):
                 return
             await asyncio.sleep(lanes[0].axis.dt)
-
-    def _follower_agrees(self, lane: Lane, points: _Points) -> bool:
-        """True unless the follower would put this cyclic axis on another turn than planned
-        (it takes the turn nearest the axis that keeps every queued point inside the limits;
-        see ``TrajectoryFollower._choose_shift``)."""
-        axis = lane.axis
-        c = axis.section.cyclic
-        if not c:
-            return True
-        values = points.values[lane.role] + axis.offset
-        ref, lo, hi = float(values[0]), float(values.min()), float(values.max())
-        position = axis.real_position
-        lim_lo, lim_hi = axis.section.min, axis.section.max
-        k0 = round((position - ref) / c)
-        ks = range(k0 - 3, k0 + 4)
-        inside = [k for k in ks if lim_lo <= lo + k * c and hi + k * c <= lim_hi]
-        if not inside:
-            return True   # the path does not fit whole: the follower decides, limits stop it
-        return min(inside, key=lambda k: abs(ref + k * c - position)) == 0
 
     # -- points ---------------------------------------------------------------------------------
     def _points(self, plan: Plan, lanes: list[Lane], now: float, first: bool = False) -> _Points:
