@@ -534,12 +534,18 @@ async def test_trajectory_follows_a_sinusoid(live):
         assert await c.num("AZ.TRAJECTORY.FREEPOINTS") == free - len(points)
         assert await c.num("AZ.TRAJECTORY.ADDPOINTS") == len(points)
         assert await c.num("AZ.TRAJECTORY.STARTTIME") == pytest.approx(t0, abs=1e-6)
+        watcher = await connect(live["port"])
         with PathRecorder(live["svc"], "AZ") as rec:
             run = await c.start("AZ.TRAJECTORY.RUN=1")
-            state = await c.wait("AZ.MOTION_STATE", lambda v: int(v) & TRAJ)
+            await c.wait("AZ.MOTION_STATE", lambda v: int(v) & TRAJ)
             assert await c.num("AZ.TRAJECTORY.RUN") == 1
             assert 0 < await c.num("AZ.TRAJECTORY.RUNTIME") <= 5
+            # TARGETDISTANCE while following: the following error (2° at up to 3.1°/s)
+            distance = await sample_until_done(c, run, watcher, "AZ.TARGETDISTANCE")
             lines = await c.until(run, WAIT)
+        await watcher.close()
+        assert len(distance) > 20
+        assert sorted(map(abs, distance))[len(distance) // 2] * 3600 < 20, "TARGETDISTANCE is no following error"
         assert lines[-2:] == [f"{run} DATA OK AZ.TRAJECTORY.RUN", f"{run} COMMAND COMPLETE"], lines
         assert await c.num("LOCAL.UT1") >= points[-1][0] - 0.05  # not before the path ended (but for
         # the cycles that are computed ahead)

@@ -406,9 +406,10 @@ class Axis(ModuleHealth):
             self._resolve(key, error)
         self._resolve("run", error if error.number not in (ErrorNumber.TARGETCHANGE,) else None)
 
-    def cycle(self, t: float, now: float) -> None:
-        """One control cycle: ``t`` is the UT1 time the setpoint applies, ``now`` the monotonic
-        time. Control-loop thread only."""
+    def cycle(self, t: float, now: float, measured: float | None = None) -> None:
+        """One control cycle: ``t`` is the UT1 time the drive reaches this cycle's setpoint,
+        ``now`` the monotonic time, ``measured`` the UT1 time the drive's status was sampled
+        (this cycle's SYNC; default ``t``). Control-loop thread only."""
         st = self.drive.status()
         self.last_status = st
         with self._lock:
@@ -424,7 +425,7 @@ class Axis(ModuleHealth):
         if setpoint is not None:
             self.drive.set_setpoint(setpoint.position, setpoint.velocity)
         self.drive.step()
-        self._publish(st, t)
+        self._publish(st, t if measured is None else measured)
         self._flush()
 
     def _apply(self, kind, value, future, cause, st: DriveStatus, t: float, now: float) -> None:
@@ -623,6 +624,9 @@ class Axis(ModuleHealth):
         return self._sp
 
     def _publish(self, st: DriveStatus, t: float) -> None:
+        """Readbacks of this cycle; ``t`` is when ``st`` was measured, so that during a
+        trajectory TARGETPOS is the path at that time and TARGETDISTANCE the following error
+        (the path where the setpoint is heading would add velocity × 2 cycles to it)."""
         prev_motion, prev_limit = self.motion_state, self.limit_state
         sp = self._sp
         if self.discrete:

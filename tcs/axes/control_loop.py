@@ -48,10 +48,12 @@ class ControlLoop:
 
     def step(self, cycle: Cycle) -> None:
         now = self.clock()
-        t = self.ut1() + (cycle.next_sync - now) + self.reach_delay
+        ut1 = self.ut1()
+        t = ut1 + (cycle.next_sync - now) + self.reach_delay
+        measured = ut1 + (cycle.sync_time - now)  # the drives sampled their position at SYNC
         for axis in self.axes:
             try:
-                axis.cycle(t, now)
+                axis.cycle(t, now, measured)
             except Exception:
                 self.errors += 1
                 log.exception("control loop: %s failed this cycle; stopping it", axis.module_name)
