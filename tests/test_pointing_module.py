@@ -330,7 +330,8 @@ async def test_track_star_against_astropy(live, sky):
 async def test_orientation_modes(live, sky):
     """TRACK=4 picks the shorter slew (here the reverse orientation: negative ZD) and reads 3;
     TRACK=2 prefers the normal orientation and reads 1; TRACK=3 forces reverse; every change
-    while tracking returns at once and the first SET stays pending."""
+    while tracking returns at once and the first SET stays pending; an ABORT of that SET
+    ends its wait, not the tracking."""
     c = await connect(live)
     try:
         await ready(c)
@@ -358,8 +359,17 @@ async def test_orientation_modes(live, sky):
         await c.event(rf"^{change} EVENT INFO POINTING:23 .*reverse")
         await c.wait("ZD.REALPOS", lambda v: v < -29.0)
         assert not [x for x in c.lines if x.startswith(f"{cmd} DATA")], "the first SET ended early"
+        # ABORT of the TRACK SET ends the wait only; TRACK=0 ends the tracking
+        abort = next(_ids)
+        await c.send(f"{abort} ABORT {cmd}")
+        assert (await c.until(cmd))[-1] == f"{cmd} COMMAND ABORTEDBY {abort}"
+        assert (await c.until(abort))[-1] == f"{abort} COMMAND COMPLETE"
+        assert await c.num("POINTING.TRACK") == 3
+        assert int(await c.num("AZ.MOTION_STATE")) & TRAJ
         assert ok(await c.set("POINTING.TRACK=0"), "POINTING.TRACK")
-        assert ok(await c.until(cmd, WAIT), "POINTING.TRACK")
+        await c.event(r" EVENT INFO POINTING:32 ")
+        assert await c.num("POINTING.TRACK") == 0
+        await c.wait("AZ.MOTION_STATE", lambda v: not int(v) & TRAJ)
     finally:
         await c.close()
 

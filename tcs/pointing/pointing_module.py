@@ -29,7 +29,8 @@ DA/DZ/DH/DD, TARGETDISTANCE and DOME_DEVIATION in degrees; SLEWINGTIME in second
   module implements the sync (DOME_DEVIATION is stored for it). Refusals and endings: see
   :mod:`tcs.pointing.tracker` (target below ``[pointing] min_altitude`` or outside the axis
   limits: FAILED 9; axes not ready: FAILED 5; the TRACK SET of a tracking that was ended by
-  STOP: FAILED 10, by the target setting: FAILED 9 with an event).
+  STOP: FAILED 10, by the target setting: FAILED 9 with an event). An ABORT of the TRACK SET
+  ends only its wait; tracking goes on until TRACK=0 or STOP.
 * **TARGETDISTANCE**: while tracking, the largest distance of the controlled axes from their
   demand: the two main axes together as an angle on the sky (AZ scaled by sin ZD, HA by
   cos Dec), a synchronised derotator by its own angle; otherwise — also from a TRACK write

@@ -34,9 +34,11 @@ the moving path with ruckig and then follows it, checking speed, acceleration an
    ``EVENT INFO POINTING:1011`` once the axis follows again. Nothing faults.
 5. **End**: TRACK=0 (the SET that started tracking answers DATA OK), a STOP or another
    command taking an axis away (FAILED 10), an axis fault or power loss (the axis's number),
-   the target setting / an axis limit (FAILED 9), an ABORT of the TRACK command. The session
-   then sends ``RUN=0`` to every axis still running and emits ``INFO POINTING:32`` (ended as
-   asked) or ``ERROR POINTING:<n>``.
+   the target setting / an axis limit (FAILED 9). The session then sends ``RUN=0`` to every
+   axis still running and emits ``INFO POINTING:32`` (ended as asked) or
+   ``ERROR POINTING:<n>``. An ABORT of the TRACK SET (or a disconnect with
+   ABORT_ON_DISCONNECT) ends only the wait, as for the axes' long SETs: tracking goes on
+   until TRACK=0 or STOP, and its end is still announced by the events.
 
 A new TARGET or a new TRACK value while tracking re-plans at once (the SET returns
 immediately); so do a new pointing model and new refraction settings (same orientation).
@@ -257,7 +259,6 @@ class TrackSession:
         self._after = after
         self._starting = False
         self.active = True
-        result.add_done_callback(self._result_done)
         self.task = asyncio.get_running_loop().create_task(self._main(), name="pointing-track")
 
     # -- requests from the POINTING module ----------------------------------------------------
@@ -293,10 +294,6 @@ class TrackSession:
         if self._stop is False:
             self._stop = error
         self._wake.set()
-
-    def _result_done(self, fut: asyncio.Future) -> None:
-        if fut.cancelled():   # the TRACK command was aborted (ABORT, disconnect, shutdown)
-            self.stop(TcsError("tracking aborted", ErrorNumber.TARGETCHANGE))
 
     def _lane_done(self, fut: asyncio.Future) -> None:
         self._wake.set()
