@@ -400,7 +400,7 @@ async def test_cable_wrap_turn(live, sky):
 
 async def test_refusals(live, sky):
     """Below the altitude limit: FAILED 9 and nothing moves; bad values: RANGE; the dome flag
-    without a dome and TRACK without a target: FAILED 5."""
+    with the dome switched off: FAILED 5."""
     c = await connect(live)
     try:
         await ready(c)
@@ -415,9 +415,12 @@ async def test_refusals(live, sky):
             lines = await c.set(text)
             assert any(x.endswith(f"DATA ERROR {text.split('=')[0]} {reply}") for x in lines), lines
         await target_near(c, sky, 120.0, 40.0)
+        await c.set("DOME[0].POWER=0")
         lines = await c.set("POINTING.TRACK=129")
         assert any(x.endswith("DATA ERROR POINTING.TRACK FAILED 5") for x in lines), lines
+        assert await c.num("POINTING.TRACK") == 0
     finally:
+        await c.set("DOME[0].POWER=1")
         await c.close()
 
 
@@ -442,6 +445,36 @@ async def test_target_setting_ends_tracking(live, sky):
         await c.wait("AZ.MOTION_STATE", lambda v: not int(v) & (TRAJ | MOVING))
         zd = await c.num("ZD.REALPOS")
         assert 74.9 < zd <= 75.01
+    finally:
+        await c.close()
+
+
+async def test_dome_follows_target(live, sky):
+    """Flag 128: DOME[0] is brought to the target's azimuth and kept within DOME_DEVIATION
+    of it; TRACK reads 1 + 128."""
+    c = await connect(live)
+    try:
+        await ready(c)
+        if await c.num("DOME[0].POWER_STATE") != 1.0:
+            await c.set("DOME[0].POWER=1")
+        assert ok(await c.set("POINTING.DOME_DEVIATION=0.5"), "POINTING.DOME_DEVIATION")
+        az0 = await c.num("AZ.REALPOS")
+        ra, dec = await target_near(c, sky, (az0 + 30.0) % 360.0, 40.0)
+        cmd = await c.start("POINTING.TRACK=129")
+        await c.event(rf"^{cmd} EVENT INFO POINTING:23 ")
+        assert await c.num("POINTING.TRACK") == 129
+
+        async def dome_off() -> float:
+            ut1, dome = await c.nums("LOCAL.UT1", "DOME[0].CURRPOS")
+            a_az, _, _ = sky.observed(ra, dec, ut1 - DUT1)
+            return abs(wrap(dome - a_az[0]))
+
+        deadline = time.monotonic() + WAIT
+        while await dome_off() > 0.5 + 0.1:          # + the dome's positioning tolerance
+            assert time.monotonic() < deadline, "the dome did not come to the target"
+            await asyncio.sleep(0.1)
+        assert ok(await c.set("POINTING.TRACK=0"), "POINTING.TRACK")
+        assert ok(await c.until(cmd, WAIT), "POINTING.TRACK")
     finally:
         await c.close()
 
@@ -677,6 +710,8 @@ async def test_equatorial_mount(tmp_path, sky):
         ra, dec = sky.star_at_hadec(-8.0, 35.0, time.time() + 5.0)
         assert ok(await c.set(f"POINTING.TARGET.RA={ra!r};POINTING.TARGET.DEC={dec!r}"),
                   "POINTING.TARGET.DEC")
+        lines = await c.set("POINTING.TRACK=129")                # no dome on this telescope
+        assert any(x.endswith("DATA ERROR POINTING.TRACK FAILED 5") for x in lines), lines
         cmd = await c.start("POINTING.TRACK=1")
         await c.event(rf"^{cmd} EVENT INFO POINTING:23 .*normal")
         await on_target(c, "HA", "DEC")

@@ -55,7 +55,8 @@ def _pointing(mount: str):
             info="0 stop, 1 normal, 2 auto (limits), 3 reverse, 4 auto (slew); +128 dome, "
                  "+256 derotator; from 0 returns when tracking ended"),
         var("DOME_DEVIATION", FLOAT, get="dome_deviation", set="set_dome_deviation", min=0.0,
-            max=180.0, info="largest dome deviation when tracking with the dome, degrees (stored)"),
+            max=180.0, info="degrees: with TRACK flag 128, DOME[0] is moved to the target's "
+                            "azimuth when it deviates more (persisted)"),
         module("POINTINGPARAMS",
                var("DUMPFILE", STRING, get="dumpfile", set="set_dumpfile",
                    info="dump file name (in the model directory) samples are appended to; '' none"),

@@ -24,9 +24,10 @@ DA/DZ/DH/DD, TARGETDISTANCE and DOME_DEVIATION in degrees; SLEWINGTIME in second
   (normal preferred), 3 reverse (negative ZD / Dec beyond the pole), 4 shortest slew; 2 and 4
   read back 1 or 3. Flag 256: the derotator at the active port (MIRROR's position where there
   is a MIRROR, else the first derotator) follows the field rotation
-  (:func:`~tcs.pointing.demand.field_angle`). Flag 128 (dome): refused with FAILED 5 while the
-  telescope has no dome; with a dome it is accepted and shown, the dome follows once the dome
-  module implements the sync (DOME_DEVIATION is stored for it). Refusals and endings: see
+  (:func:`~tcs.pointing.demand.field_angle`). Flag 128: DOME[0] (a rotating dome's slit
+  azimuth) is moved to the target's azimuth whenever it deviates by more than DOME_DEVIATION
+  (degrees, persisted, default 2); refused with FAILED 5 without a rotating dome or with
+  DOME[0] not powered. Refusals and endings: see
   :mod:`tcs.pointing.tracker` (target below ``[pointing] min_altitude`` or outside the axis
   limits: FAILED 9; axes not ready: FAILED 5; the TRACK SET of a tracking that was ended by
   STOP: FAILED 10, by the target setting: FAILED 9 with an event). An ABORT of the TRACK SET
@@ -291,7 +292,7 @@ class Pointing(ModuleHealth):
                                      model_name=model_state.get("name", ""),
                                      dumpfile=model_state.get("dumpfile", ""))
         self.params.rms_arcsec = float(model_state.get("rms", 0.0))
-        self._dome_deviation = float(saved.get("dome_deviation", 1.0))
+        self._dome_deviation = float(saved.get("dome_deviation", 2.0))
         self.target = Target(self)
         self.current = Current(self)
         self._session: TrackSession | None = None
@@ -376,9 +377,6 @@ class Pointing(ModuleHealth):
             if session is not None:
                 session.stop(None)
             return None
-        if flags & FLAG_DOME and getattr(self.telescope, "dome", None) is None:
-            raise TcsError("TRACK flag 128: this telescope has no dome to synchronise",
-                           ErrorNumber.INVMODE)
         if not self.target.complete:
             raise TcsError("no target: set TARGET.RA and TARGET.DEC first", ErrorNumber.INVMODE)
         request = TrackRequest(self.target.ra, self.target.dec, mode, flags)
@@ -396,8 +394,10 @@ class Pointing(ModuleHealth):
         derotator = port = None
         if request.flags & FLAG_DEROTATOR:
             derotator, port = self.active_derotator()
+        dome = self.rotating_dome() if request.flags & FLAG_DOME else None
         return plan_track(request, self.pipeline(), axis1=self.axis1, axis2=self.axis2,
-                          derotator=derotator, port=port, ut1=self.ut1(), ut1_utc=self.ut1_utc,
+                          derotator=derotator, port=port, dome=dome, ut1=self.ut1(),
+                          ut1_utc=self.ut1_utc,
                           zd_limit=self.zd_limit, plan_horizon=self.config.plan_horizon,
                           keep_reverse=keep_reverse)
 
@@ -417,6 +417,17 @@ class Pointing(ModuleHealth):
             raise TcsError(f"TRACK flag 256: no derotator at the active port {port}",
                            ErrorNumber.INVMODE)
         return rotators[port], port
+
+    def rotating_dome(self):
+        """DOME[0] of a rotating dome, powered (flag 128); FAILED 5 otherwise."""
+        parts = getattr(self.telescope, "dome", None) or []
+        rotation = parts[0] if parts else None
+        if rotation is None or not getattr(rotation, "cyclic", 0.0):
+            raise TcsError("TRACK flag 128: this telescope has no rotating dome (DOME[0])",
+                           ErrorNumber.INVMODE)
+        if rotation.power_state != 1.0:
+            raise TcsError("TRACK flag 128: DOME[0] is not powered", ErrorNumber.INVMODE)
+        return rotation
 
     def model_changed(self) -> None:
         """The model or the refraction changed: re-plan a running tracking (same orientation)."""

@@ -27,12 +27,18 @@ the moving path with ruckig and then follows it, checking speed, acceleration an
    axis limits. The path is cut before the first point that fails; when the time of the last
    good point comes, the session stops the axes (``RUN=0``) and tracking ends with an event
    ``ERROR POINTING:9`` and FAILED 9 for the TRACK SET.
-4. **Near the zenith** (AZ-ZD) the azimuth may have to turn faster than it can: the
+4. **Dome** (flag 128): once per tick, when DOME[0] (the slit azimuth of a rotating dome)
+   is more than POINTING.DOME_DEVIATION from the target's azimuth, it is sent there with
+   ``TARGETPOS`` (the spec's step-wise following). Whatever the mount, the slit is put at the
+   target's observed azimuth: no dome geometry (telescope off the dome's centre) is modelled.
+   A dome that cannot move (power, PLC lost, fault) does not end the tracking: it is reported
+   with ``EVENT WARN POINTING:1012`` (once, until it moves again) and retried.
+5. **Near the zenith** (AZ-ZD) the azimuth may have to turn faster than it can: the
    follower keeps every setpoint inside the axis's speed/acceleration/jerk limits (it lags,
    ``MOTION_STATE`` bit 4 "limited") and re-intercepts afterwards; the session reports the
    episode with ``EVENT WARN POINTING:1010`` and a WARNING condition, and
    ``EVENT INFO POINTING:1011`` once the axis follows again. Nothing faults.
-5. **End**: TRACK=0 (the SET that started tracking answers DATA OK), a STOP or another
+6. **End**: TRACK=0 (the SET that started tracking answers DATA OK), a STOP or another
    command taking an axis away (FAILED 10), an axis fault or power loss (the axis's number),
    the target setting / an axis limit (FAILED 9). The session then sends ``RUN=0`` to every
    axis still running and emits ``INFO POINTING:32`` (ended as asked) or
@@ -70,13 +76,14 @@ from tcs.pointing.orientation import AxisRange, choose_path
 log = logging.getLogger(__name__)
 
 __all__ = ["TrackRequest", "Plan", "Lane", "plan_track", "parse_track", "choose_turn", "TrackSession",
-           "ZENITH_LIMITED", "ZENITH_CLEAR", "FLAG_DOME", "FLAG_DEROTATOR", "MODE_MASK"]
+           "ZENITH_LIMITED", "ZENITH_CLEAR", "DOME_STUCK", "FLAG_DOME", "FLAG_DEROTATOR", "MODE_MASK"]
 
 FLAG_DOME, FLAG_DEROTATOR = 128, 256
 MODE_MASK = 0x7F
 #: Project events (Appendix B: user numbers from 1000).
 ZENITH_LIMITED = 1010
 ZENITH_CLEAR = 1011
+DOME_STUCK = 1012
 _COARSE_STEP = 60.0           # s between the samples of the planning path
 _LIMITED_SHARE = 0.95         # of an axis's speed / acceleration: "cannot follow"
 _STOP_WAIT = 3.0              # s to wait for RUN=0 answers when ending
@@ -113,6 +120,7 @@ class Plan:
     lanes: list[Lane]
     slew_time: float
     in_limits_until: float | None      # UT1 where the planning path leaves a limit, if it does
+    dome: Any = None                   # DOME[0] to keep at the target's azimuth (flag 128)
 
     @property
     def value(self) -> int:
@@ -152,7 +160,7 @@ def _ready(axis, what: str) -> None:
 
 
 def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derotator=None,
-               port: int | None = None, ut1: float, ut1_utc: float, zd_limit: float,
+               port: int | None = None, dome=None, ut1: float, ut1_utc: float, zd_limit: float,
                plan_horizon: float, keep_reverse: bool | None = None) -> Plan:
     """Validate a TRACK request and choose orientation and turns (see the module docstring).
 
@@ -161,6 +169,7 @@ def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derot
     request : target, mode (1–4) and flags.
     pipeline : astrometry + pointing model of the mount.
     axis1, axis2 : the main axes (AZ/ZD or HA/DEC); ``derotator`` with its ``port`` for flag 256.
+    dome : DOME[0] for flag 128 (checked by the caller), or None.
     ut1, ut1_utc : now (UT1 seconds) and UT1−UTC.
     zd_limit : largest observed zenith distance allowed (90° − min_altitude).
     plan_horizon : seconds of path checked against the limits.
@@ -215,7 +224,7 @@ def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derot
         in_limits = min(in_limits, n)
         slew = max(slew, abs(angle[0] - current) / sec.max_velocity)
     until = float(times[in_limits]) if in_limits < times.size else None
-    return Plan(request, chosen.reverse, lanes, slew, until)
+    return Plan(request, chosen.reverse, lanes, slew, until, dome)
 
 
 # ------------------------------------------------------------------------------ the session
@@ -256,6 +265,8 @@ class TrackSession:
         self._last_t: float | None = None              # UT1 of the last queued point
         self._zenith = False
         self._zenith_until = 0.0
+        self._dome_move: asyncio.Future | None = None
+        self._dome_stuck = False
         self._after = after
         self._starting = False
         self.active = True
@@ -326,6 +337,7 @@ class TrackSession:
                     break
                 self._refill(now)
                 self._watch_zenith(now)
+                self._sync_dome(now)
                 timeout = self.owner.config.sample_spacing
                 if self._t_end is not None:
                     timeout = min(timeout, max(0.0, self._t_end - now))
@@ -524,6 +536,37 @@ class TrackSession:
             return TcsError(f"{name}: trajectory ran out of points", ErrorNumber.INTERNAL)
         return TcsError(f"{name}: trajectory stopped (STOP, TARGETPOS or RUN=0)",
                         ErrorNumber.TARGETCHANGE)
+
+    # -- the dome -------------------------------------------------------------------------------
+    def _sync_dome(self, now: float) -> None:
+        """DOME[0] to the target's azimuth when it deviates by more than DOME_DEVIATION."""
+        dome = self.plan.dome
+        if dome is None or (self._dome_move is not None and not self._dome_move.done()):
+            return
+        req = self.plan.request
+        az = float(self.owner.pipeline().astrometry.observed(req.ra, req.dec, now - self.owner.ut1_utc).az)
+        if abs(math.remainder(dome.current_position - az, 360.0)) <= self.owner.dome_deviation:
+            return
+        try:
+            self._dome_move = asyncio.ensure_future(dome.set_target(az))
+        except TcsError as exc:
+            self._dome_trouble(exc)
+            return
+        self._dome_move.add_done_callback(self._dome_done)
+
+    def _dome_done(self, fut: asyncio.Future) -> None:
+        if fut.cancelled():
+            return
+        exc = fut.exception()
+        if exc is None:
+            self._dome_stuck = False
+        elif isinstance(exc, TcsError):
+            self._dome_trouble(exc)
+
+    def _dome_trouble(self, exc: TcsError) -> None:
+        if not self._dome_stuck and self.active:
+            self._dome_stuck = True
+            self.owner.emit(WARN, DOME_STUCK, f"the dome does not follow: {exc.message}", self.cause)
 
     # -- near the zenith ------------------------------------------------------------------------
     def _check_zenith(self, points: _Points) -> None:
