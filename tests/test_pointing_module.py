@@ -430,7 +430,7 @@ async def test_target_setting_ends_tracking(live, sky):
     c = await connect(live)
     try:
         await ready(c)
-        t_set = time.time() + 10.0
+        t_set = time.time() + 8.0
         ra, dec = sky.star_at(265.0, 75.0, t_set)                # in the west, setting
         assert ok(await c.set(f"POINTING.TARGET.RA={ra!r};POINTING.TARGET.DEC={dec!r}"),
                   "POINTING.TARGET.DEC")
@@ -527,7 +527,7 @@ async def test_zenith_passage_stays_within_limits(live, sky):
     c = await connect(live)
     try:
         await ready(c)
-        t_transit = time.time() + 12.0
+        t_transit = time.time() + 10.0
         ra, dec = sky.star_at(0.0, 0.0015, t_transit)           # north of the zenith
         assert ok(await c.set(f"POINTING.TARGET.RA={ra!r};POINTING.TARGET.DEC={dec!r}"),
                   "POINTING.TARGET.DEC")
