@@ -43,17 +43,25 @@ def main(argv=None) -> int:
         return 2
     from tcs.app import Service, serve_until_signalled
 
+    return run_until_signalled("tcs-server", lambda stop: serve_until_signalled(
+        Service(config, args.host, args.port), stop))
+
+
+def run_until_signalled(prog: str, main_coro) -> int:
+    """Run ``main_coro(stop_event)`` with SIGINT/SIGTERM setting the event; exit status 0, or 1
+    with a one-line message when the operating system refuses (port in use …)."""
+
     async def run() -> None:
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, stop.set)
-        await serve_until_signalled(Service(config, args.host, args.port), stop)
+        await main_coro(stop)
 
     try:
         asyncio.run(run())
     except OSError as exc:
-        print(f"tcs-server: {exc}", file=sys.stderr)
+        print(f"{prog}: {exc}", file=sys.stderr)
         return 1
     return 0
 

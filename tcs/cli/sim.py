@@ -11,11 +11,9 @@ it exactly like real hardware. Runs until SIGINT/SIGTERM. A bad file exits with 
 from __future__ import annotations
 
 import argparse
-import asyncio
-import signal
 import sys
 
-from tcs.cli.server import setup_logging
+from tcs.cli.server import run_until_signalled, setup_logging
 from tcs.config import load_config
 from tcs.config.hwconfig import PACKAGE_ROOT
 from tcs.errors import ConfigErrors
@@ -39,11 +37,7 @@ def main(argv=None) -> int:
         print(f"tcs-sim: the hardware file is not valid:\n{exc}", file=sys.stderr)
         return 2
 
-    async def run() -> None:
-        stop = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            loop.add_signal_handler(sig, stop.set)
+    async def run(stop) -> None:
         await cabinet.start()
         print(f"tcs-sim: ready (socketcand port {cabinet.can_port})", file=sys.stderr, flush=True)
         try:
@@ -51,13 +45,7 @@ def main(argv=None) -> int:
         finally:
             await cabinet.stop()
 
-    try:
-        asyncio.run(run())
-    except OSError as exc:
-        print(f"tcs-sim: {exc}", file=sys.stderr)
-        return 1
-    return 0
-
+    return run_until_signalled("tcs-sim", run)
 
 if __name__ == "__main__":
     sys.exit(main())
