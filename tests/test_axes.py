@@ -762,7 +762,7 @@ async def test_trajectory_aborted(live, how):
         assert done_ok(await c.until(cmd, WAIT), f"DEROTATOR[2].{obj}")
         assert all(sign * (x - here) > -0.01 for x in seen), (here, min(seen), max(seen))
         lines = await c.until(run, WAIT)
-        assert lines[-1] == f"{run} COMMAND COMPLETE" and f" DATA " in lines[-2], lines
+        assert lines[-1] == f"{run} COMMAND COMPLETE" and " DATA " in lines[-2], lines
         await c.wait("DEROTATOR[2].MOTION_STATE", lambda v: not int(v) & (MOVING | TRAJ))
         traj_stop = rf"^{run} EVENT INFO DEROTATOR\[2\]:32( |$)"  # under RUN's id, before or after its end
         if not any(re.search(traj_stop, x) for x in lines):

@@ -101,7 +101,8 @@ def window(source, i0: int, i1: int, c0: int, c1: int, s0, s1) -> dict:
             "loop_ms": {"p50": ms(loop, 50), "p99": ms(loop, 99), "max": ms(loop, 100)}}
 
 
-async def measure(source, seconds: float) -> tuple[int, int, object]:
+def snapshot(source) -> tuple[int, int, object]:
+    """Where the lateness and loop-time histories are now, and the counters."""
     return len(source.lateness), len(source.callback_time), source.stats()
 
 
@@ -132,9 +133,9 @@ async def main(clients: int, seconds: float, rate: float) -> dict:
         source = service.telescope.can.cycle
 
         print(f"baseline: {seconds:g} s without load …", flush=True)
-        a = await measure(source, seconds)
+        a = snapshot(source)
         await asyncio.sleep(seconds)
-        b = await measure(source, seconds)
+        b = snapshot(source)
         baseline = window(source, a[0], b[0], a[1], b[1], a[2], b[2])
 
         print(f"load: {clients} clients × 20 variables × {rate:g} Hz in another process …", flush=True)
@@ -145,11 +146,11 @@ async def main(clients: int, seconds: float, rate: float) -> dict:
         line = await asyncio.wait_for(child.stdout.readline(), 120)
         if line.strip() != b"ready":
             raise SystemExit(f"load process: {line!r}")
-        a = await measure(source, seconds)
+        a = snapshot(source)
         child.stdin.write(b"go\n")
         await child.stdin.drain()
         out = await asyncio.wait_for(child.stdout.readline(), seconds + 120)
-        b = await measure(source, seconds)
+        b = snapshot(source)
         await child.wait()
         loaded = window(source, a[0], b[0], a[1], b[1], a[2], b[2])
         clients_figures = json.loads(out)
