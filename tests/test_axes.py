@@ -778,3 +778,34 @@ async def test_trajectory_aborted(live, how):
         await move(c, "DEROTATOR[2]", p0)  # and it takes targets again
     finally:
         await c.close()
+
+
+async def test_run_during_a_move(live):
+    """RUN=1 without points while a TARGETPOS runs fails with 11 and the move goes on; with
+    points it supersedes the TARGETPOS (FAILED 10) and the trajectory runs."""
+    c = await connect(live["port"])
+    try:
+        await ready(c, "DEROTATOR[2]")
+        await c.set("DEROTATOR[2].TRAJECTORY.RUN=0")
+        start = await c.num("DEROTATOR[2].REALPOS")
+        sign = 1 if start < 0 else -1
+        target = start + sign * 40
+        cmd = await c.start(f"DEROTATOR[2].TARGETPOS={target}")
+        await c.wait("DEROTATOR[2].MOTION_STATE", lambda v: int(v) & MOVING)
+        lines = await c.set("DEROTATOR[2].TRAJECTORY.RUN=1")
+        assert re.fullmatch(r"\d+ DATA ERROR DEROTATOR\[2\].TRAJECTORY.RUN FAILED 11", lines[1]), lines
+        assert done_ok(await c.until(cmd, WAIT), "DEROTATOR[2].TARGETPOS")
+        assert abs(await c.num("DEROTATOR[2].REALPOS") - target) <= 0.001
+        # now with points: the pending TARGETPOS is superseded
+        cmd = await c.start(f"DEROTATOR[2].TARGETPOS={start}")
+        await c.wait("DEROTATOR[2].MOTION_STATE", lambda v: int(v) & MOVING)
+        t0 = await c.num("LOCAL.UT1") + 0.5
+        assert done_ok(await upload(c, "DEROTATOR[2]", [(t0 + i, target) for i in range(3)]),
+                       "DEROTATOR[2].TRAJECTORY.ADDPOINTS")
+        run = await c.start("DEROTATOR[2].TRAJECTORY.RUN=1")
+        lines = await c.until(cmd, WAIT)
+        assert f"{cmd} DATA ERROR DEROTATOR[2].TARGETPOS FAILED 10" in lines, lines
+        assert done_ok(await c.until(run, WAIT), "DEROTATOR[2].TRAJECTORY.RUN")
+        await c.wait("DEROTATOR[2].REALPOS", lambda v: abs(v - target) <= 0.001)
+    finally:
+        await c.close()

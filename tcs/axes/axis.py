@@ -490,12 +490,16 @@ class Axis(ModuleHealth):
                 self.queue.clear()
                 self._complete(future)
                 return
+            self.follower.set_offset(self.offset)
+            # (raises nopoints before changing anything: a move in progress goes on)
+            dropped = self.follower.start(t, self._sp, value[1] if isinstance(value, tuple) else None)
             self._hold("run", future, cause)
             self._run_cause = cause
+            if "target" in self._pending:  # the trajectory supersedes direct positioning
+                self._hold("target", None, None)
+                del self._pending["target"]
             if self.planner.moving:
-                self.planner.stop(quick=False)
-            self.follower.set_offset(self.offset)
-            dropped = self.follower.start(t, self._sp, value[1] if isinstance(value, tuple) else None)
+                self.planner.stop(quick=False)  # (not stepped while following; taken over after)
             self._running = True
             if dropped:
                 self.emit(INFO, POINTS_DROPPED, f"{dropped} trajectory points in the past dropped", cause)
