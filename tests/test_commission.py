@@ -415,7 +415,8 @@ def test_other_master_is_heard(hw):
             assert "SYNC" in other_master(network, 127, 2.0)
         finally:
             task.stop()
-        assert other_master(network, 127, 0.1) is None
+        # frames already queued may still arrive: the bus goes quiet within a few windows
+        assert any(other_master(network, 127, 0.1) is None for _ in range(20))
         task = master.send_periodic(can.Message(arbitration_id=0x77F, data=b"\x05",
                                                 is_extended_id=False), 0.02)
         try:
