@@ -18,12 +18,12 @@ import dataclasses
 import itertools
 import math
 import re
-import threading
 import time
 from pathlib import Path
 
 import pytest
 
+from support.live import LiveService
 from support.service import make_config, start_service
 from support.tpl2 import RawClient
 from tcs.app import Service
@@ -41,46 +41,12 @@ WAIT = 30.0  # s: generous limit for anything the simulated hardware does
 @pytest.fixture(scope="module")
 def live(tmp_path_factory):
     """The fast telescope on its own event-loop thread for the whole module; stopping it
-    must leave no thread behind."""
-    before = {t.ident for t in threading.enumerate()}
-    loop = asyncio.new_event_loop()
-    ready = threading.Event()
-    box: dict = {}
-
-    def run():
-        asyncio.set_event_loop(loop)
-
-        async def main():
-            try:
-                svc, port = await start_service(tmp_path_factory.mktemp("axes"), FAST)
-            except BaseException as exc:
-                box["error"] = exc
-                ready.set()
-                return
-            box["svc"], box["port"] = svc, port
-            box["stop"] = asyncio.Event()
-            ready.set()
-            await box["stop"].wait()
-            await svc.stop()
-
-        loop.run_until_complete(main())
-        loop.close()
-
-    thread = threading.Thread(target=run, name="axes-service")
-    thread.start()
-    assert ready.wait(60), "service did not start"
-    if "error" in box:
-        thread.join(10)
-        raise box["error"]
-    yield box
-    loop.call_soon_threadsafe(box["stop"].set)
-    thread.join(60)
-    assert not thread.is_alive()
-    deadline = time.monotonic() + 5
-    while time.monotonic() < deadline and [t for t in threading.enumerate() if t.ident not in before]:
-        time.sleep(0.02)
-    left = [t.name for t in threading.enumerate() if t.ident not in before]
-    assert not left, f"the service left threads behind: {left}"
+    must leave no thread behind (see tests/support/live.py)."""
+    service = LiveService(FAST, tmp_path_factory.mktemp("axes")).start()
+    try:
+        yield {"svc": service.service, "port": service.port}
+    finally:
+        service.stop()
 
 
 @pytest.fixture(autouse=True)
