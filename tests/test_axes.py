@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
-import itertools
 import math
 import re
 import time
@@ -24,8 +23,8 @@ from pathlib import Path
 import pytest
 
 from support.live import LiveService
-from support.service import make_config, start_service
-from support.tpl2 import RawClient
+from support.service import make_config
+from support.opentci_client import Client
 from tcs.app import Service
 
 FAST = Path(__file__).with_name("hw_axes_fast.toml")
@@ -54,56 +53,6 @@ def _no_leaked_threads():  # the module's service thread is expected; `live` che
     yield
 
 
-_ids = itertools.count(1000)  # hand-written ids in the tests stay below
-
-
-class Client(RawClient):
-    """RawClient with what axis tests need: fresh command ids, numeric GETs, waiting for a
-    state or for an event line."""
-
-    async def set(self, text: str, timeout: float = WAIT) -> list[str]:
-        return await self.command(next(_ids), f"SET {text}", timeout)
-
-    async def start(self, text: str) -> int:
-        """Send a SET and return its id without waiting for the reply."""
-        cmd_id = next(_ids)
-        await self.send(f"{cmd_id} SET {text}")
-        return cmd_id
-
-    async def num(self, obj: str) -> float:
-        return float(await self.get(obj, next(_ids)))
-
-    async def nums(self, *objs: str) -> list[float]:
-        cmd_id = next(_ids)
-        lines = await self.command(cmd_id, "GET " + ";".join(objs))
-        return [float(line.split("=", 1)[1]) for line in lines[1:-1]]
-
-    async def wait(self, obj: str, pred, timeout: float = WAIT) -> float:
-        """Poll ``obj`` until ``pred(value)``; returns the value."""
-        deadline = time.monotonic() + timeout
-        while True:
-            value = await self.num(obj)
-            if pred(value):
-                return value
-            assert time.monotonic() < deadline, f"{obj} stayed at {value}"
-            await asyncio.sleep(0.02)
-
-    async def event(self, pattern: str, timeout: float = WAIT) -> str:
-        """The first line (already read or still to come) matching ``pattern``; consumed."""
-        rx = re.compile(pattern)
-        deadline = time.monotonic() + timeout
-        while True:
-            for line in self.lines:
-                if rx.search(line):
-                    self.lines.remove(line)
-                    return line
-            left = deadline - time.monotonic()
-            assert left > 0, f"no line matching {pattern!r}; seen {self.lines}"
-            self.lines.append(await self._read(left))
-
-    def seen(self, pattern: str) -> list[str]:
-        rx = re.compile(pattern)
-        return [line for line in self.lines if rx.search(line)]
 
 
 async def connect(port: int) -> Client:

@@ -32,14 +32,14 @@ import numpy as np
 import pytest
 
 from support.service import start_service
-from support.tpl2 import RawClient
+from support.opentci_client import Client as SharedClient
 
 CONFIG = Path(__file__).with_name("hw_pointing.toml")
 LAT, LON, HEIGHT, DUT1 = 28.7606, -17.8792, 2326.0, -0.1234
 ARCSEC = 1.0 / 3600.0
 WAIT = 60.0
 MOVING, TRAJ, ON_TARGET, LIMITED = 1, 2, 8, 16
-_ids = itertools.count(1000)
+_ids = itertools.count(900_000)  # apart from the shared client's ids
 
 
 # ------------------------------------------------------------------------------- the oracle
@@ -190,42 +190,8 @@ def _no_leaked_threads():  # the module's service thread is expected; `live` che
     yield
 
 
-class Client(RawClient):
-    async def set(self, text: str, timeout: float = WAIT) -> list[str]:
-        return await self.command(next(_ids), f"SET {text}", timeout)
-
-    async def start(self, text: str) -> int:
-        cmd_id = next(_ids)
-        await self.send(f"{cmd_id} SET {text}")
-        return cmd_id
-
-    async def nums(self, *objs: str) -> list[float]:
-        lines = await self.command(next(_ids), "GET " + ";".join(objs))
-        return [float(line.split("=", 1)[1]) for line in lines[1:-1]]
-
-    async def num(self, obj: str) -> float:
-        return (await self.nums(obj))[0]
-
-    async def wait(self, obj: str, pred, timeout: float = WAIT) -> float:
-        deadline = time.monotonic() + timeout
-        while True:
-            value = await self.num(obj)
-            if pred(value):
-                return value
-            assert time.monotonic() < deadline, f"{obj} stayed at {value}"
-            await asyncio.sleep(0.05)
-
-    async def event(self, pattern: str, timeout: float = WAIT) -> str:
-        rx = re.compile(pattern)
-        deadline = time.monotonic() + timeout
-        while True:
-            for line in self.lines:
-                if rx.search(line):
-                    self.lines.remove(line)
-                    return line
-            left = deadline - time.monotonic()
-            assert left > 0, f"no line matching {pattern!r}; seen {self.lines[-30:]}"
-            self.lines.append(await self._read(left))
+class Client(SharedClient):
+    patience = WAIT
 
 
 def ok(lines, obj):

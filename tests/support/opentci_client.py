@@ -15,9 +15,12 @@ _ids = itertools.count(1000)
 
 
 class Client(RawClient):
-    async def set(self, text: str, timeout: float = WAIT) -> list[str]:
+    #: default time limit of set / wait / event; a module's tests may raise it in a subclass
+    patience: float = WAIT
+
+    async def set(self, text: str, timeout: float | None = None) -> list[str]:
         """``SET text``; all lines of the command up to its final line."""
-        return await self.command(next(_ids), f"SET {text}", timeout)
+        return await self.command(next(_ids), f"SET {text}", timeout or self.patience)
 
     async def start(self, text: str) -> int:
         """Send ``SET text`` and return its id without waiting."""
@@ -36,9 +39,9 @@ class Client(RawClient):
         lines = await self.command(cmd_id, "GET " + ";".join(objs))
         return [float(line.split("=", 1)[1]) for line in lines[1:-1]]
 
-    async def wait(self, obj: str, pred, timeout: float = WAIT):
+    async def wait(self, obj: str, pred, timeout: float | None = None):
         """Poll ``obj`` until ``pred(value)`` (value as float when it is a number)."""
-        deadline = time.monotonic() + timeout
+        deadline = time.monotonic() + (timeout or self.patience)
         while True:
             text = await self.value(obj)
             try:
@@ -50,10 +53,10 @@ class Client(RawClient):
             assert time.monotonic() < deadline, f"{obj} stayed at {text}"
             await asyncio.sleep(0.02)
 
-    async def event(self, pattern: str, timeout: float = WAIT) -> str:
+    async def event(self, pattern: str, timeout: float | None = None) -> str:
         """The first line (already read or still to come) matching ``pattern``; consumed."""
         rx = re.compile(pattern)
-        deadline = time.monotonic() + timeout
+        deadline = time.monotonic() + (timeout or self.patience)
         while True:
             for line in self.lines:
                 if rx.search(line):
