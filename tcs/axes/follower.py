@@ -70,7 +70,7 @@ import math
 from typing import NamedTuple
 
 from tcs.axes.limits import LimitGuard, SoftLimits
-from tcs.axes.profile import (AxisDynamics, ProfileSolver, Setpoint, sample,
+from tcs.axes.profile import (AxisDynamics, ProfileSolver, Setpoint, checked_speed, sample,
                               theoretical_minimum_time)
 from tcs.axes.trajectory import TrajectoryQueue
 from tcs.errors import ErrorNumber, RangeRefused, TcsError
@@ -208,10 +208,7 @@ class TrajectoryFollower:
         RangeRefused
             ``velocity`` not in (0, max_velocity].
         """
-        vmax = self.dynamics.max_velocity
-        if not (math.isfinite(velocity) and 0.0 < velocity <= vmax * (1 + 1e-12)):
-            raise RangeRefused(f"speed {velocity!r} is outside (0, {vmax:g}]")
-        self._speed = min(float(velocity), vmax)
+        self._speed = checked_speed(velocity, self.dynamics)
 
     def set_limits(self, limits: SoftLimits) -> None:
         self._guard.limits = limits

@@ -46,6 +46,7 @@ from tcs.axes.limits import LimitGuard, SoftLimits
 from tcs.axes.profile import (
     AxisDynamics,
     ProfileSolver,
+    checked_speed,
     Setpoint,
     sample,
     theoretical_minimum_time,
@@ -195,10 +196,7 @@ class MotionPlanner:
         RangeRefused
             ``velocity`` not in (0, max_velocity].
         """
-        vmax = self.dynamics.max_velocity
-        if not (math.isfinite(velocity) and 0.0 < velocity <= vmax * (1 + 1e-12)):
-            raise RangeRefused(f"speed {velocity!r} is outside (0, {vmax:g}]")
-        self._speed = min(float(velocity), vmax)
+        self._speed = checked_speed(velocity, self.dynamics)
 
     def set_target(self, position: float) -> float:
         """``TARGETPOS`` written: move so that the drive reaches ``position + offset``.

@@ -30,6 +30,8 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from tcs.errors import RangeRefused
+
 from ruckig import (
     ControlInterface,
     DurationDiscretization,
@@ -91,6 +93,20 @@ class AxisDynamics:
     def stop_jerk(self) -> float:
         """Jerk of a quick stop."""
         return self.quick_stop_jerk or self.max_jerk
+
+
+def checked_speed(velocity: float, dynamics: "AxisDynamics") -> float:
+    """A ``CURRSPEED`` value for ``dynamics``: ``velocity`` capped at the maximum.
+
+    Raises
+    ------
+    RangeRefused
+        ``velocity`` not in (0, max_velocity].
+    """
+    vmax = dynamics.max_velocity
+    if not (math.isfinite(velocity) and 0.0 < velocity <= vmax * (1 + 1e-12)):
+        raise RangeRefused(f"speed {velocity!r} is outside (0, {vmax:g}]")
+    return min(float(velocity), vmax)
 
 
 def theoretical_minimum_time(distance: float, dynamics: AxisDynamics) -> float:
