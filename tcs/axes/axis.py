@@ -79,6 +79,25 @@ class BufferSlot:
         self.targetpos = float(value)
 
 
+def add_staged_points(axis, buffer: list[BufferSlot], queue: TrajectoryQueue, count: int,
+                      now: float) -> int:
+    """``ADDPOINTS=count``: move ``buffer[0..count-1]`` into ``queue`` (all or nothing), empty
+    those slots, announce points already in the past (event 1000); returns ``count``.
+    Shared by the drive axes' and the PLC dome's TRAJECTORY."""
+    if not 0 < count <= len(buffer):
+        raise RangeRefused(f"ADDPOINTS must be 1..{len(buffer)}")
+    slots = buffer[:count]
+    if any(s.time is None or s.targetpos is None for s in slots):
+        raise RequestRefused(f"{axis.module_name}.TRAJECTORY: BUFFER[0..{count - 1}] "
+                             "has points without TIME or TARGETPOS")
+    result = queue.add_points([s.time for s in slots], [s.targetpos for s in slots], now)
+    for s in slots:
+        s.time = s.targetpos = None
+    if result.dropped:
+        axis.emit(INFO, POINTS_DROPPED, f"{result.dropped} trajectory points already in the past were dropped")
+    return count
+
+
 class AxisTrajectory:
     """Domain object of ``<axis>.TRAJECTORY``."""
 
@@ -93,21 +112,8 @@ class AxisTrajectory:
 
     def set_addpoints(self, count: int) -> None:
         """Move BUFFER[0..count-1] into the running queue (returns at once)."""
-        count = int(count)
-        if not 0 < count <= len(self.buffer):
-            raise RangeRefused(f"ADDPOINTS must be 1..{len(self.buffer)}")
-        slots = self.buffer[:count]
-        if any(s.time is None or s.targetpos is None for s in slots):
-            raise RequestRefused(f"{self.axis.module_name}.TRAJECTORY: BUFFER[0..{count - 1}] "
-                                 "has points without TIME or TARGETPOS")
-        now = self.axis.ut1()
-        result = self.axis.queue.add_points([s.time for s in slots], [s.targetpos for s in slots], now)
-        self.addpoints = count
-        for s in slots:
-            s.time = s.targetpos = None
-        if result.dropped:
-            self.axis.emit(INFO, POINTS_DROPPED,
-                           f"{result.dropped} trajectory points already in the past were dropped")
+        self.addpoints = add_staged_points(self.axis, self.buffer, self.axis.queue, int(count),
+                                           self.axis.ut1())
 
     @property
     def run(self) -> int:

@@ -26,9 +26,9 @@ import asyncio
 import math
 from typing import Callable
 
-from tcs.axes.axis import POINTS_DROPPED, BufferSlot
+from tcs.axes.axis import BufferSlot, add_staged_points
 from tcs.axes.trajectory import TrajectoryQueue
-from tcs.errors import ErrorNumber, RangeRefused, RequestRefused
+from tcs.errors import ErrorNumber
 from tcs.model.events import INFO
 
 
@@ -71,19 +71,7 @@ class PlcTrajectory:
 
     def set_addpoints(self, count: int) -> None:
         """Move BUFFER[0..count-1] into the queue (returns at once)."""
-        count = int(count)
-        if not 0 < count <= len(self.buffer):
-            raise RangeRefused(f"ADDPOINTS must be 1..{len(self.buffer)}")
-        slots = self.buffer[:count]
-        if any(s.time is None or s.targetpos is None for s in slots):
-            raise RequestRefused(f"{self.axis.module_name}.TRAJECTORY: BUFFER[0..{count - 1}] has "
-                                 "points without TIME or TARGETPOS")
-        result = self.queue.add_points([s.time for s in slots], [s.targetpos for s in slots], self.ut1())
-        self.addpoints = count
-        for s in slots:
-            s.time = s.targetpos = None
-        if result.dropped:
-            self.axis.emit(INFO, POINTS_DROPPED, f"{result.dropped} trajectory points already in the past were dropped")
+        self.addpoints = add_staged_points(self.axis, self.buffer, self.queue, int(count), self.ut1())
 
     @property
     def run(self) -> int:
