@@ -56,13 +56,12 @@ NO_ACCESS = 99
 class _Command:
     """A running long command: its task and how it was ended from outside."""
 
-    __slots__ = ("cmd_id", "task", "aborted_by", "shutdown")
+    __slots__ = ("cmd_id", "task", "aborted_by")
 
     def __init__(self, cmd_id: int):
         self.cmd_id = cmd_id
         self.task: asyncio.Task | None = None
         self.aborted_by: int | None = None
-        self.shutdown = False
 
 
 class Session(asyncio.Protocol):
@@ -425,7 +424,6 @@ class Session(asyncio.Protocol):
     def fail_all(self) -> None:
         """Server shutdown: end every running command with COMMAND FAILED."""
         for cmd in list(self.commands.values()):
-            cmd.shutdown = True
             if cmd.task is not None:
                 cmd.task.cancel()
 

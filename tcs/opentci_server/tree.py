@@ -31,7 +31,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 from tcs.errors import AccessDenied, RangeRefused, RequestRefused, TcsError, UnknownObject
 from tcs.opentci_server.paths import ObjectRef
-from tcs.opentci_server.values import ErrorValue, Value, ValueType, convert, format_float, format_value
+from tcs.opentci_server.values import Value, ValueType, convert, format_float, format_value
 
 log = logging.getLogger(__name__)
 
@@ -474,5 +474,4 @@ def _format_property(target: Target, prop: str) -> str:
 
 
 __all__ = ["Tree", "Target", "VarSpec", "ModuleSpec", "var", "sysvar", "var_array", "module",
-           "module_array", "READ_ALL", "OPERATE", "CONFIGURE", "NOBODY", "INT", "FLOAT", "STRING",
-           "ErrorValue"]
+           "module_array", "READ_ALL", "OPERATE", "CONFIGURE", "NOBODY", "INT", "FLOAT", "STRING"]
