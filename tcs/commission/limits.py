@@ -160,10 +160,17 @@ def search_side(session: DriveSession, target: Target, mover: CspMover, side: st
             raise CommissionError(f"{device}: still on the {side} limit switch after moving "
                                   f"{backoff:g} away: use a larger --backoff")
     watch = SwitchWatch(attribute)
+
+    def search_over() -> bool:
+        # A limit fault can reach the status (EMCY) before the next cycle's hook shows it to
+        # the watch: leave that one to the watch, so it records where the switch was.
+        fault = session.status(name).fault
+        return watch.position is not None or (fault is not None
+                                               and fault.number != ErrorNumber.LIMIT)
+
     mover.watch = watch
     try:
-        ok = _move(session, mover, name, bound, speed, bar, side,
-                   stop_when=lambda: watch.position is not None or session.status(name).fault is not None)
+        ok = _move(session, mover, name, bound, speed, bar, side, stop_when=search_over)
     finally:
         mover.watch = None
     bar.close()
