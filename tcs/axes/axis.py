@@ -55,6 +55,7 @@ MOVING, TRAJECTORY, BLOCKED, ON_TARGET, LIMITED = 1, 2, 4, 8, 16
 #: LIMIT_STATE bits.
 HW_MIN, HW_MAX, HW_BLOCKING, SW_MIN, SW_MAX, SW_BLOCKING = 1, 2, 128, 256, 512, 32768
 
+MEASURED_MOVING_CYCLES = 3  # cycles above standstill before a measured motion sets MOVING
 POWER_TIMEOUT = 10.0  # s for a drive to reach Operation enabled / disabled
 
 REFERENCE_ORDER = {"ZD": 0, "DEC": 0, "AZ": 1, "HA": 1}
@@ -179,6 +180,7 @@ class Axis(ModuleHealth):
         # a drive at rest reports a velocity of a few increments/s (encoder noise): below the
         # tolerance per second it counts as standing still (MOTION_STATE bit 0)
         self._standstill = max(section.tolerance, 1e-9)
+        self._drift_cycles = 0  # consecutive cycles measured above _standstill
         self.queue = TrajectoryQueue(section.trajectory_buffer, cycle)
         self.follower: TrajectoryFollower | None = None
         self.trajectory: AxisTrajectory | None = None
@@ -655,9 +657,16 @@ class Axis(ModuleHealth):
                 self.target_position = self.follower.path_position(t) - self.offset
         elif not self.discrete:
             self.target_position = self.planner.target
+        # MOVING (bit 0) comes from the commanded motion, which is free of noise: a slow
+        # trajectory (sidereal rate) measures close to _standstill and would make the bit and
+        # its MOTIONCHANGE event flap every few cycles. A measured velocity alone (pushed,
+        # drifting, a drive still settling) sets it after MEASURED_MOVING_CYCLES in a row and
+        # keeps it while it lasts.
+        self._drift_cycles = self._drift_cycles + 1 if abs(st.velocity) > self._standstill else 0
+        measured = self._drift_cycles >= (1 if prev_motion & MOVING else MEASURED_MOVING_CYCLES)
+        commanded = not self.discrete and self._powered and (self.planner.moving or abs(sp.velocity) > 1e-9)
         motion = 0
-        if abs(st.velocity) > self._standstill or (not self.discrete and self.planner.moving) or \
-                (self.discrete and st.move is Progress.RUNNING) or self._homing:
+        if measured or commanded or (self.discrete and st.move is Progress.RUNNING) or self._homing:
             motion |= MOVING
         if self._running:
             motion |= TRAJECTORY
