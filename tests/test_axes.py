@@ -487,6 +487,34 @@ async def test_trajectory_follows_a_sinusoid(live):
         await c.close()
 
 
+async def test_sidereal_trajectory_reports_motion_steadily(live):
+    """At sidereal rate the measured velocity sits at the standstill threshold: MOTION_STATE
+    still shows MOVING | TRAJECTORY throughout, and MOTIONCHANGE (23) is not sent over and
+    over (it flapped about 70 times a second per axis once)."""
+    c = await connect(live["port"])
+    try:
+        await ready(c, "AZ")
+        p0 = await c.num("AZ.REALPOS")
+        t0 = await c.num("LOCAL.UT1") + 0.5
+        rate = 15.0 / 3600  # °/s
+        points = [(t0 + 0.5 * i, p0 + rate * 0.5 * i) for i in range(9)]  # 4 s
+        assert done_ok(await upload(c, "AZ", points), "AZ.TRAJECTORY.ADDPOINTS")
+        c.forget()
+        run = await c.start("AZ.TRAJECTORY.RUN=1")
+        await c.wait("AZ.MOTION_STATE", lambda v: int(v) & TRAJ)
+        states = set()
+        while await c.num("LOCAL.UT1") < points[-1][0] - 0.5:
+            states.add(int(await c.num("AZ.MOTION_STATE")) & (MOVING | TRAJ))
+            await asyncio.sleep(0.05)
+        lines = await c.until(run, WAIT)
+        assert lines[-1] == f"{run} COMMAND COMPLETE", lines
+        assert states == {MOVING | TRAJ}, states
+        changes = c.seen(r" EVENT INFO AZ:23( |$)") + [x for x in lines if re.search(r" EVENT INFO AZ:23( |$)", x)]
+        assert len(changes) <= 4, changes
+    finally:
+        await c.close()
+
+
 async def test_trajectory_refuses_bad_points(live):
     """Times must increase (within a batch and after the queue); RUN without points fails 11;
     RUN=0 frees the buffer."""
