@@ -39,6 +39,9 @@ def main(argv=None) -> int:
 
     async def run(stop) -> None:
         await cabinet.start()
+        from tcs.app import settle_heap
+
+        settle_heap()
         print(f"tcs-sim: ready (socketcand port {cabinet.can_port})", file=sys.stderr, flush=True)
         try:
             await stop.wait()

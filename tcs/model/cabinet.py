@@ -147,6 +147,10 @@ class Cabinet(ModuleHealth):
         super().__init__("CABINET", events, hw_type=config.cabinet.hw_type, status_sink=self.status_list)
         self.axes: list[Any] = []
         self.modules: list[Any] = []
+        self._members: tuple[Any, ...] = ()  # axes then modules, each once (see attach)
+        self._members_error = 0   # OR of the ModuleHealth members' ERROR_STATE (kept current)
+        self._other_members: tuple[Any, ...] = ()  # members that are not ModuleHealth: read each time
+        self._members_lock = threading.Lock()
         self.setup = CabinetSetup(config)
         self.manual_control = ManualControl(store, events)
         self.log_buffer = log_buffer if log_buffer is not None else LogBuffer(config.cabinet.log_lines)
@@ -177,6 +181,26 @@ class Cabinet(ModuleHealth):
             if m is not self and m not in self.modules:
                 self.modules.append(m)
                 self._connect_sink(m)
+        seen, members = set(), []
+        for m in (*self.axes, *self.modules):
+            if m is not self and id(m) not in seen:
+                seen.add(id(m))
+                members.append(m)
+        self._members = tuple(members)
+        self._other_members = tuple(m for m in members if not isinstance(m, ModuleHealth))
+        for m in members:
+            if isinstance(m, ModuleHealth):
+                m.on_error_state = self._member_error_changed
+        self._member_error_changed()
+
+    def _member_error_changed(self) -> None:
+        """A member's ERROR_STATE changed (any thread, under that member's lock)."""
+        with self._members_lock:
+            state = 0
+            for m in self._members:
+                if isinstance(m, ModuleHealth):
+                    state |= m._error_state
+            self._members_error = state
 
     def _connect_sink(self, module: Any) -> None:
         if isinstance(module, ModuleHealth) and module._status_sink is None:
@@ -188,13 +212,8 @@ class Cabinet(ModuleHealth):
         return self.status_list
 
     def members(self) -> list[Any]:
-        """Axes then modules, each once, never the cabinet."""
-        seen, out = set(), []
-        for m in (*self.axes, *self.modules):
-            if m is not self and id(m) not in seen:
-                seen.add(id(m))
-                out.append(m)
-        return out
+        """Axes then modules, each once, never the cabinet (as of the last :meth:`attach`)."""
+        return list(self._members)
 
     def power_order(self) -> list[Any]:
         """Components in the order they are switched on (reversed for off)."""
@@ -400,8 +419,8 @@ class Cabinet(ModuleHealth):
     # -- ERROR_STATE ------------------------------------------------------------------------------------
     @property
     def error_state(self) -> int:
-        state = super().error_state
-        for member in self.members():
+        state = self._error_state | self._members_error
+        for member in self._other_members:
             try:
                 state |= int(getattr(member, "error_state", 0) or 0)
             except Exception:

@@ -37,15 +37,25 @@ class ModuleHealth:
         self._status_sink = status_sink
         self._conditions: dict[str, list] = {}  # name -> [bits, active, latched]
         self._health_lock = threading.Lock()
+        self._error_state = 0  # OR of the conditions' bits, kept current under the lock
+        #: Called after ``_error_state`` changed (the cabinet keeps its aggregate with it).
+        self.on_error_state: Callable[[], None] | None = None
 
     @property
     def error_state(self) -> int:
-        with self._health_lock:
-            state = 0
-            for bits, active, latched in self._conditions.values():
-                if active or latched:
-                    state |= bits
-            return state
+        # Read on every GET of an ERROR_STATE (and CABINET's reads all of them): a plain
+        # attribute, recomputed only when a condition changes.
+        return self._error_state
+
+    def _recompute(self) -> None:
+        """Refresh ``_error_state``; the caller holds ``_health_lock``."""
+        state = 0
+        for bits, active, latched in self._conditions.values():
+            if active or latched:
+                state |= bits
+        changed, self._error_state = state != self._error_state, state
+        if changed and self.on_error_state is not None:
+            self.on_error_state()
 
     def raise_condition(self, name: str, bits: int = ERROR, text: str = "") -> None:
         """Mark condition ``name`` active (and latched until acknowledged)."""
@@ -54,6 +64,7 @@ class ModuleHealth:
             entry = self._conditions.get(name)
             fresh = entry is None or not entry[1]
             self._conditions[name] = [bits, True, True]
+            self._recompute()
         if fresh and self._status_sink is not None:
             self._status_sink(self.module_name, name, bits, True, text)
         self._changed(before, text or name)
@@ -66,6 +77,7 @@ class ModuleHealth:
             if entry is None or not entry[1]:
                 return
             entry[1] = False
+            self._recompute()
         if self._status_sink is not None:
             self._status_sink(self.module_name, name, entry[0], False, "")
         self._changed(before, f"{name} cleared")
@@ -80,6 +92,7 @@ class ModuleHealth:
                 del self._conditions[name]
             for entry in self._conditions.values():
                 entry[2] = False
+            self._recompute()
         self.on_acknowledge()
         acknowledged = getattr(self._status_sink, "acknowledged", None)
         if acknowledged is not None:  # STATUS.LIST: the Count column restarts
