@@ -72,7 +72,8 @@ class ControlLoop:
         s = self.source.stats()
         return {"cycles": s.cycles, "late": s.late, "missed": s.missed,
                 "tpdo_timeouts": s.tpdo_timeouts, "errors": self.errors,
-                "max_step_ms": self.max_step * 1e3}
+                "max_step_ms": self.max_step * 1e3, "max_lateness": self.source.max_lateness,
+                "realtime": int(self.source.realtime)}
 
     def healthy(self, max_age_periods: float = 10.0) -> bool:
         """True when the loop ran within the last ``max_age_periods`` SYNC periods."""

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from tcs.app import freeze_heap, thaw_heap
 from tcs.cli.server import run_until_signalled, setup_logging
 from tcs.config import load_config
 from tcs.config.hwconfig import PACKAGE_ROOT
@@ -39,14 +40,13 @@ def main(argv=None) -> int:
 
     async def run(stop) -> None:
         await cabinet.start()
-        from tcs.app import settle_heap
-
-        settle_heap()
+        freeze_heap()
         print(f"tcs-sim: ready (socketcand port {cabinet.can_port})", file=sys.stderr, flush=True)
         try:
             await stop.wait()
         finally:
             await cabinet.stop()
+            thaw_heap()
 
     return run_until_signalled("tcs-sim", run)
 

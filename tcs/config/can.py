@@ -157,6 +157,10 @@ class CanSection:
     boot_timeout: float = setting(5.0, min=0.1, max=120.0,
                                   doc="seconds a drive may take to answer at boot")
     sdo_timeout: float = setting(0.5, min=0.05, max=10.0, doc="seconds per SDO response")
+    realtime_priority: int = setting(
+        0, min=0, max=99, doc="SCHED_FIFO priority of the control-loop thread (1..99; 0 = normal "
+                              "scheduling). Needs CAP_SYS_NICE or LimitRTPRIO (the systemd unit "
+                              "grants it); refused by the system, the loop runs normally and says so")
 
     def check(self):
         problems = []

@@ -66,7 +66,7 @@ class CanDrives:
         self.bus = CanBus(can)
         self.worker = SdoWorker()
         self.cycle = CycleSource(self.bus, can.sync_period, tpdo_deadline=can.tpdo_deadline,
-                                 clock=clock)
+                                 clock=clock, realtime_priority=can.realtime_priority)
         self.drives: dict[str, Cia402Drive] = {}
         for name, section in drives.items():
             eds = resolve(section.eds) if section.eds else SIM_EDS

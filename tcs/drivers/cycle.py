@@ -26,8 +26,9 @@ Where the SYNC comes from: on ``socketcan`` the kernel broadcast manager sends i
 runner thread itself sends SYNC at ``t_k``: it sleeps to the slot, sends, waits for the
 barrier, runs the callbacks. No SYNC counter byte is sent.
 
-Threads: the runner is one dedicated thread (``tcs-cycle``); callbacks run in it and must not
-block. ``add_callback``/``expect_tpdos`` are for set-up before :meth:`start` (they are
+Threads: the runner is one dedicated thread (``tcs-cycle``), optionally with a real-time
+priority (``realtime_priority``: SCHED_FIFO, so other processes cannot delay its wake-ups; the
+GIL is still shared with the rest of the process); callbacks run in it and must not block. ``add_callback``/``expect_tpdos`` are for set-up before :meth:`start` (they are
 lock-protected, so later is allowed). :meth:`stats` may be read from any thread.
 """
 
@@ -35,6 +36,7 @@ from __future__ import annotations
 
 import collections
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -86,11 +88,14 @@ class CycleSource:
         How many lateness samples to keep.
     clock:
         Monotonic clock (tests may replace it only with another real-time clock).
+    realtime_priority:
+        SCHED_FIFO priority of the runner thread, 1..99; 0 keeps normal scheduling. When the
+        system refuses it the runner goes on normally; :attr:`realtime` tells which.
     """
 
     def __init__(self, bus: CanBus, period: float, *, tpdo_deadline: float = 0.5,
                  kernel_sync: bool | None = None, history: int = 100_000,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = time.monotonic, realtime_priority: int = 0):
         self.bus = bus
         self.period = float(period)
         self.tpdo_deadline = float(tpdo_deadline)
@@ -111,6 +116,9 @@ class CycleSource:
         self.lateness: collections.deque[float] = collections.deque(maxlen=history)
         self.callback_time: collections.deque[float] = collections.deque(maxlen=history)
         self.last_error: TcsError | Exception | None = None
+        self.realtime_priority = int(realtime_priority)
+        self.realtime = False  # the runner got its real-time priority
+        self.max_lateness = 0.0  # worst lateness since start, s
 
     # ---------------------------------------------------------------- set-up
     def add_callback(self, callback: Callable[[Cycle], None]) -> None:
@@ -156,7 +164,8 @@ class CycleSource:
             target = self._run_kernel
         else:
             target = self._run_thread
-        self._thread = threading.Thread(target=target, name="tcs-cycle", daemon=True)
+        self._thread = threading.Thread(target=self._with_priority, args=(target,), name="tcs-cycle",
+                                        daemon=True)
         self._thread.start()
 
     def stop(self) -> None:
@@ -204,6 +213,24 @@ class CycleSource:
             self._sync_seen.notify_all()
 
     # ---------------------------------------------------------------- runner
+    def _with_priority(self, target: Callable[[], None]) -> None:
+        if self.realtime_priority > 0:
+            try:  # pid 0: this thread (Linux schedules threads)
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.realtime_priority))
+                self.realtime = True
+                log.info("control cycle runs with real-time priority %d (SCHED_FIFO)",
+                         self.realtime_priority)
+            except (OSError, AttributeError) as exc:
+                log.warning("control cycle: real-time priority %d refused (%s); running with "
+                            "normal scheduling (grant CAP_SYS_NICE or LimitRTPRIO)",
+                            self.realtime_priority, exc)
+        target()
+
+    def _late(self, lateness: float) -> None:
+        self.lateness.append(lateness)
+        if lateness > self.max_lateness:
+            self.max_lateness = lateness
+
     def _new_cycle(self) -> None:
         self._seen = set()
         self._arrived.clear()
@@ -256,7 +283,7 @@ class CycleSource:
             except TcsError as exc:
                 self.last_error = exc
                 self._count(sync_failures=1)
-            self.lateness.append(sent - slot)
+            self._late(sent - slot)
             self._cycle(index, sent, slot + period)
             index += 1
             slot += period
@@ -285,5 +312,5 @@ class CycleSource:
             elif count > seen + 1:
                 self._count(missed=count - seen - 1)
             seen = count
-            self.lateness.append(sync_time - (first_time + (count - first_count) * period))
+            self._late(sync_time - (first_time + (count - first_count) * period))
             self._cycle(count, sync_time, sync_time + period)

@@ -93,6 +93,8 @@ CYCLE = module(
     var("TPDO_TIMEOUTS", INT, get=lambda c: c.loop_figure("tpdo_timeouts"),
         info="cycles run without every drive's TPDO"),
     var("MAX_LATENESS", FLOAT, get=lambda c: c.loop_figure("max_lateness"), info="worst lateness, s"),
+    var("REALTIME", INT, get=lambda c: c.loop_figure("realtime"),
+        info="1 when the loop thread got its real-time priority (can.realtime_priority)"),
     info="the cyclic control loop",
 )
 

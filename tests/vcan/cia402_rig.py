@@ -54,12 +54,14 @@ class Rig:
 
     def __init__(self, can_channel: dict, axes: dict[str, AxisSpec], *, sync_period: float = 0.01,
                  heartbeat_period: float = 0.05, boot_timeout: float = 3.0,
-                 kernel_sync: bool | None = None, options: dict | None = None):
+                 kernel_sync: bool | None = None, options: dict | None = None,
+                 realtime_priority: int = 0):
         self.channel = dict(can_channel)
         self.axes = axes
         self.can = CanSection(interface=self.channel["interface"], channel=self.channel["channel"],
                               sync_period=sync_period, heartbeat_period=heartbeat_period,
-                              boot_timeout=boot_timeout, sdo_timeout=0.3, options=options or {})
+                              boot_timeout=boot_timeout, sdo_timeout=0.3, options=options or {},
+                              realtime_priority=realtime_priority)
         self.kernel_sync = kernel_sync
         self.sections = {name: drive_section(spec.node_id, **spec.section)
                          for name, spec in axes.items()}

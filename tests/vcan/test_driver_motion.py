@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import os
+import threading
 import time
 
 import can
@@ -173,3 +175,41 @@ def test_sync_from_send_periodic_drives_the_cycle(can_channel):
         rig.wait(lambda: abs(rig.sims["az"].position - (base + 0.2)) < 1e-6, what="moved")
         stats = rig.system.cycle.stats()
         assert stats.cycles > 10 and rig.status("az").fault is None
+
+
+def _realtime_allowed() -> bool:
+    """Whether this process may give a thread SCHED_FIFO (probed in a throw-away thread)."""
+    result = []
+
+    def probe():
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+            result.append(True)
+        except (OSError, AttributeError):
+            result.append(False)
+
+    t = threading.Thread(target=probe)
+    t.start()
+    t.join()
+    return result[0]
+
+
+@pytest.mark.parametrize("priority", [10, 100])
+def test_realtime_priority_is_taken_when_allowed_and_the_cycle_runs_either_way(can_channel, priority):
+    """can.realtime_priority: the runner thread gets SCHED_FIFO when the system allows it
+    (CAP_SYS_NICE, LimitRTPRIO) and runs normally — saying so — when it does not (100: a
+    priority no Linux accepts, as the hardware file's range check is bypassed here)."""
+    allowed = priority <= 99 and _realtime_allowed()
+    with Rig(can_channel, {"az": AxisSpec(1)}, realtime_priority=priority) as rig:
+        assert rig.boot_and_start() == {}
+        rig.enable("az")
+        base = rig.status("az").position
+        rig.cycle_hooks.append(lambda cycle: rig.drive("az").set_setpoint(base + 0.1))
+        rig.wait(lambda: abs(rig.sims["az"].position - (base + 0.1)) < 1e-6, what="moved")
+        source = rig.system.cycle
+        assert source.realtime is allowed
+        if allowed:
+            assert os.sched_getscheduler(source._thread.native_id) == os.SCHED_FIFO
+            assert os.sched_getparam(source._thread.native_id).sched_priority == priority
+        assert source.max_lateness >= max(source.lateness) > -1.0

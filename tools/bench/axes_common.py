@@ -31,15 +31,19 @@ from tcs.config.sections import StateSection  # noqa: E402
 ARCSEC = 3600.0
 
 
-async def start_service(path: Path = DEFAULT_CONFIG, **server) -> tuple[Service, int, tempfile.TemporaryDirectory]:
+async def start_service(path: Path = DEFAULT_CONFIG, *, can: dict | None = None,
+                        **server) -> tuple[Service, int, tempfile.TemporaryDirectory]:
     """The service of hardware file ``path`` on a free port (``server`` overrides other
-    ``[server]`` settings); returns (service, port, state dir)."""
+    ``[server]`` settings, ``can`` ``[can]`` settings); returns (service, port, state dir)."""
     config = load_config(path)
     state = tempfile.TemporaryDirectory(prefix="tcs-bench-")
     changes = dict(server=dataclasses.replace(config.server, **{"port": 0, **server}),
                    state=StateSection(path=state.name))
-    if config.can is not None and config.can.interface == "virtual":
-        changes["can"] = dataclasses.replace(config.can, channel=f"tcs-bench-{uuid.uuid4().hex[:12]}")
+    if config.can is not None:
+        bus = dict(can or {})
+        if config.can.interface == "virtual":
+            bus["channel"] = f"tcs-bench-{uuid.uuid4().hex[:12]}"
+        changes["can"] = dataclasses.replace(config.can, **bus)
     new = dataclasses.replace(config, **changes)
     object.__setattr__(new, "source", config.source)
     service = Service(new)

@@ -14,7 +14,7 @@ slot; ``callback_time``: SYNC to the end of the control loop's work; ``stats()``
 missed cycles): lateness p50/p99/max, loop time p50/p99/max, late and missed counts; and the
 clients' GET latency. The last line is one JSON object with the figures.
 
-    python3 tools/bench/loop_load.py [--clients 100] [--seconds 15]
+    python3 tools/bench/loop_load.py [--clients 100] [--seconds 15] [--realtime-priority 40]
 """
 
 from __future__ import annotations
@@ -25,6 +25,8 @@ import json
 import subprocess
 import sys
 import time
+
+from tcs.app import freeze_heap, thaw_heap
 
 VARIABLES = [f"{ax}.{v}" for ax in ("AZ", "ZD") for v in (
     "REALPOS", "CURRPOS", "TARGETPOS", "TARGETDISTANCE", "MOTION_STATE", "LIMIT_STATE",
@@ -106,10 +108,12 @@ def snapshot(source) -> tuple[int, int, object]:
     return len(source.lateness), len(source.callback_time), source.stats()
 
 
-async def main(clients: int, seconds: float, rate: float) -> dict:
+async def main(clients: int, seconds: float, rate: float, realtime_priority: int = 0) -> dict:
     from axes_common import Client, power_and_reference, start_service
 
-    service, port, state = await start_service(max_connections=clients + 16)
+    service, port, state = await start_service(max_connections=clients + 16,
+                                               can={"realtime_priority": realtime_priority})
+    freeze_heap()  # as tcs-server does once it serves
     child = None
     try:
         c = await Client.connect(port)
@@ -131,6 +135,7 @@ async def main(clients: int, seconds: float, rate: float) -> dict:
         await c.until("ZD.MOTION_STATE", lambda v: int(v) & 2)
         await asyncio.sleep(2.0)
         source = service.telescope.can.cycle
+        realtime = source.realtime
 
         print(f"baseline: {seconds:g} s without load …", flush=True)
         a = snapshot(source)
@@ -161,6 +166,7 @@ async def main(clients: int, seconds: float, rate: float) -> dict:
             child.kill()
             await child.wait()
         await service.stop()
+        thaw_heap()
         state.cleanup()
     for name, w in (("baseline", baseline), ("load", loaded)):
         print(f"{name:8s} {w['cycles']:5d} cycles  late {w['late']}  missed {w['missed']}  "
@@ -171,7 +177,9 @@ async def main(clients: int, seconds: float, rate: float) -> dict:
     print(f"clients: {cl['gets']} GETs ({cl['gets_per_s']:.0f}/s), latency p50 "
           f"{cl['latency_ms']['p50']:.2f} p99 {cl['latency_ms']['p99']:.2f} max {cl['latency_ms']['max']:.2f} ms")
     print(f"trajectories still running at the end: {all(int(m) & 2 for m in following)}")
+    print(f"control loop real-time priority: {realtime_priority if realtime else 'no'}")
     return {"baseline": baseline, "load": loaded, "clients": cl, "n_clients": clients,
+            "realtime_priority": realtime_priority if realtime else 0,
             "variables": len(VARIABLES), "rate_hz": rate, "seconds": seconds}
 
 
@@ -180,10 +188,12 @@ if __name__ == "__main__":
     ap.add_argument("--clients", type=int, default=100)
     ap.add_argument("--seconds", type=float, default=15.0)
     ap.add_argument("--rate", type=float, default=10.0, help="GETs per second per client")
+    ap.add_argument("--realtime-priority", type=int, default=0,
+                    help="can.realtime_priority for the control loop (0: normal scheduling)")
     ap.add_argument("--serve-load", type=int, metavar="PORT", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.serve_load:
         asyncio.run(load(args.serve_load, args.clients, args.seconds, args.rate))
     else:
-        result = asyncio.run(main(args.clients, args.seconds, args.rate))
+        result = asyncio.run(main(args.clients, args.seconds, args.rate, args.realtime_priority))
         print(json.dumps(result))
