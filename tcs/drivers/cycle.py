@@ -28,7 +28,8 @@ barrier, runs the callbacks. No SYNC counter byte is sent.
 
 Threads: the runner is one dedicated thread (``tcs-cycle``), optionally with a real-time
 priority (``realtime_priority``: SCHED_FIFO, so other processes cannot delay its wake-ups; the
-GIL is still shared with the rest of the process); callbacks run in it and must not block. ``add_callback``/``expect_tpdos`` are for set-up before :meth:`start` (they are
+GIL is still shared with the rest of the process); callbacks run in it and must not block.
+``add_callback``/``expect_tpdos`` are for set-up before :meth:`start` (they are
 lock-protected, so later is allowed). :meth:`stats` may be read from any thread.
 """
 

@@ -148,7 +148,8 @@ class Cabinet(ModuleHealth):
         self.axes: list[Any] = []
         self.modules: list[Any] = []
         self._members: tuple[Any, ...] = ()  # axes then modules, each once (see attach)
-        self._members_error = 0   # OR of the ModuleHealth members' ERROR_STATE (kept current)
+        self._health_members: tuple[ModuleHealth, ...] = ()  # their ERROR_STATE is pushed here
+        self._members_error = 0   # OR of the _health_members' ERROR_STATE (kept current)
         self._other_members: tuple[Any, ...] = ()  # members that are not ModuleHealth: read each time
         self._members_lock = threading.Lock()
         self.setup = CabinetSetup(config)
@@ -187,19 +188,18 @@ class Cabinet(ModuleHealth):
                 seen.add(id(m))
                 members.append(m)
         self._members = tuple(members)
+        self._health_members = tuple(m for m in members if isinstance(m, ModuleHealth))
         self._other_members = tuple(m for m in members if not isinstance(m, ModuleHealth))
-        for m in members:
-            if isinstance(m, ModuleHealth):
-                m.on_error_state = self._member_error_changed
+        for m in self._health_members:
+            m.on_error_state = self._member_error_changed
         self._member_error_changed()
 
     def _member_error_changed(self) -> None:
         """A member's ERROR_STATE changed (any thread, under that member's lock)."""
         with self._members_lock:
             state = 0
-            for m in self._members:
-                if isinstance(m, ModuleHealth):
-                    state |= m._error_state
+            for m in self._health_members:
+                state |= m.error_state
             self._members_error = state
 
     def _connect_sink(self, module: Any) -> None:
