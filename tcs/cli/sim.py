@@ -16,10 +16,10 @@ import sys
 from tcs.app import freeze_heap, thaw_heap
 from tcs.cli.server import run_until_signalled, setup_logging
 from tcs.config import load_config
-from tcs.config.hwconfig import PACKAGE_ROOT
+from tcs.resources import hwconfig_file
 from tcs.errors import ConfigErrors
 
-DEFAULT = PACKAGE_ROOT / "hwconfig" / "sim-remote.toml"
+DEFAULT = hwconfig_file("sim-remote.toml")
 
 
 def main(argv=None) -> int:

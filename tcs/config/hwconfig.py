@@ -28,9 +28,12 @@ from tcs.config.sections import (CabinetSection, MountSection, ServerSection, Si
                                  StateSection, TimeSection, UserSection)
 from tcs.config.axes import AxisSection, SimulationSection, check_axes
 from tcs.errors import ConfigError, ConfigErrors
+from tcs.resources import hwconfig_file
 
+#: The source tree (tests and tools find ``hwconfig/`` there); installed code uses DEFAULT_CONFIG.
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent.parent
-DEFAULT_CONFIG = PACKAGE_ROOT / "hwconfig" / "sim.toml"
+#: The simulated telescope, shipped as package data (:mod:`tcs.resources`).
+DEFAULT_CONFIG = hwconfig_file("sim.toml")
 
 
 @dataclass(frozen=True)

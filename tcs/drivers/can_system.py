@@ -35,11 +35,12 @@ from tcs.drivers.cia402_drive import Cia402Drive
 from tcs.drivers.cycle import Cycle, CycleSource
 from tcs.drivers.worker import SdoWorker
 from tcs.errors import ConfigError, TcsError
+from tcs.resources import hwconfig_file
 
 log = logging.getLogger(__name__)
 
 PACKAGE_ROOT = Path(__file__).resolve().parents[2]
-SIM_EDS = PACKAGE_ROOT / "hwconfig" / "eds" / "tcs-sim-drive.eds"
+SIM_EDS = hwconfig_file("eds/tcs-sim-drive.eds")  # package data (tcs.resources)
 
 
 class CanDrives:

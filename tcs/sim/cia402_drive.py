@@ -57,6 +57,7 @@ from tcs.sim.drive_logic import (
     DriveLogic,
     error_register_bits,
 )
+from tcs.resources import hwconfig_file
 from tcs.sim.drive_params import SimDriveParams
 from tcs.sim.object_store import ABORT_STORE, ObjectStore
 from tcs.sim.pdo import PdoEngine
@@ -66,7 +67,7 @@ __all__ = ["DEFAULT_EDS", "FAULT_CODES", "SimDrive", "SimDriveParams"]
 
 log = logging.getLogger(__name__)
 
-DEFAULT_EDS = Path(__file__).resolve().parents[2] / "hwconfig" / "eds" / "tcs-sim-drive.eds"
+DEFAULT_EDS = hwconfig_file("eds/tcs-sim-drive.eds")  # package data (tcs.resources)
 
 #: Names accepted by :meth:`SimDrive.inject_fault` and the EMCY code each raises.
 FAULT_CODES: dict[str, int] = {

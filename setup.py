@@ -1,0 +1,11 @@
+"""Build glue that pyproject.toml cannot say: ``hwconfig/`` (kept at the top of the source tree)
+is installed as the package ``tcs_hwconfig`` so that the shipped hardware files and EDS are
+package data (found by ``tcs.resources``), in a wheel and in an editable install alike."""
+
+from setuptools import find_packages, setup
+
+setup(
+    packages=find_packages(include=["tcs", "tcs.*"]) + ["tcs_hwconfig"],
+    package_dir={"tcs_hwconfig": "hwconfig"},
+    package_data={"tcs_hwconfig": ["*.toml", "eds/*.eds"]},
+)
