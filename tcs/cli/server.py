@@ -3,7 +3,10 @@
 No arguments: the simulated telescope of ``hwconfig/sim.toml`` on 127.0.0.1:65432.
 ``--config FILE`` runs whatever the file describes; ``--host``/``--port`` override the file.
 Logs go to stderr as ``LEVEL name: message`` (journald adds the time). A bad hardware file is
-reported key by key and the exit status is 2. SIGINT and SIGTERM stop cleanly (status 0).
+reported key by key and the exit status is 2 — also a valid file that cannot run a service: no
+``[[users]]``, or a real telescope without ``[site]``. ``--check-config FILE`` does only that
+validation (and that the EDS files exist), touching no hardware: status 0 or 2. SIGINT and
+SIGTERM stop cleanly (status 0).
 """
 
 from __future__ import annotations
@@ -14,8 +17,9 @@ import logging
 import signal
 import sys
 
-from tcs.config import DEFAULT_CONFIG, load_config
-from tcs.errors import ConfigErrors
+from tcs import __version__
+from tcs.config import DEFAULT_CONFIG, HwConfig, load_config
+from tcs.errors import ConfigError, ConfigErrors
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -24,7 +28,25 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--host", help="bind address (overrides [server] host)")
     p.add_argument("--port", type=int, help="TCP port (overrides [server] port)")
     p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    p.add_argument("--check-config", metavar="FILE",
+                   help="validate FILE as a service's hardware file and exit (0 valid, 2 not); "
+                        "no hardware is touched")
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     return p.parse_args(argv)
+
+
+def service_config(path: str) -> HwConfig:
+    """The hardware file at ``path`` checked for running the service: valid, with users, with
+    ``[site]`` on a real telescope, and with its EDS files present. Raises ConfigErrors."""
+    config = load_config(path)
+    problems = config.service_problems()
+    for name, drive in config.drives.items():
+        if drive.eds and not config.resolve(drive.eds).is_file():
+            problems.append(ConfigError(str(config.source), f"drives.{name}.eds",
+                                        f"EDS file {config.resolve(drive.eds)} not found"))
+    if problems:
+        raise ConfigErrors(problems)
+    return config
 
 
 def setup_logging(level: str) -> None:
@@ -37,10 +59,13 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     setup_logging(args.log_level)
     try:
-        config = load_config(args.config)
+        config = service_config(args.check_config or args.config)
     except ConfigErrors as exc:
         print(f"tcs-server: the hardware file is not valid:\n{exc}", file=sys.stderr)
         return 2
+    if args.check_config:
+        print(f"{config.source}: valid", file=sys.stderr)
+        return 0
     from tcs.app import Service, serve_until_signalled
 
     return run_until_signalled("tcs-server", lambda stop: serve_until_signalled(

@@ -59,6 +59,9 @@ class HwConfig:
     interlocks: InterlockSection | None = setting(None, doc="weather interlock of dome and covers (tcs.config.modules)")
     # Set by load_config, not by the file.
     source: Path = field(default=Path("<memory>"), init=False, compare=False)
+    #: The top-level tables and keys the file itself wrote (a section left to its defaults is
+    #: not in here).
+    written: frozenset[str] = field(default=frozenset(), init=False, compare=False)
 
     def check(self):
         problems = []
@@ -72,6 +75,29 @@ class HwConfig:
         problems.extend(check_can_drives(self.can, self.drives))
         problems.extend(check_axes(self))
         problems.extend(check_modules(self))
+        return problems
+
+    @property
+    def simulated(self) -> bool:
+        """Whether the file describes a simulated telescope (some of its hardware is simulated:
+        ``[simulation]`` drives, python-can's virtual bus, ``sim`` tables of PLCs or GPS)."""
+        return (self.simulation is not None
+                or (self.can is not None and self.can.interface == "virtual")
+                or any(plc.sim is not None for plc in self.plcs.values())
+                or (self.gps is not None and getattr(self.gps, "sim", None) is not None))
+
+    def service_problems(self) -> list[ConfigError]:
+        """What keeps this (valid) file from running a service: no user could log in, or a real
+        telescope without its ``[site]`` (which would silently mean 0°, 0°, 0 m). The tools
+        (``tcs-commission``, tests) do not need either; ``tcs-server`` refuses to start."""
+        file = str(self.source)
+        problems = []
+        if not self.users:
+            problems.append(ConfigError(file, "users", "no [[users]]: nobody could log in; make one "
+                                        "with `tcs-passwd NAME` and paste its [[users]] table here"))
+        if "site" not in self.written and not self.simulated:
+            problems.append(ConfigError(file, "site", "missing: a real telescope needs its [site] "
+                                        "latitude, longitude and height"))
         return problems
 
     @property
@@ -103,6 +129,7 @@ def parse_config(text: str, file: str = "<memory>") -> HwConfig:
     if errors:
         raise ConfigErrors(errors)
     object.__setattr__(config, "source", Path(file).resolve() if file != "<memory>" else Path(file))
+    object.__setattr__(config, "written", frozenset(data))
     return config
 
 

@@ -266,6 +266,7 @@ class Session(asyncio.Protocol):
             user = await self.server.authenticate(msg.user, msg.password)
             if user is None:
                 self._auth_failures += 1
+                log.warning("connection %d (%s): failed login as %r", self.id, self.address, msg.user)
                 await asyncio.sleep(self.server.settings.auth_fail_delay)
                 self.send(m.AuthFailed())
                 if self._auth_failures >= self.server.settings.auth_max_failures:
