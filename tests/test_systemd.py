@@ -1,16 +1,26 @@
 """``tcs-server`` under systemd's notify protocol, with a fake ``NOTIFY_SOCKET``: READY once it
-serves, WATCHDOG from the healthy control loop, STATUS lines, STOPPING on SIGTERM."""
+serves, WATCHDOG from the healthy control loop, STATUS lines, STOPPING on SIGTERM. The shipped
+units pass ``systemd-analyze verify`` and the hardened service scores ≤ 3.0 in ``systemd-analyze
+security`` (skipped where systemd-analyze is missing), and ``tools/systemd/install.sh`` run twice
+(into a ``DESTDIR``) upgrades in place without touching the hardware file."""
 
 from __future__ import annotations
 
 import os
+import re
+import shutil
 import signal
 import socket
 import subprocess
 import sys
 import time
+from pathlib import Path
+
+import pytest
 
 from test_cli_server import connect, free_port
+
+SYSTEMD = Path(__file__).resolve().parent.parent / "tools" / "systemd"
 
 
 def receive_all(sock: socket.socket, until: str, timeout: float = 60.0) -> list[str]:
@@ -54,3 +64,71 @@ def test_notify_sequence_and_watchdog(tmp_path):
             proc.kill()
         proc.communicate()
         sock.close()
+
+
+def unit_copy(tmp_path, name: str) -> Path:
+    """The shipped unit with an ExecStart that exists here (verify checks the binary)."""
+    text = (SYSTEMD / name).read_text().replace("/opt/tcs/venv/bin/tcs-server", "/bin/true")
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_unit_settings():
+    text = (SYSTEMD / "tcs-server.service").read_text()
+    settings = [line for line in text.splitlines() if line and not line.startswith("#")]
+    assert "RestartPreventExitStatus=2" in settings      # a bad hardware file: no restart loop
+    assert not any(s.startswith(("ReadWritePaths=", "LimitMEMLOCK=", "RestrictRealtime="))
+                   for s in settings)
+    families = next(s for s in settings if s.startswith("RestrictAddressFamilies="))
+    assert {"AF_CAN", "AF_INET", "AF_INET6", "AF_UNIX"} <= set(families.split("=")[1].split())
+    assert "LimitRTPRIO=50" in settings and "SupplementaryGroups=dialout" in settings
+    assert "DeviceAllow=char-ttyUSB rw" in settings
+
+
+@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze not installed")
+def test_units_verify_and_the_service_is_hardened(tmp_path):
+    server = unit_copy(tmp_path, "tcs-server.service")
+    unit_copy(tmp_path, "tcs-can@.service")
+    for unit in (str(server), "tcs-can@can0.service"):
+        verify = subprocess.run(["systemd-analyze", "verify", unit], cwd=tmp_path,
+                                capture_output=True, text=True, timeout=60)
+        assert verify.returncode == 0, verify.stdout + verify.stderr
+        assert "tcs" not in verify.stderr, verify.stderr  # no warning about our units
+    security = subprocess.run(["systemd-analyze", "security", "--offline=true", "--no-pager",
+                               str(server)], capture_output=True, text=True, timeout=60)
+    m = re.search(r"Overall exposure level for tcs-server.service: ([0-9.]+)", security.stdout)
+    assert m, security.stdout + security.stderr
+    assert float(m.group(1)) <= 3.0, security.stdout
+
+
+def test_install_is_idempotent_and_keeps_the_hardware_file(tmp_path):
+    root = tmp_path / "root"
+    env = dict(os.environ, DESTDIR=str(root), TCS_VENV_OPTIONS="--system-site-packages")
+    env.pop("VIRTUAL_ENV", None)
+    install = [str(SYSTEMD / "install.sh")]
+    first = subprocess.run(install, env=env, capture_output=True, text=True, timeout=300)
+    assert first.returncode == 0, first.stdout + first.stderr
+    hwfile = root / "etc" / "tcs" / "tcs.toml"
+    assert "installed tcs 0.1.0" in first.stdout and f"installed {hwfile}" in first.stdout
+    # the real-cabinet template, not sim.toml and its public admin: no user, refused until tcs-passwd
+    text = hwfile.read_text()
+    assert "[[users]]\n" not in text and "admin" not in text
+    assert oct(hwfile.stat().st_mode & 0o777) == "0o640"
+    assert "users: no [[users]]" in first.stderr and "tcs-passwd" in first.stdout
+    units = root / "etc" / "systemd" / "system"
+    assert (units / "tcs-server.service").is_file() and (units / "tcs-can@.service").is_file()
+    assert "After=tcs-can@can0.service" in (units / "tcs-server.service.d" / "can.conf").read_text()
+    assert "BITRATE=1000000" in (root / "etc" / "tcs" / "can-can0.env").read_text()
+    # the operator edits the file; an older install had copied hwconfig/ into the prefix
+    hwfile.write_text(text + "\n# edited by the operator\n")
+    (root / "opt" / "tcs" / "hwconfig" / "hwconfig").mkdir(parents=True)
+    second = subprocess.run(install, env=env, capture_output=True, text=True, timeout=300)
+    assert second.returncode == 0, second.stdout + second.stderr
+    assert f"kept {hwfile}" in second.stdout
+    assert hwfile.read_text().endswith("# edited by the operator\n")
+    assert "removed" in second.stdout and not (root / "opt" / "tcs" / "hwconfig").exists()
+    assert f"unchanged {units / 'tcs-server.service'}" in second.stdout
+    third = subprocess.run(install, env=env, capture_output=True, text=True, timeout=300)
+    assert "nothing changed" in third.stdout, third.stdout
+    assert "systemctl stop tcs-server" in third.stdout

@@ -10,14 +10,20 @@ import argparse
 import getpass
 import sys
 
+from tcs import __version__
 from tcs.config.passwords import hash_password
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="tcs-passwd", description=__doc__.splitlines()[0])
     p.add_argument("name", nargs="?", default="observer", help="user name for the printed block")
-    p.add_argument("--rlevel", type=int, default=3)
-    p.add_argument("--wlevel", type=int, default=3)
+    p.add_argument("--rlevel", type=int, default=3,
+                   help="read level of the user: lower is more privileged; 0 reads everything, "
+                        "9 the minimum (default: %(default)s)")
+    p.add_argument("--wlevel", type=int, default=3,
+                   help="write level: 0 everything, 1 configuration (LOCAL site, CONFIG), "
+                        "3 operation (axes, dome, pointing) (default: %(default)s)")
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     args = p.parse_args(argv)
     if sys.stdin.isatty():
         password = getpass.getpass("password: ")

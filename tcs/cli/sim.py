@@ -16,6 +16,7 @@ import sys
 from tcs.app import freeze_heap, thaw_heap
 from tcs.cli.server import run_until_signalled, setup_logging
 from tcs.config import load_config
+from tcs import __version__
 from tcs.resources import hwconfig_file
 from tcs.errors import ConfigErrors
 
@@ -27,6 +28,7 @@ def main(argv=None) -> int:
     p.add_argument("--config", default=str(DEFAULT), help="hardware file (default: %(default)s)")
     p.add_argument("--can-port", type=int, help="socketcand port (overrides [can] port; 0 = any)")
     p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     args = p.parse_args(argv)
     setup_logging(args.log_level)
     try:
