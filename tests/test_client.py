@@ -1,0 +1,145 @@
+"""``tcs-client`` drives a whole observing session against the real service (in this process,
+its own event-loop thread, ``tests/hw_pointing.toml``: fast axes): power, referencing, a slew,
+a refused target, tracking, stop, park and power off — each step a separate ``tcs-client``
+process, as an operator's script would run it. Plus login options, ``tree`` and ``watch``."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from support.live import LiveService
+
+CONFIG = Path(__file__).with_name("hw_pointing.toml")
+WAIT = 120.0
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory):
+    svc = LiveService(CONFIG, tmp_path_factory.mktemp("client-state")).start()
+    try:
+        # one login first: the service's password-check thread then exists before the tests
+        warm = client({**os.environ, "TCS_PORT": str(svc.port), "TCS_USER": "admin"},
+                      "get", "CONFIG.MOUNT", "--password-file", "-", stdin="admin\n")
+        assert warm.returncode == 0, warm.stderr
+        yield svc
+    finally:
+        svc.stop()
+
+
+@pytest.fixture
+def env(live, tmp_path) -> dict:
+    password = tmp_path / "password"
+    password.write_text("admin\n")
+    env = dict(os.environ, TCS_HOST="127.0.0.1", TCS_PORT=str(live.port), TCS_USER="admin",
+               TCS_PASSWORD_FILE=str(password))
+    return env
+
+
+def client(env, *args, timeout=WAIT, stdin=None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "tcs.cli.client", *map(str, args)], env=env,
+                          capture_output=True, text=True, timeout=timeout, input=stdin)
+
+
+def get(env, *names) -> dict:
+    proc = client(env, "get", "--json", *names)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout)
+
+
+def until(env, name, check, timeout=WAIT):
+    deadline = time.monotonic() + timeout
+    while True:
+        value = get(env, name)[name]
+        if check(value):
+            return value
+        assert time.monotonic() < deadline, f"{name} stayed {value!r}"
+        time.sleep(0.3)
+
+
+def test_a_complete_session(env):
+    assert get(env, "CONFIG.MOUNT") == {"CONFIG.MOUNT": "AZ-ZD"}
+    power = client(env, "set", "CABINET.POWER=1")
+    assert power.returncode == 0, power.stderr
+    assert "CABINET.POWER=1: done" in power.stderr
+    assert client(env, "set", "CABINET.REINIT=1").returncode == 0
+    until(env, "CABINET.REFERENCED", lambda v: v == 1.0)
+
+    # a slew: waits for the arrival, progress lines while not a terminal, exit 0
+    slew = client(env, "set", "AZ.TARGETPOS=40", "ZD.TARGETPOS=35", "--progress-interval", "0.5")
+    assert slew.returncode == 0, slew.stderr
+    assert "AZ.TARGETPOS=40;ZD.TARGETPOS=35: done" in slew.stderr
+    pos = get(env, "AZ.REALPOS", "ZD.REALPOS")
+    assert pos["AZ.REALPOS"] == pytest.approx(40, abs=0.01)
+    assert pos["ZD.REALPOS"] == pytest.approx(35, abs=0.01)
+
+    # a refused target: exit 1 and why
+    refused = client(env, "set", "ZD.TARGETPOS=100")
+    assert refused.returncode == 1
+    assert "ZD.TARGETPOS: RANGE" in refused.stderr
+
+    # tracking the place the telescope points at (above the altitude limit by construction)
+    here = get(env, "POINTING.CURRENT.RA", "POINTING.CURRENT.DEC")
+    target = client(env, "set", f"POINTING.TARGET.RA={here['POINTING.CURRENT.RA']}",
+                    f"POINTING.TARGET.DEC={here['POINTING.CURRENT.DEC']}")
+    assert target.returncode == 0, target.stderr
+    track = client(env, "set", "POINTING.TRACK=1", "--no-wait")
+    assert track.returncode == 0, track.stderr
+    assert "started" in track.stderr
+    assert get(env, "POINTING.TRACK") == {"POINTING.TRACK": 1}
+    watch = client(env, "watch", "--count", "1", "POINTING.TARGETDISTANCE")
+    assert watch.returncode == 0, watch.stderr
+    status = watch.stdout.strip().splitlines()[-1]
+    assert "power 1.00 ref 1.00" in status and "track 1" in status and "errors none" in status
+    assert "AZ " in status and "ZD " in status and "POINTING.TARGETDISTANCE=" in status
+    stop_tracking = client(env, "set", "POINTING.TRACK=0")
+    assert stop_tracking.returncode == 0, stop_tracking.stderr
+    until(env, "POINTING.TRACK", lambda v: v == 0)
+
+    # stop, park, power off
+    stop = client(env, "set", "AZ.STOP=1", "ZD.STOP=1")
+    assert stop.returncode == 0, stop.stderr
+    park = client(env, "set", "AZ.TARGETPOS=0", "ZD.TARGETPOS=0")
+    assert park.returncode == 0, park.stderr
+    off = client(env, "set", "CABINET.POWER=0")
+    assert off.returncode == 0, off.stderr
+    assert get(env, "CABINET.POWER_STATE") == {"CABINET.POWER_STATE": 0.0}
+
+
+def test_login_options_and_failures(env, live, tmp_path):
+    # options win over the environment; the password from standard input
+    bare = {k: v for k, v in env.items() if not k.startswith("TCS_")}
+    ok = client(bare, "get", "CONFIG.MOUNT", "--port", live.port, "--user", "admin",
+                "--password-file", "-", stdin="admin\n")
+    assert ok.returncode == 0 and ok.stdout == "CONFIG.MOUNT=AZ-ZD\n", ok.stderr
+    wrong = tmp_path / "wrong"
+    wrong.write_text("nope\n")
+    refused = client(env, "get", "CONFIG.MOUNT", "--password-file", wrong)
+    assert refused.returncode == 3 and "login as 'admin' refused" in refused.stderr
+    closed = client(env, "get", "CONFIG.MOUNT", "--port", "1")
+    assert closed.returncode == 3 and "cannot connect" in closed.stderr
+    unknown = client(env, "get", "CONFIG.MOUNT", "NOPE.X", "--value-only")
+    assert unknown.returncode == 1 and unknown.stdout == "AZ-ZD\n" and "NOPE.X: UNKNOWN" in unknown.stderr
+    usage = client(env, "set", "AZ.TARGETPOS")
+    assert usage.returncode == 2 and "not an assignment" in usage.stderr
+    for proc in (ok, refused, closed, unknown, usage):
+        assert "Traceback" not in proc.stderr
+
+
+def test_tree_lists_objects_with_properties(env):
+    proc = client(env, "tree", "POINTING.TARGET", "--json")
+    assert proc.returncode == 0, proc.stderr
+    objects = {o["name"]: o for o in json.loads(proc.stdout)}
+    ra = objects["POINTING.TARGET.RA"]
+    assert ra["type"] == 2 and ra["wlevel"] == 3 and "info" in ra
+    text = client(env, "tree", "AZ")
+    assert text.returncode == 0
+    assert any(line.startswith("AZ.TRAJECTORY.BUFFER ") and "module array[" in line
+               for line in text.stdout.splitlines()), text.stdout
+    assert "AZ.TRAJECTORY.BUFFER[0].TIME" in text.stdout
