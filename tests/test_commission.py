@@ -450,7 +450,13 @@ async def test_refuses_a_bus_with_another_master_over_socketcand(hw, capsys):
                                               "--nodes", "1-3"])
         out = json.loads(capsys.readouterr().out)
         assert code == 3 and "another master is active (SYNC frames" in out["error"]
-        assert "stop the service" in out["error"]
+        assert "stop the service (systemctl stop tcs-server)" in out["error"]
+        # --force goes on beside the running master and still finds every drive
+        code = await asyncio.to_thread(main, ["scan", "--config", str(remote), "--json",
+                                              "--nodes", "1-6", "--force"])
+        out = json.loads(capsys.readouterr().out)
+        assert code == 0, out
+        assert [n["drive"] for n in out["nodes"]] == ["az", "zd", "focus"]
         sync.stop()
         code = await asyncio.to_thread(main, ["scan", "--config", str(remote), "--json",
                                               "--nodes", "1-6"])

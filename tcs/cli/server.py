@@ -19,7 +19,7 @@ import sys
 
 from tcs import __version__
 from tcs.config import DEFAULT_CONFIG, HwConfig, load_config
-from tcs.errors import ConfigError, ConfigErrors
+from tcs.errors import ConfigError, ConfigErrors, TcsError
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -74,7 +74,8 @@ def main(argv=None) -> int:
 
 def run_until_signalled(prog: str, main_coro) -> int:
     """Run ``main_coro(stop_event)`` with SIGINT/SIGTERM setting the event; exit status 0, or 1
-    with a one-line message when the operating system refuses (port in use …)."""
+    with a one-line message when the operating system refuses (port in use …) or the hardware
+    cannot be reached at start (the CAN bus: no traceback)."""
 
     async def run() -> None:
         stop = asyncio.Event()
@@ -87,6 +88,9 @@ def run_until_signalled(prog: str, main_coro) -> int:
         asyncio.run(run())
     except OSError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
+        return 1
+    except TcsError as exc:
+        print(f"{prog}: cannot start: {exc.message}", file=sys.stderr)
         return 1
     return 0
 

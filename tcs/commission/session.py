@@ -158,13 +158,19 @@ class DriveSession:
             self.system.open()
         except CommunicationError as exc:
             raise CommissionError(f"{exc.message} (is the CAN interface up?)", ExitCode.HARDWARE) from exc
-        if self.check_bus and self.config.can.interface != "virtual":
+        if self.config.can.interface != "virtual":
+            # Listening also lets the link settle: with --force the first frame heard proves
+            # that this connection receives (a socketcand gateway delivers only after rawmode
+            # settled; a probe sent at once would have its answers lost).
             busy = other_master(self.system.bus.network, self.config.can.node_id, self.listen)
-            if busy:
+            if busy and self.check_bus:
                 raise CommissionError(
                     f"{self.system.bus.name}: another master is active ({busy}): stop the "
-                    "service (systemctl stop tcs) before commissioning, or pass --force",
+                    "service (systemctl stop tcs-server) before commissioning, or pass --force",
                     ExitCode.HARDWARE)
+            if busy:
+                log.warning("%s: another master is active (%s); going on (--force)",
+                            self.system.bus.name, busy)
 
     @property
     def network(self):

@@ -27,6 +27,7 @@ log = logging.getLogger(__name__)
 
 ERROR, WARN, INFO, DEBUG = "ERROR", "WARN", "INFO", "DEBUG"
 LEVEL_BITS = {ERROR: 1, WARN: 2, INFO: 4, DEBUG: 8}
+ERRORCHANGE = 15  # tcs.errors.ErrorNumber.ERRORCHANGE
 
 #: (connection id, command id) of the command being executed, or None.
 current_cause: contextvars.ContextVar[tuple[int, int] | None] = contextvars.ContextVar(
@@ -61,10 +62,16 @@ class EventHub:
         return lambda: self._subscribers.remove(callback) if callback in self._subscribers else None
 
     def emit(self, level: str, source: str, number: int, text: str = "",
-             cause: tuple[int, int] | None = None) -> None:
-        """Announce an event; ``cause`` defaults to the command being executed."""
+             cause: tuple[int, int] | None = None, *, quiet: bool = False) -> None:
+        """Announce an event; ``cause`` defaults to the command being executed.
+
+        ERROR and WARN events are logged as warnings, except ERRORCHANGE (15: it follows an
+        event or a log line of its cause) and ``quiet`` ones (their cause was logged once
+        already, e.g. a lost PLC by its driver, however many modules it serves).
+        """
         event = Event(level, source, int(number), text, cause if cause is not None else current_cause.get())
-        log.log(logging.WARNING if level in (ERROR, WARN) else logging.INFO,
+        loud = level in (ERROR, WARN) and not quiet and event.number != ERRORCHANGE
+        log.log(logging.WARNING if loud else logging.INFO,
                 "event %s %s:%d %s", level, source, event.number, text)
         loop = self._loop
         if loop is not None and threading.get_ident() != self._loop_thread:

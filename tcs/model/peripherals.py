@@ -134,7 +134,8 @@ class Peripherals:
         results = await asyncio.gather(*waits.values(), return_exceptions=True)
         for name, result in zip(waits, results):
             if isinstance(result, BaseException):
-                log.warning("PLC %s is not reachable at start: %s", name, result)
+                # info: the driver has warned once already ("PLC x: lost")
+                log.info("PLC %s is not reachable at start: %s", name, result)
 
     def _build(self) -> None:
         config = self.config

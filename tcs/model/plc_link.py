@@ -76,7 +76,8 @@ class PlcModule(ModuleHealth):
             number = event.number or ErrorNumber.NOCON
             text = f"PLC {event.plc}: {event.message}"
             self.raise_condition(condition, ERROR_BIT, text)
-            self.emit(ERROR, number, text)
+            if self._events is not None:  # the driver logged the loss once for all modules
+                self._events.emit(ERROR, self.module_name, number, text, quiet=True)
         self.on_link(event)
 
     def on_link(self, event: PlcConnectionEvent) -> None:
