@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 from tcs.commission.cli import main
+from tcs.commission.common import resolve_target
 from tcs.commission.limits import SwitchWatch, propose
 from tcs.commission.pointing import _spread
 from tcs.commission.progress import ProgressBar
@@ -360,7 +361,7 @@ def test_pointing_guided_run_reads_the_operator(hw, capsys, tmp_path, monkeypatc
     answers = "".join(f"{float(az[k]) + 0.01!r} {float(zd[k]) - 0.005!r}\n" for k in order[1:])
     monkeypatch.setattr(sys, "stdin", io.StringIO("s\n" + answers))
     code, out = run(capsys, "pointing", "--config", hw, "--guided", stars, "--count", "6",
-                    "--terms", "IA,IE", "--out", tmp_path / "g", "--no-plots")
+                    "--terms", "IA", "--out", tmp_path / "g", "--no-plots")  # 5 samples: 1 term
     assert code == 0, out
     assert out["n_samples"] == 5
     assert (tmp_path / "g" / "samples.dump").read_text().count("\n") == 6 + 5
@@ -482,3 +483,78 @@ def test_progress_bar_draws_one_line():
     quiet = io.StringIO()
     ProgressBar(stream=quiet).update("az", 0.5)   # not a terminal: draws nothing
     assert quiet.getvalue() == ""
+
+
+# ------------------------------------------------------------------ command-line fixes
+def test_too_few_pointing_samples_refused_unless_forced(hw, capsys, tmp_path):
+    # 6 samples for the 8 alt-az terms: a fit that follows the noise
+    code, out = run(capsys, "pointing", "--config", hw, "--synthetic", "6", "--no-plots",
+                    "--out", tmp_path / "refused")
+    assert code == 1
+    assert "too few samples: 6 for 8 terms" in out["error"] and "--force" in out["error"]
+    assert not (tmp_path / "refused").exists()
+    code, out = run(capsys, "pointing", "--config", hw, "--synthetic", "6", "--no-plots",
+                    "--out", tmp_path / "forced", "--force")
+    assert code == 0, out
+    assert any("not trustworthy" in w for w in out["warnings"])
+    assert "> **Warning:** only 6 samples for 8 fitted terms" in (tmp_path / "forced" / "report.md").read_text()
+    # enough samples for fewer terms: no refusal, no sample warning
+    code, out = run(capsys, "pointing", "--config", hw, "--synthetic", "9", "--no-plots",
+                    "--terms", "IA,IE,CA", "--out", tmp_path / "few-terms")
+    assert code == 0, out
+    assert not any("not trustworthy" in w for w in out["warnings"])
+
+
+def test_strong_correlations_are_warned_about():
+    from tcs.commission.pointing_report import warnings_of
+
+    info = {"n_samples": 40, "correlation": {"terms": ["IA", "CA"]},
+            "strong_correlations": [{"terms": ["IA", "CA"], "r": 0.97}]}
+    [warning] = warnings_of(info)
+    assert "strongly correlated terms" in warning and "IA/CA (+0.970)" in warning
+
+
+def test_axis_names_in_any_case_and_negative_distance_before_options(hw, capsys):
+    config = load_config(hw)
+    assert resolve_target(config, "AZ").drive == "az" == resolve_target(config, "Az").drive
+    code, out = run(capsys, "jog", "AZ", "--", "-1.5", "--speed", "10", "--config", hw)
+    assert code == 0, out
+    assert out["drive"] == "az" and out["position"] == pytest.approx(-1.5, abs=0.01)
+    code, out = run(capsys, "home", "ZD", "--config", hw)
+    assert code == 0, out
+
+
+def test_help_is_plain_text_and_every_tool_has_a_version(capsys):
+    for argv in (["--help"], ["jog", "--help"], ["scan", "--help"], ["pointing", "--help"]):
+        assert main(argv) == 0
+        text = capsys.readouterr().out
+        assert "``" not in text and ":mod:" not in text and ":class:" not in text, text
+    assert main(["--version"]) == 0
+    assert capsys.readouterr().out.strip() == "tcs-commission 0.1.0"
+    for tool in ("tcs.cli.server", "tcs.cli.passwd", "tcs.cli.sim", "tcs.cli.client"):
+        proc = subprocess.run([sys.executable, "-m", tool, "--version"], capture_output=True,
+                              text=True, timeout=60)
+        assert proc.returncode == 0 and proc.stdout.strip().endswith(" 0.1.0"), (tool, proc.stderr)
+    proc = subprocess.run([sys.executable, "-m", "tcs.cli.passwd", "--help"], capture_output=True,
+                          text=True, timeout=60)
+    assert "read level" in proc.stdout and "write level" in proc.stdout
+
+
+def test_progress_fits_the_terminal_and_prints_plain_lines_elsewhere():
+    wide = {f"drive{i}": (i / 7, f"{i * 123.456:.3f}") for i in range(7)}
+    tty = io.StringIO()
+    bar = ProgressBar(stream=tty, enabled=True, columns=80)
+    for name, (fraction, text) in wide.items():
+        bar.update(name, fraction, text, force=True)
+    assert len(bar.line()) > 150                           # what did not fit before
+    drawn = tty.getvalue().split("\r")[-1].rstrip()
+    assert 0 < len(drawn) <= 79 and "drive0" in drawn
+    log = io.StringIO()                                    # not a terminal: plain lines
+    plain = ProgressBar(stream=log, plain_every=0.0)
+    plain.update("az", 0.25, "1.000")
+    plain.update("az", 0.5, "2.000")
+    plain.close()
+    lines = log.getvalue().splitlines()
+    assert len(lines) == 3 and "\r" not in log.getvalue()
+    assert lines[0].endswith("az  25% 1.000") and lines[-1].endswith("az  50% 2.000")
+    assert lines[0].startswith("[  0 s]")

@@ -1,7 +1,7 @@
 """``tcs-commission``: commissioning of the drives of one hardware file, and pointing reports.
 
 The tool talks to the drives **directly** through the CANopen driver (:mod:`tcs.drivers`), not
-through a running ``tcs-server``: stop the service first (``systemctl stop tcs``). On a
+through a running ``tcs-server``: stop the service first (``systemctl stop tcs-server``). On a
 ``socketcan`` / ``socketcand`` bus it listens briefly and refuses (exit 3) when it hears
 another master (SYNC frames, or a heartbeat with the TCS's node id); ``--force`` overrides.
 On the in-process ``virtual`` bus nobody else can be there, so nothing is checked.
@@ -22,13 +22,14 @@ Usage::
     common options (after the subcommand): --config FILE (default hwconfig/sim.toml),
     --json, --simulate / --no-simulate, --force, --log-level LEVEL
 
-AXIS is an ``[axes.<name>]`` name or a ``[drives.<name>]`` name. Examples on the simulated
+AXIS is an ``[axes.<name>]`` name or a ``[drives.<name>]`` name, in any case (``AZ`` = ``az``);
+``--version`` prints the version. Examples on the simulated
 telescope (its drives are started in this process)::
 
     tcs-commission scan
     tcs-commission home all                     # ZD/DEC first, then AZ/HA, then the rest
     tcs-commission limits az --speed 2 --write  # find the switches, write min/max
-    tcs-commission jog zd -- -5                 # or: jog zd -5
+    tcs-commission jog zd -- -5 --speed 1       # or: jog zd -5
     tcs-commission pointing --synthetic 60 --out /tmp/pm
     tcs-commission pointing --dump night.dump --fix TX=0 --out /tmp/pm
 
@@ -41,8 +42,9 @@ Subcommands (one module each):
 * ``info AXIS`` (:mod:`~tcs.commission.info`) — the objects the driver configures at boot,
   read back beside the hardware file's values, and the live values. Read-only.
 * ``home AXIS|all`` (:mod:`~tcs.commission.home`) — referencing with the driver's homing
-  handshake and the per-axis time-out of the hardware file, a progress bar on stderr (on a
-  terminal), one result line per drive; ``all`` in the safe order.
+  handshake and the per-axis time-out of the hardware file, progress on stderr (a bar fitted
+  to the terminal's width, or a plain line every 10 s when stderr is no terminal), one result
+  line per drive; ``all`` in the safe order.
 * ``limits AXIS`` (:mod:`~tcs.commission.limits`) — slow CSP moves towards each limit
   switch (the drive faulting with 0x8612 or only showing the input 0x60FD: both handled —
   fault reset, back off), the switch positions, proposed software limits with ``--margin``,

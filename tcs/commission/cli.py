@@ -4,7 +4,9 @@ Every subcommand lives in its own module with ``add_parser(subparsers, parents)`
 ``run(args, config) -> Outcome``; this module parses, loads the hardware file (a bad file is
 listed key by key, exit 2), runs the subcommand and prints its :class:`Outcome` — text on
 stdout (errors on stderr), or one JSON object on stdout with ``--json``. Subcommands never
-print; progress bars go to stderr when it is a terminal. The usage is in the package
+print; progress goes to stderr (a bar on a terminal, a plain line every 10 s elsewhere). Help
+texts come from the modules' docstrings without their RST markup; a ``--`` before a negative
+distance may be followed by options (``jog zd -- -5 --speed 2``). The usage is in the package
 docstring (:mod:`tcs.commission`).
 """
 
@@ -14,9 +16,11 @@ import argparse
 import json
 import logging
 import math
+import re
 import signal
 import sys
 
+from tcs import __version__
 from tcs.commission import home, info, jog, limits, pointing, scan
 from tcs.commission.common import CommissionError, ExitCode, Outcome, exit_code_of
 from tcs.config import DEFAULT_CONFIG, load_config
@@ -41,10 +45,29 @@ def common_options() -> argparse.ArgumentParser:
     sim.add_argument("--no-simulate", dest="simulate", action="store_false",
                      help="never start simulated drives")
     g.add_argument("--force", action="store_true",
-                   help="go on although another master (tcs-server?) is seen on the bus")
+                   help="go on although another master (tcs-server?) is seen on the bus; "
+                        "pointing: fit although there are fewer than 3 samples per term")
     g.add_argument("--log-level", default="ERROR",
                    choices=["DEBUG", "INFO", "WARNING", "ERROR"], help="log to stderr (default ERROR)")
     return p
+
+
+_RST_ROLE = re.compile(r":[a-z]+:`~?([^`]*)`")
+
+
+def plain(text: str) -> str:
+    """Docstring text for a terminal: no RST roles or literal backquotes."""
+    return _RST_ROLE.sub(r"\1", text).replace("``", "")
+
+
+class PlainHelpFormatter(argparse.HelpFormatter):
+    """Help built from the modules' docstrings, without their RST markup."""
+
+    def _format_text(self, text):
+        return super()._format_text(plain(text))
+
+    def _expand_help(self, action):
+        return plain(super()._expand_help(action))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -52,12 +75,35 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG, description="Commission the drives of a hardware file: scan the bus, "
         "reference, find limits, jog, fit a pointing model. Stop tcs-server first.",
         epilog="exit codes: 0 ok, 1 operation failed, 2 usage or configuration error, "
-               "3 hardware not found or not responding")
+               "3 hardware not found or not responding", formatter_class=PlainHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     parents = [common_options()]
     for module in COMMANDS.values():
         module.add_parser(subparsers, parents)
+    for sub in subparsers.choices.values():
+        sub.formatter_class = PlainHelpFormatter
     return parser
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def normalize_argv(argv: list[str]) -> list[str]:
+    """``jog zd -- -5 --speed 2``: a ``--`` only there to protect a negative number is dropped,
+    so options may still follow (argparse reads ``-5`` as a value by itself: no option of
+    tcs-commission looks like a number)."""
+    out = []
+    for i, arg in enumerate(argv):
+        if arg == "--" and i + 1 < len(argv) and _is_number(argv[i + 1]):
+            continue
+        out.append(arg)
+    return out
 
 
 def _clean(value):
@@ -98,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run one subcommand; returns the exit code (see :class:`ExitCode`)."""
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args = parser.parse_args(normalize_argv(list(sys.argv[1:] if argv is None else argv)))
     except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
         return int(exc.code or 0)
     # Log to stderr for the duration of this call only (main() is also called in-process).

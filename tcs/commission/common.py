@@ -119,6 +119,9 @@ def resolve_target(config, name: str) -> Target:
     """
     axes = dict(config.axes)
     drives = dict(config.drives)
+    if name not in axes and name not in drives:  # AZ, Az: names are case-insensitive
+        folded = {n.casefold(): n for n in (*drives, *axes)}  # an axis wins over a drive
+        name = folded.get(name.casefold(), name)
     if name in axes:
         axis = axes[name]
         return Target(axis.drive, drives[axis.drive], name, axis)

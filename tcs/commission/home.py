@@ -107,12 +107,12 @@ def home_group(session: DriveSession, group: list[Target], bar: ProgressBar) -> 
 def run(args, config) -> Outcome:
     out = Outcome("home")
     config, simulate = prepare_config(config, args.simulate)
-    targets = all_targets(config) if args.axis == "all" else [resolve_target(config, args.axis)]
+    targets = all_targets(config) if args.axis.lower() == "all" else [resolve_target(config, args.axis)]
     groups = homing_groups(targets)
     out.data["order"] = [[t.drive for t in g] for g in groups]
     results: list[dict] = []
     out.data["drives"] = results
-    bar = ProgressBar(enabled=None if not args.json else False)
+    bar = ProgressBar()  # stderr: a bar on a terminal, periodic plain lines elsewhere
     with DriveSession(config, simulate=simulate, check_bus=not args.force) as session:
         boot_error: CommissionError | None = None
         try:

@@ -118,7 +118,7 @@ def run(args, config) -> Outcome:
     config, simulate = prepare_config(config, args.simulate)
     lo, hi = software_limits(target)
     name = target.drive
-    bar = ProgressBar(enabled=None if not args.json else False)
+    bar = ProgressBar()  # stderr: a bar on a terminal, periodic plain lines elsewhere
     out.data.update(drive=name, axis=target.axis, distance=args.distance, speed=speed,
                     limits=[lo, hi])
     with DriveSession(config, simulate=simulate, check_bus=not args.force) as session:

@@ -213,7 +213,7 @@ def run(args, config) -> Outcome:
     config, simulate = prepare_config(config, args.simulate)
     name = target.drive
     widened = dataclasses.replace(target.section, min_position=lo, max_position=hi)
-    bar = ProgressBar(enabled=None if not args.json else False)
+    bar = ProgressBar()  # stderr: a bar on a terminal, periodic plain lines elsewhere
     results: list[dict] = []
     out.data.update(drive=name, axis=target.axis, search_range=[lo, hi], speed=speed,
                     margin=margin, backoff=backoff, sides=results, referenced=not args.no_home)

@@ -24,8 +24,13 @@ the mount) with ``--fix TERM=ARCSEC`` held; the report directory ``--out`` (defa
 ``pointing-<UTC time>``) gets :mod:`tcs.commission.pointing_report`'s files, with PNG plots
 unless ``--no-plots`` (they need matplotlib, the ``commission`` extra).
 
-Exit codes: 0 fitted and written, 1 the fit failed (too few samples, inseparable terms),
-2 bad options / unreadable dump / no matplotlib without ``--no-plots``.
+A fit with fewer than :data:`MIN_SAMPLES_PER_TERM` (3) samples per fitted term is refused
+(exit 1) unless ``--force``: with 6 samples for 8 terms the least-squares solution follows the
+noise (thousands of arcseconds, exit 0 before). The report and the output warn about too few
+samples and about strongly correlated terms.
+
+Exit codes: 0 fitted and written, 1 the fit failed or was refused (too few samples,
+inseparable terms), 2 bad options / unreadable dump / no matplotlib without ``--no-plots``.
 """
 
 from __future__ import annotations
@@ -52,6 +57,7 @@ DEFAULT_TRUE = {
     "AZ-ZD": {"IA": 45.0, "IE": -25.0, "NPAE": 8.0, "CA": -15.0, "AN": 12.0, "AW": -6.0, "TF": 20.0},
     "RA-DEC": {"IH": 30.0, "ID": -20.0, "CH": 10.0, "NP": 5.0, "MA": 15.0, "ME": -12.0, "TF": 18.0},
 }
+MIN_SAMPLES_PER_TERM = 3
 GOLDEN_ANGLE = 180.0 * (3.0 - math.sqrt(5.0))
 MIN_ELEVATION, MAX_ELEVATION = 15.0, 85.0
 
@@ -288,6 +294,14 @@ def run(args, config) -> Outcome:
             source = f"{len(samples)} synthetic samples (noise {args.noise:g}\", seed {args.seed})"
             out.data["true_model_arcsec"] = {k: v * ARCSEC for k, v in true.items()}
     terms, fixed = parse_terms(mount, args.terms, args.fix)
+    fitted = [t for t in (terms or MOUNT_TERMS[mount]) if t not in fixed]
+    needed = MIN_SAMPLES_PER_TERM * len(fitted)
+    if len(samples) < needed and not args.force:
+        raise CommissionError(
+            f"too few samples: {len(samples)} for {len(fitted)} terms ({', '.join(fitted)}); a "
+            f"trustworthy fit needs at least {MIN_SAMPLES_PER_TERM} per term ({needed}): take "
+            "more samples, fit fewer terms (--terms, --fix), or --force",
+            ExitCode.FAILED, {"n_samples": len(samples), "needed": needed})
     try:
         result = fit_samples(samples, mount=mount, terms=terms, fixed=fixed,
                              latitude=header.site.latitude)
@@ -297,5 +311,6 @@ def run(args, config) -> Outcome:
                           make_plots=not args.no_plots)
     out.data.update(report)
     out.lines.append(result.report())
+    out.lines.extend(f"WARNING: {w}" for w in report["warnings"])
     out.lines.append(f"report written to {directory}/ ({', '.join(Path(f).name for f in report['files'])})")
     return out

@@ -81,9 +81,28 @@ def summary(result: FitResult, samples: Sequence[Sample], source: str) -> dict:
     }
 
 
+def warnings_of(info: dict, min_per_term: int = 3) -> list[str]:
+    """What makes a fit doubtful: too few samples per fitted term, strongly correlated terms."""
+    out = []
+    n_terms = len(info["correlation"]["terms"])
+    if n_terms and info["n_samples"] < min_per_term * n_terms:
+        out.append(f"only {info['n_samples']} samples for {n_terms} fitted terms (fewer than "
+                   f"{min_per_term} per term): the coefficients are not trustworthy")
+    if info["strong_correlations"]:
+        out.append("strongly correlated terms (|r| > " f"{STRONG}): " + ", ".join(
+            f"{c['terms'][0]}/{c['terms'][1]} ({c['r']:+.3f})" for c in info["strong_correlations"])
+            + ": their values trade off against each other; spread the samples over more "
+              "elevations/declinations or fix one of each pair")
+    return out
+
+
 def markdown(info: dict, figures: list[str], fit_text: str) -> str:
     """``report.md`` from :func:`summary`'s dict."""
-    lines = ["# Pointing model fit", "",
+    lines = ["# Pointing model fit", ""]
+    warnings = warnings_of(info)
+    if warnings:
+        lines += [f"> **Warning:** {w}." for w in warnings] + [""]
+    lines += [
              f"- samples: {info['n_samples']} ({info['source']})",
              f"- mount: {info['mount']}, site latitude {info['latitude']:.4f}°",
              f"- RMS on the sky: {info['rms_before_arcsec']:.2f}\" before the fit, "
@@ -134,7 +153,8 @@ def write_report(directory: str | Path, header: DumpHeader, samples: Sequence[Sa
         append_sample(dump, s)
     files = [str(directory / n) for n in ("report.md", "model.json", "pointing.model", "samples.dump")]
     brief = {k: v for k, v in info.items() if k != "samples"}
-    return {"directory": str(directory), "files": files + figures, **brief}
+    return {"directory": str(directory), "files": files + figures, **brief,
+            "warnings": warnings_of(info)}
 
 
 def _finite(value):
