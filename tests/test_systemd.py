@@ -120,6 +120,10 @@ def test_install_is_idempotent_and_keeps_the_hardware_file(tmp_path):
     assert (units / "tcs-server.service").is_file() and (units / "tcs-can@.service").is_file()
     assert "After=tcs-can@can0.service" in (units / "tcs-server.service.d" / "can.conf").read_text()
     assert "BITRATE=1000000" in (root / "etc" / "tcs" / "can-can0.env").read_text()
+    # an older install had put sim.toml (public admin/admin) here: the upgrade says so loudly
+    hwfile.write_text((SYSTEMD.parent.parent / "hwconfig" / "sim.toml").read_text())
+    warned = subprocess.run(install, env=env, capture_output=True, text=True, timeout=300)
+    assert "WARNING: user 'admin'" in warned.stdout and "PUBLIC password hash" in warned.stdout
     # the operator edits the file; an older install had copied hwconfig/ into the prefix
     hwfile.write_text(text + "\n# edited by the operator\n")
     (root / "opt" / "tcs" / "hwconfig" / "hwconfig").mkdir(parents=True)

@@ -65,6 +65,11 @@ def test_the_installed_package_is_the_wheel(installed, tmp_path):
     assert module.startswith(venv) and hwconfig.startswith(venv), out.stdout
     assert (Path(hwconfig) / "sim.toml").is_file()
     assert (Path(hwconfig) / "eds" / "tcs-sim-drive.eds").is_file()
+    assert (Path(hwconfig) / "cabinet.toml").is_file()
+    for script in ("tcs-server", "tcs-client", "tcs-commission", "tcs-passwd", "tcs-sim"):
+        version = subprocess.run([str(installed / script), "--version"], capture_output=True,
+                                 text=True, timeout=60)
+        assert version.stdout.strip() == f"{script} 0.1.0", (script, version.stderr)
 
 
 def test_tcs_server_runs_the_simulated_telescope_from_the_wheel(installed, tmp_path):

@@ -135,6 +135,20 @@ fi
 
 # -- check
 echo
+# an older install put sim.toml, with its public development user, into /etc/tcs
+"$venv/bin/python" - "$hwfile" <<'PY'
+import sys, tomllib
+from tcs.resources import hwconfig_file
+public = {u.get("password") for u in tomllib.loads(hwconfig_file("sim.toml").read_text()).get("users", [])}
+try:
+    users = tomllib.loads(open(sys.argv[1], encoding="utf-8").read()).get("users", [])
+except (OSError, ValueError):
+    users = []
+for user in users:
+    if user.get("password") in public:
+        print(f"WARNING: user {user.get('name')!r} of {sys.argv[1]} has the PUBLIC password hash of "
+              "hwconfig/sim.toml (admin/admin): replace it with one made by tcs-passwd")
+PY
 if "$venv/bin/tcs-server" --check-config "$hwfile"; then
   echo "The hardware file is valid."
   if [ -z "$root" ] && systemctl is-active --quiet tcs-server 2>/dev/null; then
