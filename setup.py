@@ -7,5 +7,8 @@ from setuptools import find_packages, setup
 setup(
     packages=find_packages(include=["tcs", "tcs.*"]) + ["tcs_hwconfig"],
     package_dir={"tcs_hwconfig": "hwconfig"},
-    package_data={"tcs_hwconfig": ["*.toml", "eds/*.eds"]},
+    # every hardware file and EDS, also in sub-folders (vendor EDS files); data files that
+    # modules of tcs may keep next to them
+    package_data={"tcs_hwconfig": ["*.toml", "**/*.toml", "**/*.eds", "**/*.EDS"],
+                  "tcs": ["**/*.toml", "**/*.json"]},
 )
