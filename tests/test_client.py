@@ -143,3 +143,20 @@ def test_tree_lists_objects_with_properties(env):
     assert any(line.startswith("AZ.TRAJECTORY.BUFFER ") and "module array[" in line
                for line in text.stdout.splitlines()), text.stdout
     assert "AZ.TRAJECTORY.BUFFER[0].TIME" in text.stdout
+
+
+def test_implicit_login_and_crlf_lines(tmp_path):
+    # RTS2's setting: no AUTH (the greeting lists no method), CRLF line ends; no password needed
+    text = CONFIG.read_text().replace('port = 0\n', 'port = 0\nimplicit_auth = true\n'
+                                      'implicit_user = "admin"\nline_ending = "CRLF"\n', 1)
+    hwfile = tmp_path / "implicit.toml"
+    hwfile.write_text(text)
+    svc = LiveService(hwfile, tmp_path / "state").start()
+    try:
+        bare = {k: v for k, v in os.environ.items() if not k.startswith("TCS_")}
+        proc = client(bare, "get", "CONFIG.MOUNT", "SERVER.CONNECTION.USERNAME", "--port", svc.port,
+                      stdin="")
+        assert proc.returncode == 0, proc.stderr
+        assert proc.stdout == "CONFIG.MOUNT=AZ-ZD\nSERVER.CONNECTION.USERNAME=admin\n"
+    finally:
+        svc.stop()
