@@ -60,7 +60,8 @@ class HwConfig:
     # Set by load_config, not by the file.
     source: Path = field(default=Path("<memory>"), init=False, compare=False)
     #: The top-level tables and keys the file itself wrote (a section left to its defaults is
-    #: not in here).
+    #: not in here). Like ``source``, ``dataclasses.replace`` does not carry it over: check
+    #: :meth:`service_problems` on the loaded file.
     written: frozenset[str] = field(default=frozenset(), init=False, compare=False)
 
     def check(self):
