@@ -100,6 +100,10 @@ def parse_config(text: str, file: str = "<memory>") -> HwConfig:
     if errors:
         raise ConfigErrors(errors)
     object.__setattr__(config, "source", Path(file).resolve() if file != "<memory>" else Path(file))
+    from tcs.drivers.eds_check import check_config  # each drive against its EDS
+    problems, _ = check_config(config.can, dict(config.drives), dict(config.axes), config.resolve, file)
+    if problems:
+        raise ConfigErrors(problems)
     return config
 
 
