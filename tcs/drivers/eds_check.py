@@ -234,6 +234,7 @@ class DriveReport:
     problems: list[ConfigError] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)      # optional objects skipped (INFO)
     warnings: list[str] = field(default_factory=list)   # loud: e.g. no heartbeat consumer
+    conditions: list[tuple[str, str]] = field(default_factory=list)  # axis WARNING conditions
     mapping: dict[str, tuple[int, ...]] = field(default_factory=dict)
     has_error_code: bool = True
 
@@ -310,6 +311,10 @@ def check_drive(name: str, section: DriveSection, can: CanSection, od: canopen.O
             lost = LOST.get(index, "left as the drive has it")
             text = f"{device}: the drive has no {object_label(index, sub)}: skipped; {lost}"
             (report.warnings if index == 0x1016 else report.notes).append(text)
+    if variable(od, 0x1016, 1) is None:
+        report.conditions.append(("no_heartbeat_consumer",
+                                  f"drive {name} has no 0x1016 heartbeat consumer: it will not "
+                                  f"notice a dead TCS"))
     # -- PDO mapping -----------------------------------------------------------------------------
     mapping, pdo_problems, pdo_notes = eds_mapping(section, od)
     report.mapping = mapping

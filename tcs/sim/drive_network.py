@@ -100,7 +100,7 @@ def params_from_config(config) -> dict[int, SimDriveParams]:
             positive_limit_switch=sim.positive_limit_switch, home_switch=sim.home_switch,
             home_switch_active_below=sim.home_switch_active_below,
             index_pulse_spacing=sim.index_pulse_spacing,
-            identity=(pick(ident.vendor, info.vendor_id), pick(ident.product, info.product_code),
+            identity=(pick(ident.vendor, info.vendor_number), pick(ident.product, info.product_number),
                       pick(sim.revision, ident.revision, info.revision_number),
                       ident.serial if ident.serial is not None else sim.serial),
             boot_delay=sim.boot_time, eds=path,
