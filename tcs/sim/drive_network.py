@@ -44,9 +44,18 @@ class SimDriveNetwork(Mapping[int, SimDrive]):
             self.stop()
             raise
 
-    def start(self) -> None:
+    def start(self, wait: bool = True) -> None:
+        """Power the drives up; with ``wait``, return once each has sent its boot-up (their
+        ``boot_delay`` — a cabinet powered before the software starts). NMT resets later
+        take ``boot_delay`` again, as real drives do."""
         for drive in self._drives.values():
             drive.start()
+        if wait:
+            deadline = time.monotonic() + max((d.params.boot_delay for d in self._drives.values()),
+                                              default=0.0) + 2.0
+            while time.monotonic() < deadline and any(
+                    d.nmt_state_name == "INITIALISING" for d in self._drives.values()):
+                time.sleep(0.005)
 
     def stop(self) -> None:
         """Stop every drive and close the simulator's bus attachment. Idempotent."""
