@@ -12,20 +12,27 @@ Sequence:
    0.25 s) without one, probe 0x1000 over SDO (a node booted earlier, heartbeat off), and if
    that fails too send NMT *reset communication* (it answers with boot-up);
 2. NMT *enter pre-operational* (PDO remapping is only allowed there);
-3. identity: 0x1000 must be a CiA-402 device; 0x1018 vendor / product / revision (/ serial)
-   must equal the hardware file;
+3. identity: 0x1000 must be a CiA-402 device; 0x1018 vendor / product / revision / serial
+   must equal the hardware file — the fields it gives (a left-out revision accepts any
+   firmware);
 4. SDO configuration (:func:`configuration`): heartbeat producer (0x1017) and consumer of the
    TCS heartbeat (0x1016), SYNC period (0x1006, optional object) and interpolation period
    (0x60C2), software limits (0x607D), following-error window and time-out (0x6065/0x6066),
    max profile velocity (0x607F, optional), profile velocity / acceleration / deceleration /
    quick-stop deceleration (0x6081/0x6083/0x6084/0x6085), homing method / speeds / acceleration / offset
-   (0x6098/0x6099/0x609A/0x607C), the PDO mapping (:mod:`tcs.drivers.pdo`), and the default
-   mode of operation (0x6060, read back from 0x6061);
+   (0x6098/0x6099/0x609A/0x607C; none for an ``absolute`` drive), the PDO mapping
+   (:mod:`tcs.drivers.pdo`), the ``[drives.<name>.sdo]`` raw writes in file order, and the
+   default mode of operation (0x6060, read back from 0x6061 within ``mode_switch_timeout``).
+   Every write passes :func:`tcs.drivers.eds_check.usable_writes`: an object of
+   :data:`OPTIONAL` the drive's EDS lacks is skipped; values were checked against the EDS
+   limits at start (:func:`tcs.drivers.eds_check.check_config`);
 5. read statusword, position and error code, NMT *start*, wait for heartbeat "operational".
 
-Units: the driver scales user units to the drive's position units itself
-(``increments_per_unit``); it does not touch the drive's factor group (0x608F/0x6091/0x6092),
-which stays as commissioned — ``increments_per_unit`` is "drive position units per user unit".
+Units: the driver scales user units to the drive's units itself: positions with
+``increments_per_unit``, velocities with ``velocity_factor`` and accelerations with
+``acceleration_factor`` (both default to ``increments_per_unit``); it does not touch the
+drive's factor group (0x608F/0x6091/0x6092), which stays as commissioned (or is set with
+``[drives.<name>.sdo]``).
 """
 
 from __future__ import annotations

@@ -139,6 +139,8 @@ class Cia402Drive:
         self._profile_velocity = round(abs(section.max_velocity * section.velocity_scale))
         self.rpdos_sent = 0
         self.steps = 0
+        self._code_mapped = any(0x603F in p.indices for p in self.layouts.values())
+        self._code_job: Job | None = None
 
     # ================================================================= boot (blocking)
     @property
@@ -393,6 +395,7 @@ class Cia402Drive:
         now = self._clock()
         self.steps += 1
         state, fault, hb_ok = self._observe(now)
+        self._fetch_error_code(state)
         raw = self._raw
         sw = raw.get(0x6041, 0)
         actual = raw.get(0x6064, self._hold)
@@ -479,6 +482,28 @@ class Cia402Drive:
             if move.progress is not Progress.RUNNING:
                 self._move_ended(move)
         self._send(cw, target)
+
+    def _fetch_error_code(self, state: DriveState) -> None:
+        """0x603F not in a TPDO (not mappable on this drive): read it by SDO once per fault
+        without an EMCY — never every cycle."""
+        if self._code_mapped:
+            return
+        if state not in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
+            if self._code_job is not None:
+                self._code_job = None
+                self._raw.pop(0x603F, None)
+            return
+        node, sdo = self._node, self._sdo
+        if self._code_job is not None or self._emcy is not None or sdo is None or node is None:
+            return
+        var = node.object_dictionary.get_variable(0x603F, 0)
+        if var is None or not var.readable:
+            return
+        raw = self._raw
+
+        def read() -> None:
+            raw[0x603F] = sdo.read(0x603F, 0, "<H")
+        self._code_job = self._worker.submit(read, f"{self.name} error code")
 
     def _set_want(self, want: Want, now: float) -> Want:
         if self._want is not want:

@@ -8,6 +8,7 @@ and the simulated drives; tests wait for states, never for durations.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -111,6 +112,14 @@ def test_error_code_not_mappable_is_left_out_and_faults_still_name_their_code(ca
         sim.inject_fault("following_error")
         rig.wait(lambda: rig.status("az").fault is not None, what="fault seen")
         assert "0x8611" in rig.status("az").fault.message
+        # Without an EMCY (its COB-ID switched off) the code is read by SDO, once, on the fault.
+        rig.drive("az").fault_reset()
+        rig.wait(lambda: rig.status("az").fault is None, what="fault reset")
+        rig.drive("az")._sdo.write(0x1014, 0, "<I", 0x80000081)
+        rig.enable("az")
+        sim.inject_fault("encoder")
+        rig.wait(lambda: rig.status("az").fault is not None and "0x7305" in rig.status("az").fault.message,
+                 what="error code read by SDO")
 
 
 def test_identity_without_revision_accepts_another_firmware(can_channel):
@@ -167,3 +176,27 @@ def test_simulator_answers_as_its_eds(can_channel):
         assert node is not None
         rig.enable("az")
         assert rig.status("az").state is DriveState.OPERATION_ENABLED
+
+
+def test_a_bare_eds_with_only_what_the_axis_needs_still_boots_and_moves(can_channel, tmp_path):
+    """The simulator never crashes on a valid EDS, however few objects it has; the master
+    skips everything optional and still runs the axis in CSP."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("make_fixtures", EDS / "make_fixtures.py")
+    mf = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mf)
+    parts = mf.sections(mf.SOURCE.read_text(encoding="utf-8"))
+    keep = {"1000", "1001", "1017", "1018", "1400", "1600", "1800", "1A00",
+            "6040", "6041", "6060", "6061", "6064", "607A"}
+    parts = [(n, b) for n, b in parts
+             if not re.fullmatch(r"[0-9A-F]{4}(sub[0-9A-F]+)?", n) or n[:4] in keep]
+    (tmp_path / "bare.eds").write_text(mf.render(mf.relist(parts)), encoding="utf-8")
+    bare = str(tmp_path / "bare.eds")
+    spec = AxisSpec(1, section={"eds": bare, "absolute": True}, sim_eds=bare)
+    with Rig(can_channel, {"az": spec}) as rig:
+        assert rig.boot_and_start() == {}
+        assert set(rig.drive("az").layouts) == {"rpdo1", "tpdo1"}
+        rig.enable("az")
+        assert rig.status("az").homed
+        rig.cycle_hooks.append(lambda cycle: rig.drive("az").set_setpoint(0.25))
+        rig.wait(lambda: abs(rig.sims["az"].position - 0.25) < 1e-3, what="CSP move on a bare drive")
