@@ -335,11 +335,13 @@ def boot_node(network: canopen.Network, sdo: Sdo, hb: HeartbeatWatch, section: D
     check_identity(sdo, section)
     # Every write passes the EDS rule (tcs.drivers.eds_check): optional objects the drive
     # lacks are skipped; values were range-checked at start.
-    for index, sub, fmt, value in usable_writes(od, configuration(section, can, device), section, device):
+    writes = usable_writes(od, configuration(section, can, device), section, device)
+    for index, sub, fmt, value in writes:
         sdo.write(index, sub, fmt, value)
     check_eds(od, layouts, device)
     for name in ("rpdo1", "rpdo2", "rpdo3", "rpdo4", "tpdo1", "tpdo2", "tpdo3", "tpdo4"):
-        if layouts.get(name) is None and od.get(int(name[4:]) - 1 + (0x1400 if name[0] == "r" else 0x1800)) is None:
+        comm = (0x1400 if name[0] == "r" else 0x1800) + int(name[4:]) - 1
+        if layouts.get(name) is None and od.get(comm) is None:
             continue  # the drive has no such PDO: nothing to disable
         writes = configuration_writes(layouts.get(name), name, node_id)
         for index, sub, fmt, value in usable_writes(od, writes, section, device):

@@ -141,7 +141,8 @@ def _mappable(od, index: int, receive: bool) -> str | None:
     return None
 
 
-def eds_mapping(section: DriveSection, od) -> tuple[dict[str, tuple[int, ...]], list[tuple[str, str]], list[str]]:
+def eds_mapping(section: DriveSection, od) -> tuple[dict[str, tuple[int, ...]],
+                                                   list[tuple[str, str]], list[str]]:
     """The PDO mapping of one drive given its EDS: (mapping, problems (key, text), notes).
 
     Without an override, the default (docs/cia402.md) minus what this drive cannot map;
