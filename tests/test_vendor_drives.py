@@ -186,6 +186,9 @@ async def test_vendor_drive_boots_enables_references_and_moves(tmp_path, fixture
     ("vendor-no-homing", "", "drives.az.homing", ["0x6502", "homing mode", "absolute = true"]),
     ("vendor-rpm", "velocity_factor = 1000.0", "drives.az.max_velocity",
      ["0x607F", "0..6000", "units/s"]),
+    ("vendor-pdo-restricted", "pdo = { rpdo1 = ['0x6040', '0x607A'], tpdo1 = ['0x6041', '0x6064'], "
+                              "tpdo3 = ['0x60FD', '0x603F'] }",
+     "drives.az.pdo.tpdo3[1]", ["0x603F", "cannot be mapped"]),
 ])
 def test_vendor_drive_refused_at_start_naming_drive_object_and_remedy(tmp_path, fixture, az_extra,
                                                                         key, needles):
