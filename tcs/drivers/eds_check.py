@@ -56,7 +56,6 @@ _FORMATS = {datatypes.INTEGER8: "<b", datatypes.UNSIGNED8: "<B", datatypes.INTEG
 
 _cache: dict[tuple[str, float, int], canopen.ObjectDictionary] = {}
 _cache_lock = threading.Lock()
-_logged: set[tuple[str, str]] = set()
 
 
 def load_od(path: str | os.PathLike, node_id: int) -> canopen.ObjectDictionary:
@@ -426,10 +425,9 @@ def check_config(can: CanSection | None, drives: dict[str, DriveSection], axes: 
 
 
 def log_report(reports: dict[str, DriveReport]) -> None:
-    """Log each note (INFO) and warning (WARNING) once per process."""
+    """Log each note (INFO) and warning (WARNING): once per start (``CanDrives`` calls it;
+    boots and re-boots do not log again)."""
     for report in reports.values():
         for level, lines in ((logging.WARNING, report.warnings), (logging.INFO, report.notes)):
             for line in lines:
-                if (str(level), line) not in _logged:
-                    _logged.add((str(level), line))
-                    log.log(level, "%s", line)
+                log.log(level, "%s", line)

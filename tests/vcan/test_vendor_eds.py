@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 from cia402_rig import AxisSpec, Rig
 
+from tcs.config.can import HomingSection
 from tcs.drivers.drive import DriveState, Mode, Progress
 from tcs.errors import ConfigErrors, HardwareError
 from tcs.sim.cia402_drive import SimDriveParams
@@ -200,3 +201,32 @@ def test_a_bare_eds_with_only_what_the_axis_needs_still_boots_and_moves(can_chan
         assert rig.status("az").homed
         rig.cycle_hooks.append(lambda cycle: rig.drive("az").set_setpoint(0.25))
         rig.wait(lambda: abs(rig.sims["az"].position - 0.25) < 1e-3, what="CSP move on a bare drive")
+
+
+@pytest.mark.parametrize("method, refused", [(37, False), (35, True)])
+def test_a_fixed_homing_method_is_accepted_when_it_matches_and_refused_otherwise(
+        can_channel, tmp_path, method, refused):
+    """0x6098 const on some drives: nothing to write when the file agrees; a start error
+    naming homing.method and the fixed value when it does not."""
+    eds = (EDS / "vendor-revision.eds").read_text(encoding="utf-8")
+    start = eds.index("[6098]")
+    end = eds.index("\n\n", start)
+    block = eds[start:end].replace("AccessType=rw", "AccessType=const").replace(
+        "DefaultValue=0", "DefaultValue=37")
+    path = tmp_path / "const6098.eds"
+    path.write_text(eds[:start] + block + eds[end:], encoding="utf-8")
+    homing = HomingSection(method=method, timeout=10.0)
+    spec = AxisSpec(1, section={"eds": str(path), "homing": homing}, sim_eds=path)
+    if refused:
+        with pytest.raises(ConfigErrors) as info:
+            with Rig(can_channel, {"az": spec}):
+                pass
+        text = info.value.errors[0].message
+        assert text.startswith("<hardware file>: drives.az.homing.method: drive az (node 1): ")
+        assert "0x6098:0" in text and "fixed to 37" in text
+        return
+    with Rig(can_channel, {"az": spec}) as rig:
+        assert rig.boot_and_start() == {}
+        rig.enable("az")
+        rig.drive("az").start_homing()
+        rig.wait(lambda: rig.status("az").homing is Progress.DONE, what="homing with method 37")
