@@ -299,7 +299,8 @@ class Cia402Drive:
         """CSP target for the next SYNC, clamped to the software limits (control-loop thread)."""
         position = min(max(position, self._lo), self._hi)
         self._setpoint = round(position * self._scale)
-        self._velocity_ff = round(velocity * self.section.velocity_scale) if velocity is not None else 0
+        kv = self.section.velocity_scale
+        self._velocity_ff = round(velocity * kv) if velocity is not None else 0
 
     def start_homing(self) -> None:
         self._refuse_if_unusable("start homing")
@@ -373,7 +374,8 @@ class Cia402Drive:
             pass
         return DriveStatus(
             name=self.name, state=state, position=raw.get(0x6064, 0) / k,
-            velocity=raw.get(0x606C, 0) / self.section.velocity_scale, following_error=raw.get(0x60F4, 0) / k,
+            velocity=raw.get(0x606C, 0) / self.section.velocity_scale,
+            following_error=raw.get(0x60F4, 0) / k,
             statusword=sw, controlword=self._cw, mode=mode, fault=fault,
             warning=self._emcy if fault is not self._emcy else None,
             request_error=self._request_error,
