@@ -201,3 +201,17 @@ def test_vendor_drive_refused_at_start_naming_drive_object_and_remedy(tmp_path, 
     assert text.startswith(f"{path}: {key}: "), text
     for needle in needles:
         assert needle in text, text
+
+
+def test_simulation_section_describes_the_simulated_drive(tmp_path):
+    from tcs.sim.drive_network import params_from_config
+    path = write_config(tmp_path, "vendor-rpm", az_extra="velocity_factor = 30.0",
+                        sim_extra="velocity_factor = 30.0\nrevision = 0x00020003\n"
+                                                          "objects = { '0x2100:0' = 7 }",
+                        identity="vendor = 0xABC, product = 0x00402001")
+    params = params_from_config(load_config(path))
+    az, zd = params[1], params[2]
+    assert az.eds == str(EDS / "vendor-rpm.eds") and zd.eds is None
+    assert az.velocity_scale == pytest.approx(30.0 / 10000.0) and az.acceleration_scale == 1.0
+    assert az.identity == (0xABC, 0x00402001, 0x00020003, 1)
+    assert az.boot_delay == 0.05 and az.objects == {(0x2100, 0): 7}

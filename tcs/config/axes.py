@@ -87,6 +87,14 @@ class SimDriveSection:
         None, min=1e-12, doc="its acceleration units per user unit/s²; default increments_per_unit")
     boot_time: float = setting(0.2, min=0.0, max=60.0,
                                doc="s from power-up or NMT reset to the boot-up message")
+    objects: dict[str, int] = setting(
+        factory=dict, doc="values of objects the EDS gives no default, \"0xINDEX:SUB\" = integer "
+                          "(else built-ins)")
+
+    def check(self):
+        from tcs.config.can import sdo_entry
+        return [(f"objects.{key}", "write entries as \"0xINDEX:SUB\" = value")
+                for key in self.objects if sdo_entry(key) is None]
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from tcs.sim.can_port import open_port
+from tcs.config.can import sdo_entry
 from tcs.sim.cia402_drive import DEFAULT_EDS, SimDrive, _load_od
 from tcs.sim.drive_params import SimDriveParams
 
@@ -114,5 +115,6 @@ def params_from_config(config) -> dict[int, SimDriveParams]:
                       ident.serial if ident.serial is not None else sim.serial),
             boot_delay=sim.boot_time, eds=path,
             velocity_scale=sim.velocity_factor / ipu if sim.velocity_factor else 1.0,
-            acceleration_scale=sim.acceleration_factor / ipu if sim.acceleration_factor else 1.0)
+            acceleration_scale=sim.acceleration_factor / ipu if sim.acceleration_factor else 1.0,
+            objects={sdo_entry(k): v for k, v in sim.objects.items()})
     return params

@@ -44,6 +44,8 @@ class SimDriveParams:
         per increment/s, and of the acceleration objects (0x6083-0x6085, 0x609A) per
         increment/s²: 1.0 = the drive counts increments; a drive in rpm of a motor with
         ``N`` counts per revolution has ``60 / N``.
+    objects:
+        ``{(index, sub): value}`` for objects the EDS gives no default (else built-ins).
     """
 
     increments_per_unit: float = 10000.0
@@ -60,6 +62,7 @@ class SimDriveParams:
     eds: str | None = None
     velocity_scale: float = 1.0
     acceleration_scale: float = 1.0
+    objects: dict | None = None
 
     def problems(self) -> list[str]:
         """What is wrong with these parameters (empty when they are usable)."""
@@ -102,7 +105,11 @@ def store_options(od, params: SimDriveParams, node_id: int) -> dict[str, Any]:
              (0x605A, 0): 2, (0x605E, 0): 1, (0x6098, 0): 37, (0x608F, 1): 1, (0x608F, 2): 1,
              (0x6091, 1): 1, (0x6091, 2): 1}
 
+    given = params.objects or {}
+
     def builtins(index: int, sub: int):
+        if (index, sub) in given:
+            return given[(index, sub)]
         if (0x1400 <= index <= 0x15FF or 0x1800 <= index <= 0x19FF) and sub == 1:
             return 0x80000000  # a PDO the drive does not have is never valid
         return fixed.get((index, sub))
