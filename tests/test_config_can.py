@@ -39,6 +39,24 @@ def test_a_minimal_bus_and_two_drives_load():
     assert config.drives["az"].homing.method == 37
 
 
+def test_identity_fields_left_out_are_not_checked():
+    text = "[can]\n" + drive(extra="identity = { vendor = 1, product = 2 }").replace(
+        "identity = { vendor = 0xABC, product = 0x402001, revision = 0x10000 }\n", "")
+    ident = parse_config(text).drives["az"].identity
+    assert (ident.vendor, ident.product, ident.revision, ident.serial) == (1, 2, None, None)
+
+
+def test_new_drive_keys_load_with_their_defaults():
+    config = parse_config("[can]\n" + drive(extra="velocity_factor = 16.5\nabsolute = true\n"
+                                                   "sdo = { '0x6091:1' = 100, '0x6091:2' = 1, '0x6067:0' = 5 }"))
+    az = config.drives["az"]
+    assert az.velocity_scale == 16.5 and az.acceleration_scale == 10000.0 and az.absolute
+    assert az.raw_writes == [("0x6091:1", 0x6091, 1, 100), ("0x6091:2", 0x6091, 2, 1),
+                             ("0x6067:0", 0x6067, 0, 5)]  # file order
+    assert (az.enable_timeout, az.fault_reset_timeout, az.mode_switch_timeout) == (2.0, 1.0, 1.0)
+    assert az.sdo_timeout is None and az.sdo_retries == 1
+
+
 def test_no_can_section_means_no_bus():
     config = parse_config("")
     assert config.can is None and config.drives == {}
@@ -78,14 +96,19 @@ def test_interpolation_period(seconds, expected):
     ("[can]\n" + drive(extra="homing = { method = 3 }"), "bad.toml: drives.az.homing.method: must be one of"),
     ("[can]\n" + drive().replace("identity = { vendor = 0xABC, product = 0x402001, revision = 0x10000 }\n", ""),
      "bad.toml: drives.az.identity: missing"),
-    ("[can]\n" + drive(extra="identity = { vendor = 1, product = 2 }").replace(
-        "identity = { vendor = 0xABC, product = 0x402001, revision = 0x10000 }\n", ""),
-     "bad.toml: drives.az.identity.revision: missing"),
     ("[can]\nsync_period = 0.002\n" + drive(extra="min_sync_period = 0.004"),
      "bad.toml: can.sync_period: 0.002 s is shorter than drive 'az' accepts"),
     ("[can]\nheartbeat_period = 0.5\n" + drive(),
      "bad.toml: drives.az.heartbeat_consumer_timeout: must be at least 1.5 × can.heartbeat_period"),
     ("[can]\n" + drive("bad-name", 1), "bad.toml: drives.bad-name: drive names are letters"),
+    ("[can]\n" + drive(extra="velocity_factor = -3.0"), "bad.toml: drives.az.velocity_factor: must be positive"),
+    ("[can]\n" + drive(extra="sdo = { '6091:1' = 1 }"), "bad.toml: drives.az.sdo.6091:1: write entries as"),
+    ("[can]\n" + drive(extra="sdo = { '0x6091:1' = 'x' }"), "bad.toml: drives.az.sdo.0x6091:1: must be an integer"),
+    ("[can]\n" + drive(extra="sdo = { '0x6091:3' = 1 }"),
+     "bad.toml: drives.az.sdo.0x6091:3: drive az (node 1): the drive has no object 0x6091:3"),
+    ("[can]\n" + drive(extra="enable_timeout = 0.0"), "bad.toml: drives.az.enable_timeout: 0.0 is out of range"),
+    ("[can]\n" + drive(extra="following_error_timeout = 70.0"),
+     "bad.toml: drives.az.following_error_timeout: 70.0 is out of range"),
 ])
 def test_problem_is_named(text, expected):
     found = problems(text)

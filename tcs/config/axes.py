@@ -75,6 +75,26 @@ class SimDriveSection:
     home_switch_active_below: bool = setting(False)
     index_pulse_spacing: float = setting(1.0, min=1e-9)
     serial: int = setting(1, min=0, max=0xFFFFFFFF)
+    revision: int | None = setting(None, min=0, max=0xFFFFFFFF,
+                                   doc="0x1018:3 of the simulated drive (default: [drives] identity, "
+                                       "else the EDS's RevisionNumber): another firmware")
+    eds: str = setting("", doc="EDS the simulated drive behaves as (absent objects, access, "
+                               "limits, mappability, modes of 0x6502); empty = the drive's eds")
+    velocity_factor: float | None = setting(
+        None, min=1e-12, doc="the simulated drive's velocity units per user unit/s (e.g. rpm); "
+                             "default increments_per_unit")
+    acceleration_factor: float | None = setting(
+        None, min=1e-12, doc="its acceleration units per user unit/s²; default increments_per_unit")
+    boot_time: float = setting(0.2, min=0.0, max=60.0,
+                               doc="s from power-up or NMT reset to the boot-up message")
+    objects: dict[str, int] = setting(
+        factory=dict, doc="values of objects the EDS gives no default, \"0xINDEX:SUB\" = integer "
+                          "(else built-ins)")
+
+    def check(self):
+        from tcs.config.can import sdo_entry
+        return [(f"objects.{key}", "write entries as \"0xINDEX:SUB\" = value")
+                for key in self.objects if sdo_entry(key) is None]
 
 
 @dataclass(frozen=True)

@@ -59,6 +59,16 @@ DEFAULT_PDO_MAPPING: dict[str, tuple[int, ...]] = {
 PDO_NAMES = ("rpdo1", "tpdo1", "tpdo2", "tpdo3", "tpdo4")
 HOMING_METHODS = (1, 2, 17, 18, 19, 21, 33, 34, 35, 37)
 _ENTRY = re.compile(r"^(?:0x)?([0-9a-fA-F]{4})(?::(?:0x)?0*0)?$")
+_SDO_ENTRY = re.compile(r"^0x([0-9a-fA-F]{4}):(?:0x([0-9a-fA-F]{1,2})|(\d{1,3}))$")
+
+
+def sdo_entry(key: str) -> tuple[int, int] | None:
+    """``"0x6091:1"`` -> (0x6091, 1); None when the key is not ``0xINDEX:SUB``."""
+    m = _SDO_ENTRY.match(key.strip())
+    if not m:
+        return None
+    sub = int(m.group(2), 16) if m.group(2) else int(m.group(3))
+    return (int(m.group(1), 16), sub) if sub <= 0xFF else None
 
 
 def interpolation_period(seconds: float) -> tuple[int, int] | None:
@@ -192,9 +202,13 @@ class CanSection:
 
 @dataclass(frozen=True, kw_only=True)
 class IdentitySection:
-    vendor: int = setting(min=0, max=0xFFFFFFFF, doc="0x1018:1 vendor id")
-    product: int = setting(min=0, max=0xFFFFFFFF, doc="0x1018:2 product code")
-    revision: int = setting(min=0, max=0xFFFFFFFF, doc="0x1018:3 revision number")
+    """Expected 0x1018 identity; a field left out is not checked (pin vendor and product,
+    leave the revision out, and a firmware update does not block the boot)."""
+
+    vendor: int | None = setting(None, min=0, max=0xFFFFFFFF, doc="0x1018:1 vendor id")
+    product: int | None = setting(None, min=0, max=0xFFFFFFFF, doc="0x1018:2 product code")
+    revision: int | None = setting(None, min=0, max=0xFFFFFFFF,
+                                   doc="0x1018:3 revision number (leave out to accept any firmware)")
     serial: int | None = setting(None, min=0, max=0xFFFFFFFF, doc="0x1018:4 serial number (optional)")
 
 
@@ -242,6 +256,27 @@ class DriveSection:
     pdo: dict[str, list[str]] = setting(
         factory=dict, doc="PDO mapping override, e.g. rpdo1 = ['0x6040', '0x607A']; replaces "
                           "the default of docs/cia402.md")
+    velocity_factor: float | None = setting(
+        None, doc="drive velocity units per user unit/s (0x6081, 0x607F, 0x6099, 0x606C); "
+                  "default increments_per_unit (the drive counts increments/s); e.g. rpm")
+    acceleration_factor: float | None = setting(
+        None, doc="drive acceleration units per user unit/s² (0x6083-0x6085, 0x609A); "
+                  "default increments_per_unit (increments/s²)")
+    absolute: bool = setting(
+        False, doc="absolute encoder, referenced by configuration: no homing run (drives "
+                   "without homing mode); REFERENCE completes at once")
+    sdo: dict[str, int] = setting(
+        factory=dict, doc="raw SDO writes after the TCS's own configuration, in file order: "
+                          "\"0x6091:1\" = 1 (index:sub = integer); checked against the EDS at start")
+    enable_timeout: float = setting(2.0, min=0.05, max=600.0,
+                                    doc="s from enable to Operation enabled (commutation search)")
+    fault_reset_timeout: float = setting(1.0, min=0.05, max=600.0,
+                                         doc="s for the drive to leave Fault after a reset")
+    mode_switch_timeout: float = setting(1.0, min=0.05, max=600.0,
+                                         doc="s for 0x6061 to show a newly written mode")
+    sdo_timeout: float | None = setting(None, min=0.05, max=10.0,
+                                        doc="s per SDO response (default can.sdo_timeout)")
+    sdo_retries: int = setting(1, min=0, max=10, doc="SDO retries after a time-out")
 
     def check(self):
         problems = []
@@ -261,7 +296,36 @@ class DriveSection:
             if abs(getattr(self, key) * scale) > 2**31 - 1:
                 problems.append((key, "beyond the 32-bit position range of the drive"))
         problems.extend(pdo_mapping(self.pdo)[1])
+        for key in ("velocity_factor", "acceleration_factor"):
+            if getattr(self, key) is not None and not getattr(self, key) > 0:
+                problems.append((key, "must be positive (the direction is increments_per_unit's sign)"))
+        for key, value in self.sdo.items():
+            if sdo_entry(key) is None:
+                problems.append((f"sdo.{key}", "write entries as \"0xINDEX:SUB\" = value, "
+                                               "e.g. \"0x6091:1\" = 1"))
         return problems
+
+    @property
+    def velocity_scale(self) -> float:
+        """Drive velocity units per user unit/s (sign of ``increments_per_unit``)."""
+        sign = -1.0 if self.increments_per_unit < 0 else 1.0
+        return self.increments_per_unit if self.velocity_factor is None else sign * self.velocity_factor
+
+    @property
+    def acceleration_scale(self) -> float:
+        """Drive acceleration units per user unit/s² (always used as a magnitude)."""
+        return abs(self.increments_per_unit if self.acceleration_factor is None
+                   else self.acceleration_factor)
+
+    @property
+    def raw_writes(self) -> list[tuple[str, int, int, int]]:
+        """``[drives.x.sdo]`` as ``(key, index, sub, value)`` in file order."""
+        out = []
+        for key, value in self.sdo.items():
+            entry = sdo_entry(key)
+            if entry is not None:
+                out.append((key, entry[0], entry[1], value))
+        return out
 
     @property
     def mapping(self) -> dict[str, tuple[int, ...]]:

@@ -131,6 +131,10 @@ def parse_config(text: str, file: str = "<memory>") -> HwConfig:
         raise ConfigErrors(errors)
     object.__setattr__(config, "source", Path(file).resolve() if file != "<memory>" else Path(file))
     object.__setattr__(config, "written", frozenset(data))
+    from tcs.drivers.eds_check import check_config  # each drive against its EDS
+    problems, _ = check_config(config.can, dict(config.drives), dict(config.axes), config.resolve, file)
+    if problems:
+        raise ConfigErrors(problems)
     return config
 
 

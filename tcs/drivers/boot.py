@@ -12,20 +12,27 @@ Sequence:
    0.25 s) without one, probe 0x1000 over SDO (a node booted earlier, heartbeat off), and if
    that fails too send NMT *reset communication* (it answers with boot-up);
 2. NMT *enter pre-operational* (PDO remapping is only allowed there);
-3. identity: 0x1000 must be a CiA-402 device; 0x1018 vendor / product / revision (/ serial)
-   must equal the hardware file;
+3. identity: 0x1000 must be a CiA-402 device; 0x1018 vendor / product / revision / serial
+   must equal the hardware file — the fields it gives (a left-out revision accepts any
+   firmware);
 4. SDO configuration (:func:`configuration`): heartbeat producer (0x1017) and consumer of the
    TCS heartbeat (0x1016), SYNC period (0x1006, optional object) and interpolation period
    (0x60C2), software limits (0x607D), following-error window and time-out (0x6065/0x6066),
    max profile velocity (0x607F, optional), profile velocity / acceleration / deceleration /
    quick-stop deceleration (0x6081/0x6083/0x6084/0x6085), homing method / speeds / acceleration / offset
-   (0x6098/0x6099/0x609A/0x607C), the PDO mapping (:mod:`tcs.drivers.pdo`), and the default
-   mode of operation (0x6060, read back from 0x6061);
+   (0x6098/0x6099/0x609A/0x607C; none for an ``absolute`` drive), the PDO mapping
+   (:mod:`tcs.drivers.pdo`), the ``[drives.<name>.sdo]`` raw writes in file order, and the
+   default mode of operation (0x6060, read back from 0x6061 within ``mode_switch_timeout``).
+   Every write passes :func:`tcs.drivers.eds_check.usable_writes`: an object of
+   :data:`OPTIONAL` the drive's EDS lacks is skipped; values were checked against the EDS
+   limits at start (:func:`tcs.drivers.eds_check.check_config`);
 5. read statusword, position and error code, NMT *start*, wait for heartbeat "operational".
 
-Units: the driver scales user units to the drive's position units itself
-(``increments_per_unit``); it does not touch the drive's factor group (0x608F/0x6091/0x6092),
-which stays as commissioned — ``increments_per_unit`` is "drive position units per user unit".
+Units: the driver scales user units to the drive's units itself: positions with
+``increments_per_unit``, velocities with ``velocity_factor`` and accelerations with
+``acceleration_factor`` (both default to ``increments_per_unit``); it does not touch the
+drive's factor group (0x608F/0x6091/0x6092), which stays as commissioned (or is set with
+``[drives.<name>.sdo]``).
 """
 
 from __future__ import annotations
@@ -40,6 +47,7 @@ import canopen
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from tcs.config.can import CanSection, DriveSection, interpolation_period
+from tcs.drivers.eds_check import raw_writes, usable_writes
 from tcs.drivers.pdo import PdoLayout, configuration_writes
 from tcs.errors import CommunicationError, ErrorNumber, HardwareError
 
@@ -70,7 +78,29 @@ SDO_ABORTS = {
 }
 
 #: Objects whose absence (abort 0x06020000 / 0x06090011) is no error: optional in CiA 301/402.
-OPTIONAL = {0x1006, 0x607F}
+#: The EDS check (:mod:`tcs.drivers.eds_check`) skips them on a drive that lacks them.
+OPTIONAL = {0x1006, 0x607F, 0x1016, 0x60C2, 0x607D, 0x6065, 0x6066, 0x6081, 0x6083, 0x6084,
+            0x6085, 0x6099, 0x609A, 0x607C, 0x603F}
+
+#: What is lost without an optional object (logged when skipped; README table).
+LOST = {
+    0x1006: "the drive takes the SYNC period from the bus (no 0x1006 check)",
+    0x1016: "THE DRIVE WILL NOT NOTICE A DEAD MASTER (no heartbeat consumer): if the TCS "
+            "stops, the drive keeps its last command until its own RPDO/SYNC watchdog, if any",
+    0x60C2: "the drive interpolates CSP setpoints over its own period (set it on the drive)",
+    0x607D: "no software limits in the drive: only the TCS's own limits protect the axis",
+    0x6065: "the drive's following-error window stays as commissioned",
+    0x6066: "the drive's following-error time-out stays as commissioned",
+    0x607F: "the drive's max profile velocity stays as commissioned",
+    0x6081: "profile moves use the drive's commissioned velocity",
+    0x6083: "profile moves use the drive's commissioned acceleration",
+    0x6084: "profile deceleration stays as commissioned",
+    0x6085: "quick stop decelerates as commissioned",
+    0x6099: "homing speeds stay as commissioned",
+    0x609A: "homing acceleration stays as commissioned",
+    0x607C: "no home offset (set the vendor's object with [drives.<name>.sdo])",
+    0x603F: "the error code comes from EMCY only (read by SDO on a fault)",
+}
 
 NAMES = {
     0x1000: "device type", 0x1006: "SYNC period", 0x1016: "consumer heartbeat time",
@@ -210,11 +240,11 @@ def check_identity(sdo: Sdo, section: DriveSection) -> None:
         raise HardwareError(sdo.device, f"device type 0x{device_type:08X} is not a CiA-402 drive")
     ident = section.identity
     expected = [("vendor", 1, ident.vendor), ("product", 2, ident.product),
-                ("revision", 3, ident.revision)]
-    if ident.serial is not None:
-        expected.append(("serial", 4, ident.serial))
+                ("revision", 3, ident.revision), ("serial", 4, ident.serial)]
     wrong = []
     for name, sub, want in expected:
+        if want is None:  # left out of the hardware file: not checked (e.g. any firmware)
+            continue
         got = sdo.read(0x1018, sub, "<I")
         if got != want:
             wrong.append(f"{name} 0x{got:08X} (hardware file: 0x{want:08X})")
@@ -226,13 +256,14 @@ def check_identity(sdo: Sdo, section: DriveSection) -> None:
 def _u32(value: float, what: str, device: str) -> int:
     v = round(abs(value))
     if v > 0xFFFFFFFF:
-        raise HardwareError(device, f"{what} {value:g} increments does not fit the drive's U32")
+        raise HardwareError(device, f"{what} {value:g} (drive units) does not fit the drive's U32")
     return v
 
 
 def configuration(section: DriveSection, can: CanSection, device: str) -> list[tuple[int, int, str, int]]:
     """Step 4 (without PDOs and mode): the SDO writes ``(index, sub, format, value)``."""
     k = section.increments_per_unit
+    kv, ka = section.velocity_scale, section.acceleration_scale
     lo, hi = sorted((round(section.min_position * k), round(section.max_position * k)))
     micro = round(can.sync_period * 1e6)
     value, exponent = interpolation_period(can.sync_period)
@@ -248,15 +279,15 @@ def configuration(section: DriveSection, can: CanSection, device: str) -> list[t
         (0x607D, 2, "<i", hi),
         (0x6065, 0, "<I", _u32(section.following_error_window * k, "following-error window", device)),
         (0x6066, 0, "<H", round(section.following_error_timeout * 1000)),
-        (0x607F, 0, "<I", _u32(section.max_velocity * k, "max profile velocity", device)),
-        (0x6081, 0, "<I", _u32(section.max_velocity * k, "profile velocity", device)),
-        (0x6083, 0, "<I", _u32(section.max_acceleration * k, "profile acceleration", device)),
-        (0x6084, 0, "<I", _u32(section.max_acceleration * k, "profile deceleration", device)),
-        (0x6085, 0, "<I", _u32(quick * k, "quick-stop deceleration", device)),
+        (0x607F, 0, "<I", _u32(section.max_velocity * kv, "max profile velocity", device)),
+        (0x6081, 0, "<I", _u32(section.max_velocity * kv, "profile velocity", device)),
+        (0x6083, 0, "<I", _u32(section.max_acceleration * ka, "profile acceleration", device)),
+        (0x6084, 0, "<I", _u32(section.max_acceleration * ka, "profile deceleration", device)),
+        (0x6085, 0, "<I", _u32(quick * ka, "quick-stop deceleration", device)),
         (0x6098, 0, "<b", home.method),
-        (0x6099, 1, "<I", _u32(home.speed_switch * k, "homing speed (switch)", device)),
-        (0x6099, 2, "<I", _u32(home.speed_zero * k, "homing speed (zero)", device)),
-        (0x609A, 0, "<I", _u32(home.acceleration * k, "homing acceleration", device)),
+        (0x6099, 1, "<I", _u32(home.speed_switch * kv, "homing speed (switch)", device)),
+        (0x6099, 2, "<I", _u32(home.speed_zero * kv, "homing speed (zero)", device)),
+        (0x609A, 0, "<I", _u32(home.acceleration * ka, "homing acceleration", device)),
         (0x607C, 0, "<i", round(home.offset * k)),
     ]
 
@@ -298,18 +329,30 @@ def boot_node(network: canopen.Network, sdo: Sdo, hb: HeartbeatWatch, section: D
     """Steps 1–5 for one node. ``start()`` runs just before NMT start (subscribe TPDOs)."""
     node_id = section.node_id
     device = sdo.device
+    od = sdo.node.object_dictionary
     wait_for_node(network, sdo, hb, can.boot_timeout, device)
     send_nmt(network, NMT_PRE_OPERATIONAL, node_id)
     check_identity(sdo, section)
-    for index, sub, fmt, value in configuration(section, can, device):
+    # Every write passes the EDS rule (tcs.drivers.eds_check): optional objects the drive
+    # lacks are skipped; values were range-checked at start.
+    writes = usable_writes(od, configuration(section, can, device), section, device)
+    for index, sub, fmt, value in writes:
         sdo.write(index, sub, fmt, value)
-    check_eds(sdo.node.object_dictionary, layouts, device)
+    check_eds(od, layouts, device)
     for name in ("rpdo1", "rpdo2", "rpdo3", "rpdo4", "tpdo1", "tpdo2", "tpdo3", "tpdo4"):
-        for index, sub, fmt, value in configuration_writes(layouts.get(name), name, node_id):
+        comm = (0x1400 if name[0] == "r" else 0x1800) + int(name[4:]) - 1
+        if layouts.get(name) is None and od.get(comm) is None:
+            continue  # the drive has no such PDO: nothing to disable
+        writes = configuration_writes(layouts.get(name), name, node_id)
+        for index, sub, fmt, value in usable_writes(od, writes, section, device):
             sdo.write(index, sub, fmt, value)
-    shown = set_mode(sdo, mode)
+    for index, sub, fmt, value in raw_writes(od, section, device):  # [drives.x.sdo], in order
+        sdo.write(index, sub, fmt, value)
+    shown = set_mode(sdo, mode, section.mode_switch_timeout)
+    code = od.get_variable(0x603F, 0)
     result = BootResult(statusword=sdo.read(0x6041, 0, "<H"), position=sdo.read(0x6064, 0, "<i"),
-                        error_code=sdo.read(0x603F, 0, "<H"), mode=shown)
+                        error_code=sdo.read(0x603F, 0, "<H") if code is not None and code.readable
+                        else 0, mode=shown)
     if start is not None:
         start()
     send_nmt(network, NMT_START, node_id)

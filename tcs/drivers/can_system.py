@@ -34,12 +34,12 @@ from tcs.drivers.canbus import CanBus
 from tcs.drivers.cia402_drive import Cia402Drive
 from tcs.drivers.cycle import Cycle, CycleSource
 from tcs.drivers.worker import SdoWorker
-from tcs.errors import ConfigError, TcsError
+from tcs.drivers.eds_check import check_config, log_report
+from tcs.errors import ConfigError, ConfigErrors, TcsError
 from tcs.resources import hwconfig_file
 
 log = logging.getLogger(__name__)
 
-PACKAGE_ROOT = Path(__file__).resolve().parents[2]
 SIM_EDS = hwconfig_file("eds/tcs-sim-drive.eds")  # package data (tcs.resources)
 
 
@@ -69,6 +69,11 @@ class CanDrives:
         self.cycle = CycleSource(self.bus, can.sync_period, tpdo_deadline=can.tpdo_deadline,
                                  clock=clock, realtime_priority=can.realtime_priority)
         self.drives: dict[str, Cia402Drive] = {}
+        # Each drive's configuration against its EDS: refused here, at start, not mid-boot.
+        problems, self.eds_reports = check_config(can, drives, None, resolve, file)
+        if problems:
+            raise ConfigErrors(problems)
+        log_report(self.eds_reports)
         for name, section in drives.items():
             eds = resolve(section.eds) if section.eds else SIM_EDS
             if not Path(eds).is_file():

@@ -48,14 +48,14 @@ from tcs.drivers.cia402 import Want
 from tcs.drivers.drive import DriveState, DriveStatus, Mode, Progress
 from tcs.drivers.emcy import DriveFault, decode_emcy
 from tcs.drivers.handshakes import HomingRun, ProfileMove
-from tcs.drivers.pdo import PdoLayout, layouts
+from tcs.drivers.pdo import PdoLayout, layouts, mapping_for
 from tcs.drivers.worker import Job, SdoWorker
 from tcs.errors import CommunicationError, ErrorNumber, HardwareError, RangeRefused, TcsError
 
 log = logging.getLogger(__name__)
 
-ENABLE_TIMEOUT = 2.0          # s from enable() to Operation enabled
-FAULT_RESET_TIMEOUT = 1.0     # s for the drive to leave Fault after the rising edge
+ENABLE_TIMEOUT = 2.0          # default of [drives.x] enable_timeout (s to Operation enabled)
+FAULT_RESET_TIMEOUT = 1.0     # default of [drives.x] fault_reset_timeout (s to leave Fault)
 EMCY_BASE = 0x080
 
 
@@ -94,7 +94,8 @@ class Cia402Drive:
         self._scale = section.increments_per_unit
         self._lo = min(section.min_position, section.max_position)
         self._hi = max(section.min_position, section.max_position)
-        self.layouts: dict[str, PdoLayout] = layouts(section.mapping, section.node_id)
+        self.layouts: dict[str, PdoLayout] = layouts(mapping_for(section, eds, section.node_id),
+                                                     section.node_id)
         self._rpdo = self.layouts["rpdo1"]
         self._default_mode = Mode.CSP if section.default_mode == "csp" else Mode.PP
         self._subscriptions: list[tuple[int, Callable]] = []
@@ -135,9 +136,11 @@ class Cia402Drive:
         self._homing_mode_before: Mode | None = None
         self._homed = False
         self._move: ProfileMove | None = None
-        self._profile_velocity = round(abs(section.max_velocity * self._scale))
+        self._profile_velocity = round(abs(section.max_velocity * section.velocity_scale))
         self.rpdos_sent = 0
         self.steps = 0
+        self._code_mapped = any(0x603F in p.indices for p in self.layouts.values())
+        self._code_job: Job | None = None
 
     # ================================================================= boot (blocking)
     @property
@@ -177,7 +180,7 @@ class Cia402Drive:
         self._reset_phase = 0
         self._reached_enabled = False
         self._homing = self._move = None
-        self._homed = False
+        self._homed = self.section.absolute  # referenced by configuration
         self._setpoint = None
         if result.error_code and not self._emcy:
             self._emcy = DriveFault(self.device, result.error_code)
@@ -199,7 +202,8 @@ class Cia402Drive:
         if self.node_id in network.nodes:
             del network[self.node_id]
         node = canopen.RemoteNode(self.node_id, od)
-        node.sdo.RESPONSE_TIMEOUT = self._can.sdo_timeout
+        node.sdo.RESPONSE_TIMEOUT = self.section.sdo_timeout or self._can.sdo_timeout
+        node.sdo.MAX_RETRIES = self.section.sdo_retries
         network.add_node(node)
         self._node = node
         self._sdo = Sdo(node, self.device)
@@ -295,7 +299,8 @@ class Cia402Drive:
         """CSP target for the next SYNC, clamped to the software limits (control-loop thread)."""
         position = min(max(position, self._lo), self._hi)
         self._setpoint = round(position * self._scale)
-        self._velocity_ff = round(velocity * self._scale) if velocity is not None else 0
+        kv = self.section.velocity_scale
+        self._velocity_ff = round(velocity * kv) if velocity is not None else 0
 
     def start_homing(self) -> None:
         self._refuse_if_unusable("start homing")
@@ -369,7 +374,8 @@ class Cia402Drive:
             pass
         return DriveStatus(
             name=self.name, state=state, position=raw.get(0x6064, 0) / k,
-            velocity=raw.get(0x606C, 0) / k, following_error=raw.get(0x60F4, 0) / k,
+            velocity=raw.get(0x606C, 0) / self.section.velocity_scale,
+            following_error=raw.get(0x60F4, 0) / k,
             statusword=sw, controlword=self._cw, mode=mode, fault=fault,
             warning=self._emcy if fault is not self._emcy else None,
             request_error=self._request_error,
@@ -391,6 +397,7 @@ class Cia402Drive:
         now = self._clock()
         self.steps += 1
         state, fault, hb_ok = self._observe(now)
+        self._fetch_error_code(state)
         raw = self._raw
         sw = raw.get(0x6041, 0)
         actual = raw.get(0x6064, self._hold)
@@ -406,7 +413,7 @@ class Cia402Drive:
                                  "not re-enabling")
                 want = self._set_want(Want.DISABLED, now)
             elif (want is Want.ENABLED and state is not DriveState.OPERATION_ENABLED
-                  and now - self._want_since > ENABLE_TIMEOUT):
+                  and now - self._want_since > self.section.enable_timeout):
                 self._request_error = HardwareError(
                     self.device, f"enable timed out in state {state.value}", ErrorNumber.TIMEOUT)
                 want = self._set_want(Want.DISABLED, now)
@@ -439,7 +446,7 @@ class Cia402Drive:
             if state not in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
                 self._reset_phase = 0
                 self._emcy = None
-            elif now - self._reset_since > FAULT_RESET_TIMEOUT:
+            elif now - self._reset_since > self.section.fault_reset_timeout:
                 self._reset_phase = 0
                 self._request_error = HardwareError(self.device, "fault reset did not clear the fault")
             else:
@@ -477,6 +484,28 @@ class Cia402Drive:
             if move.progress is not Progress.RUNNING:
                 self._move_ended(move)
         self._send(cw, target)
+
+    def _fetch_error_code(self, state: DriveState) -> None:
+        """0x603F not in a TPDO (not mappable on this drive): read it by SDO once per fault
+        without an EMCY — never every cycle."""
+        if self._code_mapped:
+            return
+        if state not in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
+            if self._code_job is not None:
+                self._code_job = None
+                self._raw.pop(0x603F, None)
+            return
+        node, sdo = self._node, self._sdo
+        if self._code_job is not None or self._emcy is not None or sdo is None or node is None:
+            return
+        var = node.object_dictionary.get_variable(0x603F, 0)
+        if var is None or not var.readable:
+            return
+        raw = self._raw
+
+        def read() -> None:
+            raw[0x603F] = sdo.read(0x603F, 0, "<H")
+        self._code_job = self._worker.submit(read, f"{self.name} error code")
 
     def _set_want(self, want: Want, now: float) -> Want:
         if self._want is not want:
@@ -516,7 +545,8 @@ class Cia402Drive:
             self._mode = shown
         if wanted is not None and wanted != self._mode and self._sdo is not None:
             sdo, mode = self._sdo, int(wanted)
-            self._mode_job = self._worker.submit(lambda: set_mode(sdo, mode), f"{self.name} mode")
+            timeout = self.section.mode_switch_timeout
+            self._mode_job = self._worker.submit(lambda: set_mode(sdo, mode, timeout), f"{self.name} mode")
         with self._lock:
             if self._mode_wanted == wanted:
                 self._mode_wanted = None
@@ -529,6 +559,10 @@ class Cia402Drive:
         previous = self._homing
         self._homing = HomingRun(self.device, home.method, home.timeout, now)
         self._request_error = None
+        if self.section.absolute:  # referenced by configuration: nothing runs on the drive
+            self._homing.progress, self._homing.fraction = Progress.DONE, 1.0
+            self._homing_ended(self._homing)
+            return False
         if want is not Want.ENABLED:
             self._homing.fail(TcsError(f"{self.device}: homing needs the drive enabled "
                                              "(request enable first)", ErrorNumber.INVMODE))
@@ -562,10 +596,10 @@ class Cia402Drive:
         """Start a profile move (True), or fail it at once when the drive is not being enabled."""
         self._end_homing(TcsError(f"{self.device}: homing superseded by a move", ErrorNumber.TARGETCHANGE))
         self._request_error = None
-        speed = round(abs((velocity or self.section.max_velocity) * self._scale))
-        distance = abs(target - self._raw.get(0x6064, 0))
-        accel = abs(self.section.max_acceleration * self._scale) or 1
-        deadline = now + 5.0 + 2.0 * (distance / max(speed, 1) + speed / accel)
+        speed = round(abs((velocity or self.section.max_velocity) * self.section.velocity_scale))
+        v = abs(velocity or self.section.max_velocity)  # user units from here
+        distance = abs(target - self._raw.get(0x6064, 0)) / abs(self._scale)
+        deadline = now + 5.0 + 2.0 * (distance / v + v / self.section.max_acceleration)
         window = round(abs(self.section.following_error_window * self._scale))
         job = None
         if want is Want.ENABLED and speed != self._profile_velocity and self._sdo is not None:

@@ -8,6 +8,13 @@ procedure of CiA 301: invalidate the COB-ID, sub0 = 0, entries, sub0 = n, valida
 pre-operational) and packs / unpacks frames with a precompiled :class:`struct.Struct`, so the
 per-cycle path is one ``pack`` and one ``send``.
 
+The default mapping adapts to the drive's EDS (:func:`eds_mapping`): an object the EDS does
+not mark PDO-mappable (0x603F on some drives) or lacks is left out of its PDO — the error code
+is then read by SDO on a fault, never every cycle — and a PDO left empty is disabled. The
+objects the cycle cannot do without (controlword, target position, statusword, position
+actual value) must be mappable: otherwise the start is refused. A ``pdo`` override in the
+hardware file is checked against the EDS the same way and used as it is.
+
 Only the boot code (:mod:`tcs.drivers.cia402_drive`) and the cycle use this module.
 """
 
@@ -16,7 +23,11 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-from tcs.config.can import CYCLIC_TPDO_OBJECTS, PDO_OBJECTS
+from tcs.config.can import CYCLIC_TPDO_OBJECTS, DEFAULT_PDO_MAPPING, PDO_OBJECTS, DriveSection
+
+#: Objects the cycle cannot do without (RPDO1 / a synchronous TPDO).
+ESSENTIAL = {0x6040: "the drive cannot be commanded", 0x607A: "no setpoints can be streamed",
+             0x6041: "the drive state cannot be followed", 0x6064: "the position cannot be read"}
 
 _FORMATS = {(8, True): "b", (8, False): "B", (16, True): "h", (16, False): "H",
             (32, True): "i", (32, False): "I"}
@@ -111,3 +122,81 @@ def configuration_writes(pdo: PdoLayout | None, name: str, node_id: int) -> list
     writes.append((mapping, 0, "<B", len(pdo.indices)))
     writes.append((comm, 1, "<I", pdo.cob_id))
     return writes
+
+
+def _mappable(od, index: int, receive: bool) -> str | None:
+    """Why ``index`` cannot go into a PDO of this drive (None: it can)."""
+    obj = od.get(index)
+    if obj is None:
+        return "the drive has no such object"
+    var = obj if not hasattr(obj, "subindices") else obj.subindices.get(0)
+    if var is None:
+        return "the drive has no such object"
+    if not getattr(var, "pdo_mappable", False):
+        return "the EDS says it cannot be mapped to a PDO"
+    if len(var) != PDO_OBJECTS[index][1]:
+        return f"it is {len(var)} bits long on this drive, the TCS maps {PDO_OBJECTS[index][1]}"
+    if receive and not var.writable or not receive and not var.readable:
+        return "its access type does not allow this direction"
+    return None
+
+
+def eds_mapping(section: DriveSection, od) -> tuple[dict[str, tuple[int, ...]],
+                                                   list[tuple[str, str]], list[str]]:
+    """The PDO mapping of one drive given its EDS: (mapping, problems (key, text), notes).
+
+    Without an override, the default (docs/cia402.md) minus what this drive cannot map;
+    an override must be mappable as written.
+    """
+    problems: list[tuple[str, str]] = []
+    notes: list[str] = []
+    mapping: dict[str, tuple[int, ...]] = {}
+    source = section.mapping if section.pdo else dict(DEFAULT_PDO_MAPPING)
+    for name, indices in source.items():
+        receive = name.startswith("rpdo")
+        number = int(name[4:])
+        map_index = (0x1600 if receive else 0x1A00) + number - 1
+        comm_index = (0x1400 if receive else 0x1800) + number - 1
+        if od.get(map_index) is None or od.get(comm_index) is None:
+            lost = [i for i in indices if i in ESSENTIAL]
+            if section.pdo or lost:
+                problems.append((f"pdo.{name}", f"the drive has no {name.upper()} "
+                                                f"(0x{comm_index:04X}/0x{map_index:04X})"))
+            else:
+                notes.append(f"the drive has no {name.upper()}: "
+                             f"{', '.join(f'0x{i:04X}' for i in indices)} not transmitted")
+            continue
+        kept = []
+        for i, index in enumerate(indices):
+            why = _mappable(od, index, receive)
+            if why is None:
+                kept.append(index)
+            elif section.pdo:
+                problems.append((f"pdo.{name}[{i}]", f"0x{index:04X} ({PDO_OBJECTS[index][0]}): {why}"))
+            elif index in ESSENTIAL:
+                problems.append(("pdo", f"0x{index:04X} ({PDO_OBJECTS[index][0]}) cannot be in "
+                                        f"{name.upper()}: {why} — {ESSENTIAL[index]}; give a "
+                                        f"mappable layout with [drives.<name>] pdo = {{…}} or use "
+                                        f"another drive"))
+            else:
+                extra = " (read by SDO on a fault)" if index == 0x603F else ""
+                notes.append(f"0x{index:04X} ({PDO_OBJECTS[index][0]}) left out of "
+                             f"{name.upper()}: {why}{extra}")
+        entries = len([s for s in getattr(od.get(map_index), "subindices", {}) if s != 0])
+        if entries and len(kept) > entries:
+            problems.append((f"pdo.{name}", f"maps {len(kept)} objects; the drive's "
+                                            f"{name.upper()} takes at most {entries}"))
+        if kept:
+            mapping[name] = tuple(kept)
+    return mapping, problems, notes
+
+
+def mapping_for(section: DriveSection, eds, node_id: int) -> dict[str, tuple[int, ...]]:
+    """The effective mapping of a drive from its EDS file (the configured one if unreadable)."""
+    from tcs.drivers.eds_check import load_od
+    try:
+        od = load_od(eds, node_id)
+    except Exception:  # reported at boot, naming the drive
+        return section.mapping
+    mapping, problems, _ = eds_mapping(section, od)
+    return section.mapping if problems else mapping

@@ -86,7 +86,9 @@ def _file_time(config: HwConfig) -> str:
 
 def _identity(drive) -> str:
     ident = drive.identity
-    text = f"0x{ident.vendor:08X}:0x{ident.product:08X}:rev 0x{ident.revision:08X}"
+    def hex8(value):  # a field left out of the file (not checked at boot)
+        return "any" if value is None else f"0x{value:08X}"
+    text = f"{hex8(ident.vendor)}:{hex8(ident.product)}:rev {hex8(ident.revision)}"
     return text if ident.serial is None else f"{text}:sn {ident.serial}"
 
 

@@ -26,7 +26,7 @@ from tcs.errors import TcsError
 from tcs.model.cabinet import Cabinet
 from tcs.model.events import EventHub
 from tcs.model.log_buffer import LogBuffer
-from tcs.model.health import ERROR
+from tcs.model.health import ERROR, WARNING
 from tcs.model.local import LocalTime
 from tcs.model.mount_config import MountConfig
 from tcs.model.peripherals import Peripherals
@@ -133,6 +133,9 @@ class Telescope:
             axis.bind_loop(loop)
             if section.drive in failures:
                 axis.raise_condition("drive offline", ERROR, failures[section.drive].message)
+            report = self.can.eds_reports.get(section.drive)
+            for name, text in (report.conditions if report is not None else ()):
+                axis.raise_condition(name, WARNING, text)  # e.g. no heartbeat consumer: loud
             self.axes.append(axis)
         self.cabinet.attach(axes=self.axes)
         self.control_loop = ControlLoop(self.axes, self.can.cycle, self.local.ut1)

@@ -59,6 +59,7 @@ from tcs.sim.drive_logic import (
 )
 from tcs.resources import hwconfig_file
 from tcs.sim.drive_params import SimDriveParams
+from tcs.sim.drive_params import SimDriveParams, store_options
 from tcs.sim.object_store import ABORT_STORE, ObjectStore
 from tcs.sim.pdo import PdoEngine
 from tcs.sim.sdo_server import SdoServer
@@ -128,7 +129,7 @@ class SimDrive:
             raise ValueError(f"simulated drive {node_id}: " + "; ".join(problems))
         self.node_id = int(node_id)
         self.clock = clock
-        self._od = _load_od(eds, self.node_id)
+        self._od = _load_od(self.params.eds or eds, self.node_id)
         self._port: SimCanPort = open_port(bus_or_network)
         self.lock = self._port.lock
         self.nmt_state = INITIALISING
@@ -150,7 +151,7 @@ class SimDrive:
 
     def _build(self) -> None:
         """A freshly powered drive: objects at their defaults, application reset."""
-        self.store = ObjectStore(self._od)
+        self.store = ObjectStore(self._od, **store_options(self._od, self.params, self.node_id))
         self.sdo = SdoServer(self.store)
         self.sdo.refuse_code = ABORT_STORE if self.refuse_sdo else None
         self.pdo = PdoEngine(self.store, lambda: self.nmt_state == PRE_OPERATIONAL)

@@ -7,6 +7,7 @@ them, the drive itself works in increments on the wire (``increments_per_unit``)
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 
 @dataclass
@@ -35,7 +36,16 @@ class SimDriveParams:
     identity:
         0x1018 vendor, product, revision, serial number.
     boot_delay:
-        Seconds from ``start()`` to the boot-up message.
+        Seconds from ``start()`` (and from an NMT reset) to the boot-up message.
+    eds:
+        The EDS the drive behaves as (None: the simulated drive's own).
+    velocity_scale, acceleration_scale:
+        Wire units of the velocity objects (0x606C, 0x6081, 0x607F, 0x60FF, 0x6099, 0x60B1)
+        per increment/s, and of the acceleration objects (0x6083-0x6085, 0x609A) per
+        increment/s²: 1.0 = the drive counts increments; a drive in rpm of a motor with
+        ``N`` counts per revolution has ``60 / N``.
+    objects:
+        ``{(index, sub): value}`` for objects the EDS gives no default (else built-ins).
     """
 
     increments_per_unit: float = 10000.0
@@ -49,6 +59,10 @@ class SimDriveParams:
     index_pulse_spacing: float = 1.0
     identity: tuple[int, int, int, int] = (0xABC, 0x00402001, 0x00010000, 1)
     boot_delay: float = 0.0
+    eds: str | None = None
+    velocity_scale: float = 1.0
+    acceleration_scale: float = 1.0
+    objects: dict | None = None
 
     def problems(self) -> list[str]:
         """What is wrong with these parameters (empty when they are usable)."""
@@ -61,6 +75,8 @@ class SimDriveParams:
             out.append("max_acceleration must be positive")
         if not self.index_pulse_spacing > 0:
             out.append("index_pulse_spacing must be positive")
+        if not self.velocity_scale > 0 or not self.acceleration_scale > 0:
+            out.append("velocity_scale and acceleration_scale must be positive")
         if self.boot_delay < 0:
             out.append("boot_delay must not be negative")
         if (self.negative_limit_switch is not None and self.positive_limit_switch is not None
@@ -69,3 +85,45 @@ class SimDriveParams:
         if len(self.identity) != 4 or any(not 0 <= int(v) <= 0xFFFFFFFF for v in self.identity):
             out.append("identity must be four 32-bit unsigned numbers")
         return out
+
+
+#: 0x6502 bits -> the mode (0x6060 value) they allow.
+_MODE_BITS = {0: 1, 1: 2, 2: 3, 3: 4, 5: 6, 6: 7, 7: 8, 8: 9, 9: 10}
+VELOCITY_OBJECTS = (0x606C, 0x6081, 0x607F, 0x60FF, 0x6099, 0x60B1)
+ACCELERATION_OBJECTS = (0x6083, 0x6084, 0x6085, 0x609A)
+
+
+def store_options(od, params: SimDriveParams, node_id: int) -> dict[str, Any]:
+    """``ObjectStore`` options making the simulated drive behave as its EDS describes.
+
+    ``builtins``: sane values for objects the EDS lacks or gives no default (the model keeps
+    working; the wire still says the object is absent); ``scale``: the velocity and
+    acceleration units of this drive; ``allowed``: the modes of 0x6502 (when the EDS has it).
+    """
+    fixed = {(0x1005, 0): 0x80, (0x1014, 0): 0x80 + node_id, (0x6065, 0): 0xFFFFFFFF,
+             (0x6066, 0): 100, (0x6067, 0): 100, (0x60C2, 1): 10, (0x60C2, 2): -3,
+             (0x605A, 0): 2, (0x605E, 0): 1, (0x6098, 0): 37, (0x608F, 1): 1, (0x608F, 2): 1,
+             (0x6091, 1): 1, (0x6091, 2): 1}
+
+    given = params.objects or {}
+
+    def builtins(index: int, sub: int):
+        if (index, sub) in given:
+            return given[(index, sub)]
+        if (0x1400 <= index <= 0x15FF or 0x1800 <= index <= 0x19FF) and sub == 1:
+            return 0x80000000  # a PDO the drive does not have is never valid
+        return fixed.get((index, sub))
+
+    scale = {}
+    if params.velocity_scale != 1.0:
+        scale.update(dict.fromkeys(VELOCITY_OBJECTS, params.velocity_scale))
+    if params.acceleration_scale != 1.0:
+        scale.update(dict.fromkeys(ACCELERATION_OBJECTS, params.acceleration_scale))
+    allowed = {}
+    modes_var = od.get(0x6502)
+    modes = None
+    if modes_var is not None and not hasattr(modes_var, "subindices"):
+        modes = modes_var.value if modes_var.value is not None else modes_var.default
+    if isinstance(modes, int):
+        allowed[(0x6060, 0)] = {0} | {mode for bit, mode in _MODE_BITS.items() if modes >> bit & 1}
+    return {"builtins": builtins, "scale": scale, "allowed": allowed}

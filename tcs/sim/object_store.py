@@ -14,6 +14,17 @@ Owners hook behaviour onto objects:
 
 Internal code (the node's own model) uses ``get`` / ``set`` which bypass access checks and
 hooks. Nothing here knows CiA-402; the store is not thread-safe (the port's lock covers it).
+
+Any valid EDS works, however few objects it has: ``get`` of an object the EDS lacks answers
+the ``builtins(index, sub)`` value (or 0) — the model keeps working — while SDO and PDO access
+to it abort 0x06020000 / 0x06090011 as a real device would. Two options make the wire differ
+from the model:
+
+* ``scale`` ``{index: factor}``: the wire value is the model value × factor (a drive whose
+  velocity objects are in rpm while the model counts increments/s); limits apply to the wire
+  value;
+* ``allowed`` ``{(index, sub): set}``: writes of other values abort 0x06090030 before any hook
+  runs (the modes 0x6502 says the drive has).
 """
 
 from __future__ import annotations
@@ -60,8 +71,13 @@ WriteHook = Callable[[int, Any], None]
 class ObjectStore:
     """Values of every object of an object dictionary, with access checks and hooks."""
 
-    def __init__(self, od: odmod.ObjectDictionary):
+    def __init__(self, od: odmod.ObjectDictionary, builtins: Callable[[int, int], Any] | None = None,
+                 scale: dict[int, float] | None = None,
+                 allowed: dict[tuple[int, int], set] | None = None):
         self.od = od
+        self._builtins = builtins
+        self.scale = dict(scale or {})
+        self.allowed = dict(allowed or {})
         self._values: dict[tuple[int, int], Any] = {}
         self._readers: dict[int, Provider] = {}
         self._writers: dict[int, list[WriteHook]] = {}
@@ -78,11 +94,15 @@ class ObjectStore:
 
     def reset_range(self, first: int, last: int) -> None:
         """Restore the EDS defaults of the objects ``first..last`` (inclusive)."""
+        for key in [k for k in self._values if first <= k[0] <= last]:
+            del self._values[key]  # objects the EDS lacks fall back to the built-ins again
         for var in self.variables():
             if first <= var.index <= last:
                 default = var.value if var.value is not None else var.default
                 if default is None:
-                    default = "" if var.data_type in (datatypes.VISIBLE_STRING, datatypes.UNICODE_STRING) else 0
+                    builtin = self._builtins(var.index, var.subindex) if self._builtins else None
+                    default = builtin if builtin is not None else (
+                        "" if var.data_type in (datatypes.VISIBLE_STRING, datatypes.UNICODE_STRING) else 0)
                 self._values[(var.index, var.subindex)] = default
 
     def reset_all(self) -> None:
@@ -97,7 +117,11 @@ class ObjectStore:
 
     # -- internal access (no checks, no hooks) -----------------------------------------------
     def get(self, index: int, sub: int = 0) -> Any:
-        return self._values[(index, sub)]
+        try:
+            return self._values[(index, sub)]
+        except KeyError:  # not in this EDS: the model still needs a value
+            builtin = self._builtins(index, sub) if self._builtins else None
+            return 0 if builtin is None else builtin
 
     def set(self, index: int, sub: int, value: Any) -> None:
         self._values[(index, sub)] = value
@@ -109,7 +133,13 @@ class ObjectStore:
             live = provider(sub)
             if live is not None:
                 return live
-        return self._values[(index, sub)]
+        return self.get(index, sub)
+
+    def wire_value(self, index: int, sub: int = 0) -> Any:
+        """:meth:`value` in the units of the wire (``scale`` applied)."""
+        value = self.value(index, sub)
+        factor = self.scale.get(index)
+        return value if factor is None else round(value * factor)
 
     # -- checked access (SDO, PDO) -----------------------------------------------------------
     def variable(self, index: int, sub: int) -> odmod.ODVariable:
@@ -129,7 +159,7 @@ class ObjectStore:
         var = self.variable(index, sub)
         if not var.readable:
             raise SdoAbort(ABORT_WRITE_ONLY)
-        return self.encode(var, self.value(index, sub))
+        return self.encode(var, self.wire_value(index, sub))
 
     def write_bytes(self, index: int, sub: int, data: bytes) -> None:
         var = self.variable(index, sub)
@@ -138,12 +168,18 @@ class ObjectStore:
         self.write_value(var, self.decode(var, data))
 
     def write_value(self, var: odmod.ODVariable, value: Any) -> None:
-        """Range-check ``value``, run the write hooks, then store it."""
+        """Range-check the wire ``value``, convert it (``scale``), run the write hooks, store it."""
         if isinstance(value, int):
             if var.min is not None and value < var.min:
                 raise SdoAbort(ABORT_VALUE_LOW)
             if var.max is not None and value > var.max:
                 raise SdoAbort(ABORT_VALUE_HIGH)
+        allowed = self.allowed.get((var.index, var.subindex))
+        if allowed is not None and value not in allowed:
+            raise SdoAbort(ABORT_VALUE_RANGE, f"{value} not supported")
+        factor = self.scale.get(var.index)
+        if factor is not None and isinstance(value, (int, float)):
+            value = value / factor
         for hook in self._writers.get(var.index, ()):
             hook(var.subindex, value)
         self._values[(var.index, var.subindex)] = value

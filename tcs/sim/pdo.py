@@ -233,7 +233,7 @@ class PdoEngine:
 
     def _pack(self, n: int) -> bytes:
         packer, fields = self._packer(n)
-        value = self.store.value
+        value = self.store.wire_value
         return packer.pack(*[min(hi, max(lo, int(value(index, sub)))) for index, sub, lo, hi in fields])
 
     def _tpdo_comm(self, n: int) -> tuple[int | None, int, float, float]:

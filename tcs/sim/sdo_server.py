@@ -5,16 +5,18 @@ Pure protocol: :meth:`SdoServer.handle` takes the 8 data bytes of a request (COB
 to be answered. The node decides whether to call it at all (a dead node does not) and sends
 the answer.
 
-Block transfers are not supported: a block upload request falls back to a segmented upload
-(CiA-301 allows the server to do so); a block download is aborted with 0x05040001. A
-segmented download is checked against the object when its last segment arrives.
+Block transfers are not supported: block upload and block download requests are aborted with
+0x05040001 (command specifier not valid), as drives without block transfer do. A segmented
+download is checked against the object when its last segment arrives. An object the model
+cannot encode (a DOMAIN without a value …) answers 0x08000000 instead of taking the node down.
 """
 
 from __future__ import annotations
 
 import struct
 
-from tcs.sim.object_store import ABORT_COMMAND, ABORT_READ_ONLY, ABORT_TOGGLE, ObjectStore, SdoAbort
+from tcs.sim.object_store import (ABORT_COMMAND, ABORT_GENERAL, ABORT_READ_ONLY, ABORT_TOGGLE,
+                                  ObjectStore, SdoAbort)
 
 _HEADER = struct.Struct("<BHB")
 
@@ -64,7 +66,7 @@ class SdoServer:
             if self.refuse_code is not None:
                 self.reset()
                 raise SdoAbort(self.refuse_code)
-            if ccs in (_CCS_INIT_UPLOAD, _CCS_BLOCK_UPLOAD):
+            if ccs == _CCS_INIT_UPLOAD:
                 return self._init_upload()
             if ccs == _CCS_UPLOAD_SEGMENT:
                 return self._upload_segment(data[0])
@@ -76,6 +78,9 @@ class SdoServer:
         except SdoAbort as exc:
             self.reset()
             return abort_frame(self._index, self._sub, exc.code)
+        except Exception:  # never crash the node on an odd object: a general error
+            self.reset()
+            return abort_frame(self._index, self._sub, ABORT_GENERAL)
 
     def _init_upload(self) -> bytes:
         payload = self.store.read_bytes(self._index, self._sub)

@@ -1,0 +1,433 @@
+"""What a drive's EDS allows, checked before anything talks to the bus.
+
+Real object dictionaries differ: objects the boot writes may be absent (0x1016, 0x607D,
+0x6066, homing objects …), restricted (read-only, ``HighLimit``), not PDO-mappable (0x603F),
+and modes missing from 0x6502. Every SDO access of the boot goes through one rule,
+:func:`verdict`, fed by the drive's own EDS (``canopen.import_od``):
+
+* the object exists: write it if it is writable and the value lies within the EDS limits
+  (and the data type's range);
+* it is absent (or read-only and already holding the value): an **optional** object
+  (:data:`tcs.drivers.boot.OPTIONAL`) is skipped — logged once at INFO, naming the drive,
+  the object and what is lost; a mandatory one is an error naming the drive and what the
+  axis cannot do without it;
+* a value outside the limits is a configuration error naming the hardware file, the key,
+  the object and the allowed range — at start, never as an SDO abort halfway through a boot.
+
+:func:`check_drive` runs that rule over the boot's whole configuration
+(:func:`tcs.drivers.boot.configuration`), the PDO mapping (:func:`tcs.drivers.pdo.eds_mapping`),
+the ``[drives.<name>.sdo]`` raw writes and the modes of 0x6502; :func:`check_config` does it
+for every drive of a hardware file (``load_config`` and :class:`~tcs.drivers.can_system.CanDrives`
+call it). The boot (:func:`tcs.drivers.boot.boot_node`) uses :func:`usable_writes` — the same
+rule — so what was validated is what is written.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import canopen
+from canopen import objectdictionary as odmod
+from canopen.objectdictionary import datatypes
+
+from tcs.config.can import CanSection, DriveSection
+from tcs.errors import ConfigError, HardwareError
+from tcs.resources import hwconfig_file
+
+log = logging.getLogger(__name__)
+
+SIM_EDS = hwconfig_file("eds/tcs-sim-drive.eds")  # package data (tcs.resources)
+
+#: 0x6502 bits of the modes the TCS uses.
+MODE_BITS = {1: 0, 3: 2, 6: 5, 8: 7}
+MODE_NAMES = {1: "profile position (PP)", 3: "profile velocity (PV)", 6: "homing (HM)",
+              8: "cyclic synchronous position (CSP)"}
+#: Objects of homing mode (not written for an ``absolute`` drive).
+HOMING_OBJECTS = frozenset({0x6098, 0x6099, 0x609A, 0x607C})
+
+_FORMATS = {datatypes.INTEGER8: "<b", datatypes.UNSIGNED8: "<B", datatypes.INTEGER16: "<h",
+            datatypes.UNSIGNED16: "<H", datatypes.INTEGER32: "<i", datatypes.UNSIGNED32: "<I",
+            datatypes.INTEGER64: "<q", datatypes.UNSIGNED64: "<Q", datatypes.BOOLEAN: "<B",
+            datatypes.REAL32: "<f", datatypes.REAL64: "<d"}
+
+_cache: dict[tuple[str, float, int], canopen.ObjectDictionary] = {}
+_cache_lock = threading.Lock()
+
+
+def load_od(path: str | os.PathLike, node_id: int) -> canopen.ObjectDictionary:
+    """The object dictionary of an EDS (cached per file, modification time and node id)."""
+    p = Path(path).resolve()
+    key = (str(p), p.stat().st_mtime, node_id)
+    with _cache_lock:
+        od = _cache.get(key)
+        if od is None:
+            od = _cache[key] = canopen.import_od(str(p), node_id)
+        return od
+
+
+def variable(od: canopen.ObjectDictionary, index: int, sub: int) -> odmod.ODVariable | None:
+    """The entry (index, sub) of ``od`` or None when the drive does not have it."""
+    obj = od.get(index)
+    if obj is None:
+        return None
+    if isinstance(obj, odmod.ODVariable):
+        return obj if sub == 0 else None
+    return obj.subindices.get(sub)
+
+
+def limits(var: odmod.ODVariable) -> tuple[int | float | None, int | float | None]:
+    """(low, high) a write must respect: the EDS limits within the data type's range."""
+    lo, hi = var.min, var.max
+    if var.data_type in datatypes.INTEGER_TYPES:
+        bits = len(var)
+        if var.data_type in datatypes.SIGNED_TYPES:
+            tlo, thi = -(1 << (bits - 1)), (1 << (bits - 1)) - 1
+        else:
+            tlo, thi = 0, (1 << bits) - 1
+        lo = tlo if lo is None else max(lo, tlo)
+        hi = thi if hi is None else min(hi, thi)
+    return lo, hi
+
+
+def value_format(var: odmod.ODVariable) -> str | None:
+    """The struct format of a numeric object (None for strings, domains …)."""
+    return _FORMATS.get(var.data_type)
+
+
+def default_value(var: odmod.ODVariable | None):
+    if var is None:
+        return None
+    return var.value if var.value is not None else var.default
+
+
+def supported_modes(od: canopen.ObjectDictionary) -> int | None:
+    """0x6502 as the EDS gives it (its default value), or None when unknown."""
+    value = default_value(variable(od, 0x6502, 0))
+    return int(value) if isinstance(value, int) else None
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """What to do with one write: ``write``, ``skip`` (with why) or ``error`` (with why)."""
+
+    action: str
+    why: str = ""
+
+
+def verdict(od: canopen.ObjectDictionary, index: int, sub: int, value, optional: bool) -> Verdict:
+    """The one rule every boot write goes through (see the module docstring)."""
+    var = variable(od, index, sub)
+    if var is None:
+        what = "object" if od.get(index) is None else "sub-index"
+        if optional:
+            return Verdict("skip", f"the drive has no {what} 0x{index:04X}:{sub}")
+        return Verdict("error", f"the drive has no {what} 0x{index:04X}:{sub}")
+    if not var.writable:
+        if default_value(var) == value:
+            return Verdict("skip", f"0x{index:04X}:{sub} is read-only and already {value}")
+        if optional:
+            return Verdict("skip", f"0x{index:04X}:{sub} is read-only on this drive "
+                                   f"(fixed to {default_value(var)})")
+        return Verdict("error", f"0x{index:04X}:{sub} is read-only on this drive (fixed to "
+                                f"{default_value(var)}), {value} is wanted")
+    lo, hi = limits(var)
+    if isinstance(value, (int, float)) and (lo is not None and value < lo or hi is not None and value > hi):
+        return Verdict("error", f"0x{index:04X}:{sub} = {value} is outside the drive's range "
+                                f"{'' if lo is None else lo}..{'' if hi is None else hi}")
+    return Verdict("write")
+
+
+def is_optional(index: int, sub: int, section: DriveSection) -> bool:
+    """Whether the boot may do without object (index, sub) on this drive."""
+    from tcs.drivers.boot import OPTIONAL
+    if 0x1800 <= index <= 0x1803 and sub in (3, 5):
+        return True  # inhibit time / event timer of an event-driven TPDO
+    if index in (0x6081, 0x6083) and section.default_mode == "pp":
+        return False
+    return index in OPTIONAL
+
+
+def usable_writes(od: canopen.ObjectDictionary, writes, section: DriveSection, device: str):
+    """The boot's writes that the drive takes; skipped ones dropped, errors raised.
+
+    ``writes`` are ``(index, sub, format, value)``; homing objects are dropped for an
+    ``absolute`` drive.
+    """
+    out = []
+    for index, sub, fmt, value in writes:
+        if section.absolute and index in HOMING_OBJECTS:
+            continue
+        v = verdict(od, index, sub, value, is_optional(index, sub, section))
+        if v.action == "write":
+            out.append((index, sub, fmt, value))
+        elif v.action == "error":
+            raise HardwareError(device, v.why)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# start-up check of the configuration
+
+#: The hardware-file key behind each boot write, and the unit its drive value is in.
+KEYS: dict[tuple[int, int], tuple[str, str]] = {
+    (0x1017, 0): ("heartbeat_period", "ms"),
+    (0x1016, 1): ("heartbeat_consumer_timeout", "ms"),
+    (0x1006, 0): ("can.sync_period", "µs"),
+    (0x60C2, 1): ("can.sync_period", ""),
+    (0x60C2, 2): ("can.sync_period", ""),
+    (0x607D, 1): ("min_position", "position"),
+    (0x607D, 2): ("max_position", "position"),
+    (0x6065, 0): ("following_error_window", "position"),
+    (0x6066, 0): ("following_error_timeout", "ms"),
+    (0x607F, 0): ("max_velocity", "velocity"),
+    (0x6081, 0): ("max_velocity", "velocity"),
+    (0x6083, 0): ("max_acceleration", "acceleration"),
+    (0x6084, 0): ("max_acceleration", "acceleration"),
+    (0x6085, 0): ("quick_stop_deceleration", "acceleration"),
+    (0x6098, 0): ("homing.method", ""),
+    (0x6099, 1): ("homing.speed_switch", "velocity"),
+    (0x6099, 2): ("homing.speed_zero", "velocity"),
+    (0x609A, 0): ("homing.acceleration", "acceleration"),
+    (0x607C, 0): ("homing.offset", "position"),
+}
+
+#: What the axis loses without a mandatory object (for the error text).
+NEEDED_FOR = {
+    0x1017: "the TCS cannot watch the drive (heartbeat producer)",
+    0x6040: "the axis cannot be commanded (controlword)",
+    0x6041: "the axis state cannot be read (statusword)",
+    0x6060: "the axis cannot switch modes (CSP, homing, profile moves)",
+    0x6061: "the mode of operation cannot be confirmed",
+    0x6064: "the axis position cannot be read",
+    0x607A: "the axis cannot be given setpoints (target position)",
+    0x6081: "profile moves (discrete axes) have no speed",
+    0x6083: "profile moves (discrete axes) have no acceleration",
+    0x6098: "the axis cannot be referenced by a homing run (set absolute = true for an "
+            "absolute encoder)",
+}
+
+
+def _user_range(lo, hi, kind: str, section: DriveSection) -> str:
+    scale = {"position": abs(section.increments_per_unit), "velocity": abs(section.velocity_scale),
+             "acceleration": section.acceleration_scale}.get(kind)
+    if scale:
+        unit = {"position": "units", "velocity": "units/s", "acceleration": "units/s²"}[kind]
+        a = "" if lo is None else f"{lo / scale:g}"
+        b = "" if hi is None else f"{hi / scale:g}"
+        return f" (= {a}..{b} {unit})"
+    if kind == "ms":
+        a = "" if lo is None else f"{lo / 1000:g}"
+        b = "" if hi is None else f"{hi / 1000:g}"
+        return f" (= {a}..{b} s)"
+    return ""
+
+
+@dataclass
+class DriveReport:
+    """The outcome of :func:`check_drive` for one drive."""
+
+    problems: list[ConfigError] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)      # optional objects skipped (INFO)
+    warnings: list[str] = field(default_factory=list)   # loud: e.g. no heartbeat consumer
+    conditions: list[tuple[str, str]] = field(default_factory=list)  # axis WARNING conditions
+    mapping: dict[str, tuple[int, ...]] = field(default_factory=dict)
+    has_error_code: bool = True
+
+
+def object_label(index: int, sub: int = 0) -> str:
+    from tcs.drivers.boot import object_name
+    name = object_name(index)
+    return f"0x{index:04X}:{sub}" + (f" ({name})" if name else "")
+
+
+def check_drive(name: str, section: DriveSection, can: CanSection, od: canopen.ObjectDictionary,
+                file: str, eds_name: str = "EDS") -> DriveReport:
+    """Check one drive's configuration against its EDS (nothing is sent)."""
+    from tcs.drivers.boot import LOST, configuration
+    from tcs.drivers.pdo import eds_mapping
+
+    report = DriveReport()
+    device = f"drive {name} (node {section.node_id})"
+    prefix = f"drives.{name}"
+
+    def problem(key: str, text: str) -> None:
+        report.problems.append(ConfigError(file, key, f"{device}: {text}"))
+
+    # -- mandatory objects the axis cannot work without ---------------------------------------
+    mandatory = [0x6040, 0x6041, 0x6060, 0x6061, 0x6064, 0x607A, 0x1017]
+    if section.default_mode == "pp":
+        mandatory += [0x6081, 0x6083]
+    if not section.absolute:
+        mandatory.append(0x6098)
+    for index in mandatory:
+        if od.get(index) is None:
+            remedy = (" — set absolute = true if the axis is referenced by configuration"
+                      if index == 0x6098 else " — this drive cannot run the axis")
+            problem(f"{prefix}.eds", f"the EDS ({eds_name}) has no {object_label(index)}: "
+                                     f"{NEEDED_FOR.get(index, 'the axis needs it')}{remedy}")
+    # -- the configuration writes ---------------------------------------------------------------
+    try:
+        writes = configuration(section, can, device)
+    except HardwareError as exc:
+        problem(prefix, exc.message)
+        writes = []
+    for index, sub, _fmt, value in writes:
+        if section.absolute and index in HOMING_OBJECTS:
+            continue
+        optional = is_optional(index, sub, section)
+        v = verdict(od, index, sub, value, optional)
+        key, kind = KEYS.get((index, sub), ("", ""))
+        full_key = key if key.startswith("can.") else (f"{prefix}.{key}" if key else prefix)
+        if v.action == "skip" and variable(od, index, sub) is not None:
+            lost = LOST.get(index, "left as the drive has it")
+            text = f"{device}: {object_label(index, sub)} skipped: {v.why}; {lost}"
+            (report.warnings if index == 0x1016 else report.notes).append(text)
+        elif v.action == "error":
+            var = variable(od, index, sub)
+            if var is None:
+                if index not in mandatory:  # (mandatory absences are reported above)
+                    problem(full_key, f"{v.why} ({eds_name}): {NEEDED_FOR.get(index, 'the boot needs it')}")
+            elif not var.writable:
+                problem(full_key, f"{object_label(index, sub)}: {v.why} ({eds_name}); configure "
+                                  f"{key or 'it'} to match")
+            else:
+                lo, hi = limits(var)
+                problem(full_key, f"{object_label(index, sub)} = {value} is outside the range "
+                                  f"the drive allows, {'' if lo is None else lo}.."
+                                  f"{'' if hi is None else hi}{_user_range(lo, hi, kind, section)} "
+                                  f"({eds_name})")
+    # The skip verdicts of absent objects: one line each (verdict text says "has no").
+    absent_seen = set()
+    for index, sub, _fmt, value in writes:
+        if section.absolute and index in HOMING_OBJECTS:
+            continue
+        if variable(od, index, sub) is None and is_optional(index, sub, section) and index not in absent_seen:
+            absent_seen.add(index)
+            lost = LOST.get(index, "left as the drive has it")
+            text = f"{device}: the drive has no {object_label(index, sub)}: skipped; {lost}"
+            (report.warnings if index == 0x1016 else report.notes).append(text)
+    if variable(od, 0x1016, 1) is None:
+        report.conditions.append(("no_heartbeat_consumer",
+                                  f"drive {name} has no 0x1016 heartbeat consumer: it will not "
+                                  f"notice a dead TCS"))
+    # -- PDO mapping -----------------------------------------------------------------------------
+    mapping, pdo_problems, pdo_notes = eds_mapping(section, od)
+    report.mapping = mapping
+    for key, text in pdo_problems:
+        problem(f"{prefix}.{key}", f"{text} ({eds_name})")
+    report.notes.extend(f"{device}: {n}" for n in pdo_notes)
+    code = variable(od, 0x603F, 0)
+    report.has_error_code = code is not None and code.readable
+    if not report.has_error_code:
+        report.notes.append(f"{device}: the drive has no readable {object_label(0x603F)}: "
+                            f"{LOST[0x603F]}")
+    # -- modes (0x6502; optional on many drives: then nothing is checked) -------------------------
+    modes = supported_modes(od)
+    if modes is not None:
+        wanted = 8 if section.default_mode == "csp" else 1
+        if not modes >> MODE_BITS[wanted] & 1:
+            other = "pp" if wanted == 8 else "csp"
+            problem(f"{prefix}.default_mode",
+                    f"0x6502 (supported drive modes 0x{modes:08X}, {eds_name}) has no "
+                    f"{MODE_NAMES[wanted]}, the default_mode configured; remedy: "
+                    f"default_mode = '{other}' if the axis can run so (discrete axes), or a "
+                    f"drive/firmware with {MODE_NAMES[wanted].split('(')[1][:-1]}")
+        if not section.absolute and not modes >> MODE_BITS[6] & 1:
+            problem(f"{prefix}.homing", f"0x6502 (supported drive modes 0x{modes:08X}, "
+                                        f"{eds_name}) has no homing mode; remedy: absolute = "
+                                        f"true when the encoder is absolute (referenced by "
+                                        f"configuration)")
+    if not section.absolute:
+        supported = od.get(0x60E3)
+        if supported is not None and not isinstance(supported, odmod.ODVariable):
+            methods = {default_value(v) for s, v in supported.subindices.items() if s}
+            methods = {m - 256 if isinstance(m, int) and m > 127 else m for m in methods}
+            if methods and section.homing.method not in methods:
+                problem(f"{prefix}.homing.method",
+                        f"homing method {section.homing.method} is not among the drive's "
+                        f"0x60E3 supported homing methods {sorted(m for m in methods if m is not None)} "
+                        f"({eds_name})")
+    # -- raw writes ------------------------------------------------------------------------------
+    for key, index, sub, value in section.raw_writes:
+        var = variable(od, index, sub)
+        full_key = f"{prefix}.sdo.{key}"
+        if var is None:
+            problem(full_key, f"the drive has no object 0x{index:04X}:{sub} ({eds_name})")
+        elif value_format(var) is None:
+            problem(full_key, f"0x{index:04X}:{sub} is not a number object ({eds_name})")
+        else:
+            v = verdict(od, index, sub, value, optional=False)
+            if not var.writable:
+                problem(full_key, f"0x{index:04X}:{sub} is read-only ({eds_name})")
+            elif v.action == "error":
+                lo, hi = limits(var)
+                problem(full_key, f"{value} is outside the range of 0x{index:04X}:{sub}, "
+                                  f"{'' if lo is None else lo}..{'' if hi is None else hi} ({eds_name})")
+    return report
+
+
+def raw_writes(od: canopen.ObjectDictionary, section: DriveSection, device: str):
+    """``[drives.x.sdo]`` as boot writes ``(index, sub, format, value)`` (checked at start)."""
+    out = []
+    for key, index, sub, value in section.raw_writes:
+        var = variable(od, index, sub)
+        fmt = value_format(var) if var is not None else None
+        if fmt is None:
+            raise HardwareError(device, f"sdo.{key}: no numeric object 0x{index:04X}:{sub}")
+        out.append((index, sub, fmt, float(value) if fmt in ("<f", "<d") else value))
+    return out
+
+
+def eds_path(section: DriveSection, resolve) -> Path:
+    """The drive's EDS as a path (the simulated drive's when none is configured)."""
+    return Path(resolve(section.eds)) if section.eds else SIM_EDS
+
+
+def check_config(can: CanSection | None, drives: dict[str, DriveSection], axes: dict | None,
+                 resolve, file: str) -> tuple[list[ConfigError], dict[str, DriveReport]]:
+    """Every drive of a hardware file against its EDS; (problems, reports by drive)."""
+    problems: list[ConfigError] = []
+    reports: dict[str, DriveReport] = {}
+    if can is None:
+        return problems, reports
+    for name, section in drives.items():
+        path = eds_path(section, resolve)
+        if not path.is_file():
+            problems.append(ConfigError(file, f"drives.{name}.eds", f"EDS file {path} not found"))
+            continue
+        try:
+            od = load_od(path, section.node_id)
+        except Exception as exc:  # canopen raises many kinds on a broken file
+            problems.append(ConfigError(file, f"drives.{name}.eds", f"cannot read EDS {path}: {exc}"))
+            continue
+        report = check_drive(name, section, can, od, file, path.name)
+        reports[name] = report
+        problems.extend(report.problems)
+    from tcs.config.axes import DISCRETE_MODULES
+    for axis_name, axis in (axes or {}).items():
+        section = drives.get(axis.drive)
+        if section is None or axis.drive not in reports or axis.module in DISCRETE_MODULES:
+            continue
+        path = eds_path(section, resolve)
+        modes = supported_modes(load_od(path, section.node_id))
+        if modes is not None and not modes >> MODE_BITS[8] & 1:
+            problems.append(ConfigError(
+                file, f"axes.{axis_name}.drive",
+                f"drive {axis.drive} (node {section.node_id}): 0x6502 (supported drive modes "
+                f"0x{modes:08X}, {path.name}) has no cyclic synchronous position (CSP); axis "
+                f"{axis.module} follows trajectories and needs it — the TCS does not run such "
+                f"an axis in PP/PV; use a drive or firmware with CSP"))
+    return problems, reports
+
+
+def log_report(reports: dict[str, DriveReport]) -> None:
+    """Log each note (INFO) and warning (WARNING): once per start (``CanDrives`` calls it;
+    boots and re-boots do not log again)."""
+    for report in reports.values():
+        for level, lines in ((logging.WARNING, report.warnings), (logging.INFO, report.notes)):
+            for line in lines:
+                log.log(level, "%s", line)

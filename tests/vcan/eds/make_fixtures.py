@@ -1,0 +1,130 @@
+"""Write the vendor-like EDS fixtures of this directory (run it after changing the sim EDS).
+
+Each fixture is OUR simulated drive's EDS (hwconfig/eds/tcs-sim-drive.eds) changed in one
+way that real drives differ (facts from public vendor EDS files; nothing is copied from
+them):
+
+========================  ====================================================================
+vendor-no-hbconsumer      no 0x1016 consumer heartbeat time (node guarding only)
+vendor-no-softlimits      no 0x607D software position limit
+vendor-fe-limited         0x6066 following-error time-out with HighLimit 0
+vendor-no-homing          no homing objects 0x6098-0x609A, 0x607C; 0x6502 without homing
+                          mode; a vendor home offset 0x2100 instead
+vendor-rpm                velocities in rpm (0x60A9 says so), 0x607F HighLimit 6000
+vendor-no-csp             0x6502 without cyclic synchronous position
+vendor-pdo-restricted     0x603F not PDO-mappable; no event timer (sub-index 5) in 0x1800-0x1803
+vendor-revision           another RevisionNumber (a firmware update)
+========================  ====================================================================
+
+Usage: ``python tests/vcan/eds/make_fixtures.py``.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+SOURCE = HERE.parents[2] / "hwconfig" / "eds" / "tcs-sim-drive.eds"
+
+
+def sections(text: str) -> list[tuple[str, list[str]]]:
+    out: list[tuple[str, list[str]]] = [("", [])]
+    for line in text.splitlines():
+        m = re.match(r"^\[(.+)\]\s*$", line)
+        if m:
+            out.append((m.group(1), []))
+        else:
+            out[-1][1].append(line)
+    return out
+
+
+def render(parts: list[tuple[str, list[str]]]) -> str:
+    lines = []
+    for name, body in parts:
+        if name:
+            lines.append(f"[{name}]")
+        lines.extend(body)
+    return "\n".join(lines).rstrip("\n") + "\n"
+
+
+def relist(parts):
+    """Rebuild [OptionalObjects] / [ManufacturerObjects] from the objects present."""
+    present = sorted({int(n, 16) for n, _ in parts if re.fullmatch(r"[0-9A-Fa-f]{4}", n)})
+    mandatory = {0x1000, 0x1001, 0x1018}
+    optional = [i for i in present if i not in mandatory and not 0x2000 <= i < 0x6000]
+    vendor = [i for i in present if 0x2000 <= i < 0x6000]
+    out = []
+    for name, body in parts:
+        if name == "OptionalObjects":
+            body = [f"SupportedObjects={len(optional)}"] + [f"{k}=0x{i:04X}" for k, i in enumerate(optional, 1)] + [""]
+        elif name == "ManufacturerObjects":
+            body = [f"SupportedObjects={len(vendor)}"] + [f"{k}=0x{i:04X}" for k, i in enumerate(vendor, 1)] + [""]
+        out.append((name, body))
+    return out
+
+
+def without(parts, *indices: str, subs: tuple[str, ...] = ()):
+    drop = re.compile(r"^(" + "|".join(indices) + r")(sub[0-9A-Fa-f]+)?$") if indices else None
+    return [(n, b) for n, b in parts
+            if not (drop and drop.match(n)) and n not in subs]
+
+
+def setkey(parts, section: str, key: str, value: str):
+    out = []
+    for name, body in parts:
+        if name == section:
+            body = [line for line in body if not line.startswith(f"{key}=")]
+            while body and body[-1] == "":
+                body.pop()
+            body = body + [f"{key}={value}", ""]
+        out.append((name, body))
+    return out
+
+
+def header(parts, description: str):
+    return setkey(setkey(parts, "FileInfo", "Description", description), "DeviceInfo",
+                  "ProductName", description)
+
+
+def add(parts, name: str, body: list[str]):
+    return parts + [(name, body + [""])]
+
+
+def pdo_no_timer(parts):
+    for n in range(4):
+        parts = setkey(parts, f"180{n}sub0", "DefaultValue", "3")
+    return parts
+
+
+def main() -> None:
+    base = sections(SOURCE.read_text(encoding="utf-8"))
+    base[0] = ("", ["; Vendor-like fixture written for the TCS tests (tests/vcan/eds/make_fixtures.py),",
+                    "; derived from the simulated drive's EDS. Not a copy of any vendor's file.", ""])
+    fixtures = {
+        "vendor-no-hbconsumer": without(base, "1016"),
+        "vendor-no-softlimits": without(base, "607D"),
+        "vendor-fe-limited": setkey(setkey(setkey(base, "6066", "HighLimit", "0"), "6066", "LowLimit", "0"),
+                                    "6066", "DefaultValue", "0"),
+        "vendor-no-homing": add(setkey(without(base, "6098", "6099", "609A", "607C"), "6502",
+                                       "DefaultValue", "0x00000085"),
+                                "2100", ["ParameterName=Vendor home offset", "ObjectType=0x7",
+                                         "DataType=0x0004", "AccessType=rw", "DefaultValue=0",
+                                         "PDOMapping=0"]),
+        "vendor-rpm": add(setkey(base, "607F", "HighLimit", "6000"),
+                          "60A9", ["ParameterName=SI unit velocity", "ObjectType=0x7",
+                                   "DataType=0x0007", "AccessType=ro",
+                                   "DefaultValue=0x00B44700", "PDOMapping=0"]),
+        "vendor-no-csp": setkey(base, "6502", "DefaultValue", "0x00000025"),
+        "vendor-pdo-restricted": setkey(pdo_no_timer(without(base, subs=("1800sub5", "1801sub5", "1802sub5",
+                                                                         "1803sub5"))),
+                                        "603F", "PDOMapping", "0"),
+        "vendor-revision": setkey(base, "DeviceInfo", "RevisionNumber", "0x00020003"),
+    }
+    for name, parts in fixtures.items():
+        parts = setkey(header(relist(parts), f"TCS test fixture {name}"), "FileInfo", "FileName", f"{name}.eds")
+        (HERE / f"{name}.eds").write_text(render(parts), encoding="utf-8")
+
+
+if __name__ == "__main__":
+    main()

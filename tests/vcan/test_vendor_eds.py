@@ -1,0 +1,232 @@
+"""The CiA-402 master against drives that are not ours (issue 15): EDS-driven boot, unit
+factors, raw SDO writes, and the simulator behaving as the EDS it is given.
+
+The fixtures of ``tests/vcan/eds/`` are written by us (``make_fixtures.py``); each differs from
+our simulated drive in one way real drives do. Real CANopen frames between the TCS's driver
+and the simulated drives; tests wait for states, never for durations.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+from cia402_rig import AxisSpec, Rig
+
+from tcs.config.can import HomingSection
+from tcs.drivers.drive import DriveState, Mode, Progress
+from tcs.errors import ConfigErrors, HardwareError
+from tcs.sim.cia402_drive import SimDriveParams
+
+EDS = Path(__file__).parent / "eds"
+
+
+def fixture(name: str) -> str:
+    return str(EDS / f"{name}.eds")
+
+
+def vendor(node: int, name: str, params: SimDriveParams | None = None, **section) -> AxisSpec:
+    """A drive of EDS ``name`` for both sides (the TCS's configuration and the simulator)."""
+    params = params or SimDriveParams()
+    return AxisSpec(node, params=params, section={"eds": fixture(name), **section},
+                    sim_eds=fixture(name))
+
+
+# ----------------------------------------------------------------------------- units (rpm)
+
+def test_rpm_drive_profile_move_runs_at_the_configured_speed(can_channel):
+    """10000 counts per user unit (one motor revolution): 1 unit/s = 60 rpm. A PP move of
+    4 units at 1.5 units/s must run at 1.5 units/s as the drive itself reports it
+    (0x606C in rpm), and take the trapezoid's time: distance / v + v / a."""
+    factor = 60.0
+    params = SimDriveParams(max_velocity=5.0, max_acceleration=20.0, velocity_scale=factor / 10000,
+                            acceleration_scale=factor / 10000)
+    spec = vendor(1, "vendor-rpm", params, default_mode="pp", velocity_factor=factor,
+                  acceleration_factor=factor, max_velocity=3.0, max_acceleration=4.0)
+    with Rig(can_channel, {"m": spec}) as rig:
+        samples: list[tuple[int, float, float]] = []
+        rig.cycle_hooks.append(lambda cycle: samples.append(
+            (len(samples), rig.status("m").position, rig.status("m").velocity)))
+        assert rig.boot_and_start() == {}
+        sim = rig.sims["m"]
+        assert rig.drive("m")._sdo.read(0x6083, 0, "<I") == round(4.0 * factor)  # rpm/s on the wire
+        rig.enable("m")
+        rig.drive("m").move_to(4.0, velocity=1.5)
+        rig.wait(lambda: rig.status("m").move is not Progress.IDLE, what="move started")
+        rig.wait(lambda: rig.status("m").move is not Progress.RUNNING, timeout=30, what="move end")
+        assert rig.status("m").move is Progress.DONE, rig.status("m").request_error
+        assert rig.drive("m")._sdo.read(0x6081, 0, "<I") == round(1.5 * factor)  # 90 rpm
+        assert sim.position == pytest.approx(4.0, abs=1e-3)
+        moving = [s for s in samples if abs(s[2]) > 1e-6]
+        peak = max(abs(v) for _, _, v in moving)
+        assert peak == pytest.approx(1.5, rel=0.05)  # rpm resolution: 1 rpm = 0.0167 units/s
+        # The profile: cycles spent moving ≈ (d / v + v / a) / SYNC period (from the drive's
+        # own velocity reports, one per SYNC; not a wall-clock measurement).
+        cycles = moving[-1][0] - moving[0][0] + 1
+        predicted = (4.0 / 1.5 + 1.5 / 4.0) / rig.can.sync_period
+        assert cycles == pytest.approx(predicted, rel=0.1)
+
+
+# ----------------------------------------------------------------------- [drives.x.sdo] writes
+
+def test_raw_sdo_writes_land_after_the_configuration(can_channel):
+    spec = vendor(1, "vendor-no-homing", absolute=True,
+                  sdo={"0x2100:0": -1234, "0x6067:0": 77, "0x6065:0": 4321})
+    with Rig(can_channel, {"az": spec}) as rig:
+        assert rig.boot_and_start() == {}
+        sdo = rig.drive("az")._sdo
+        assert sdo.read(0x2100, 0, "<i") == -1234     # a vendor object (home offset)
+        assert sdo.read(0x6067, 0, "<I") == 77
+        assert sdo.read(0x6065, 0, "<I") == 4321      # after our own 0x6065 write: it wins
+        # absolute: referenced by configuration, no homing run, no homing mode
+        rig.enable("az")
+        assert rig.status("az").homed
+        rig.drive("az").start_homing()
+        rig.wait(lambda: rig.status("az").homing is Progress.DONE, what="homing done at once")
+        assert rig.sims["az"].mode_display == Mode.CSP
+
+
+@pytest.mark.parametrize("entry, value, needle", [
+    ("0x9999:0", 1, "the drive has no object 0x9999:0"),
+    ("0x6041:0", 1, "0x6041:0 is read-only"),
+    ("0x605A:0", 9, "9 is outside the range of 0x605A:0, 0..8"),
+])
+def test_bad_raw_sdo_entry_is_a_start_error_naming_file_and_key(can_channel, entry, value, needle):
+    with pytest.raises(ConfigErrors) as info:
+        with Rig(can_channel, {"az": AxisSpec(1, section={"sdo": {entry: value}})}):
+            pass
+    messages = [e.message for e in info.value.errors]
+    assert any(m.startswith(f"<hardware file>: drives.az.sdo.{entry}: drive az (node 1): ")
+               and needle in m for m in messages), messages
+
+
+# ------------------------------------------------------------------ PDO mapping from the EDS
+
+def test_error_code_not_mappable_is_left_out_and_faults_still_name_their_code(can_channel):
+    with Rig(can_channel, {"az": vendor(1, "vendor-pdo-restricted")}) as rig:
+        assert rig.boot_and_start() == {}
+        sim = rig.sims["az"]
+        assert [sim.read_object(0x1A02, i) for i in range(2)] == [1, 0x60FD0020]
+        assert rig.drive("az").layouts["tpdo3"].indices == (0x60FD,)
+        rig.enable("az")
+        sim.inject_fault("following_error")
+        rig.wait(lambda: rig.status("az").fault is not None, what="fault seen")
+        assert "0x8611" in rig.status("az").fault.message
+        # Without an EMCY (its COB-ID switched off) the code is read by SDO, once, on the fault.
+        rig.drive("az").fault_reset()
+        rig.wait(lambda: rig.status("az").fault is None, what="fault reset")
+        rig.drive("az")._sdo.write(0x1014, 0, "<I", 0x80000081)
+        rig.enable("az")
+        sim.inject_fault("encoder")
+        rig.wait(lambda: rig.status("az").fault is not None and "0x7305" in rig.status("az").fault.message,
+                 what="error code read by SDO")
+
+
+def test_identity_without_revision_accepts_another_firmware(can_channel):
+    from tcs.config.can import IdentitySection
+    params = SimDriveParams(identity=(0xABC, 0x00402001, 0x00020003, 1))
+    ident = IdentitySection(vendor=0xABC, product=0x00402001)
+    with Rig(can_channel, {"az": vendor(1, "vendor-revision", params, identity=ident),
+                           "alt": AxisSpec(2, params=params)}) as rig:
+        failures = rig.boot_and_start()
+        assert set(failures) == {"alt"}  # the rig's default identity pins the revision
+        assert "revision 0x00020003 (hardware file: 0x00010000)" in str(failures["alt"])
+        rig.enable("az")
+
+
+def test_a_drive_without_heartbeat_consumer_boots_and_is_reported(can_channel, caplog):
+    with caplog.at_level("INFO"):
+        with Rig(can_channel, {"az": vendor(1, "vendor-no-hbconsumer")}) as rig:
+            assert rig.boot_and_start() == {}
+            rig.enable("az")
+            assert rig.system.eds_reports["az"].conditions[0][0] == "no_heartbeat_consumer"
+    assert any(r.levelname == "WARNING" and "0x1016" in r.getMessage()
+               and "WILL NOT NOTICE A DEAD MASTER" in r.getMessage() for r in caplog.records)
+
+
+def test_optional_objects_absent_are_skipped_and_logged_at_info(can_channel, caplog):
+    with caplog.at_level("INFO"):
+        with Rig(can_channel, {"az": vendor(1, "vendor-no-softlimits")}) as rig:
+            assert rig.boot_and_start() == {}
+            rig.enable("az")
+    assert any(r.levelname == "INFO" and "drive az (node 1)" in r.getMessage()
+               and "0x607D" in r.getMessage() for r in caplog.records)
+
+
+# ----------------------------------------------------------------- the simulator as its EDS
+
+def test_simulator_answers_as_its_eds(can_channel):
+    with Rig(can_channel, {"az": vendor(1, "vendor-no-csp", default_mode="pp"),
+                           "hm": vendor(2, "vendor-no-homing", absolute=True)}) as rig:
+        assert rig.boot_and_start() == {}
+        sdo = rig.drive("az")._sdo
+        with pytest.raises(HardwareError, match="0x06090030"):
+            sdo.write(0x6060, 0, "<b", 8)  # 0x6502 has no CSP: refused
+        with pytest.raises(HardwareError, match="0x06020000"):
+            rig.drive("hm")._sdo.read(0x6098, 0, "<b")  # absent object
+        with pytest.raises(HardwareError, match="0x06010002"):
+            sdo.write(0x6041, 0, "<H", 0)  # read-only
+        # SDO block upload request (ccs 5, client subcommand 0): aborted 0x05040001
+        node = rig.drive("az")._node
+        answer = []
+        rig.system.bus.network.subscribe(0x581, lambda cob, data, ts: answer.append(bytes(data)))
+        rig.system.bus.network.send_message(0x601, bytes([0xA0, 0x00, 0x10, 0x00, 0x7F, 0, 0, 0]))
+        rig.wait(lambda: any(a[0] == 0x80 for a in answer), what="block upload answered")
+        assert int.from_bytes(next(a for a in answer if a[0] == 0x80)[4:8], "little") == 0x05040001
+        assert node is not None
+        rig.enable("az")
+        assert rig.status("az").state is DriveState.OPERATION_ENABLED
+
+
+def test_a_bare_eds_with_only_what_the_axis_needs_still_boots_and_moves(can_channel, tmp_path):
+    """The simulator never crashes on a valid EDS, however few objects it has; the master
+    skips everything optional and still runs the axis in CSP."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("make_fixtures", EDS / "make_fixtures.py")
+    mf = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mf)
+    parts = mf.sections(mf.SOURCE.read_text(encoding="utf-8"))
+    keep = {"1000", "1001", "1017", "1018", "1400", "1600", "1800", "1A00",
+            "6040", "6041", "6060", "6061", "6064", "607A"}
+    parts = [(n, b) for n, b in parts
+             if not re.fullmatch(r"[0-9A-F]{4}(sub[0-9A-F]+)?", n) or n[:4] in keep]
+    (tmp_path / "bare.eds").write_text(mf.render(mf.relist(parts)), encoding="utf-8")
+    bare = str(tmp_path / "bare.eds")
+    spec = AxisSpec(1, section={"eds": bare, "absolute": True}, sim_eds=bare)
+    with Rig(can_channel, {"az": spec}) as rig:
+        assert rig.boot_and_start() == {}
+        assert set(rig.drive("az").layouts) == {"rpdo1", "tpdo1"}
+        rig.enable("az")
+        assert rig.status("az").homed
+        rig.cycle_hooks.append(lambda cycle: rig.drive("az").set_setpoint(0.25))
+        rig.wait(lambda: abs(rig.sims["az"].position - 0.25) < 1e-3, what="CSP move on a bare drive")
+
+
+@pytest.mark.parametrize("method, refused", [(37, False), (35, True)])
+def test_a_fixed_homing_method_is_accepted_when_it_matches_and_refused_otherwise(
+        can_channel, tmp_path, method, refused):
+    """0x6098 const on some drives: nothing to write when the file agrees; a start error
+    naming homing.method and the fixed value when it does not."""
+    eds = (EDS / "vendor-revision.eds").read_text(encoding="utf-8")
+    start = eds.index("[6098]")
+    end = eds.index("\n\n", start)
+    block = eds[start:end].replace("AccessType=rw", "AccessType=const").replace(
+        "DefaultValue=0", "DefaultValue=37")
+    path = tmp_path / "const6098.eds"
+    path.write_text(eds[:start] + block + eds[end:], encoding="utf-8")
+    homing = HomingSection(method=method, timeout=10.0)
+    spec = AxisSpec(1, section={"eds": str(path), "homing": homing}, sim_eds=path)
+    if refused:
+        with pytest.raises(ConfigErrors) as info:
+            with Rig(can_channel, {"az": spec}):
+                pass
+        text = info.value.errors[0].message
+        assert text.startswith("<hardware file>: drives.az.homing.method: drive az (node 1): ")
+        assert "0x6098:0" in text and "fixed to 37" in text
+        return
+    with Rig(can_channel, {"az": spec}) as rig:
+        assert rig.boot_and_start() == {}
+        rig.enable("az")
+        rig.drive("az").start_homing()
+        rig.wait(lambda: rig.status("az").homing is Progress.DONE, what="homing with method 37")
