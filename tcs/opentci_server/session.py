@@ -289,17 +289,25 @@ class Session(asyncio.Protocol):
 
     # -- GET -----------------------------------------------------------------------------------
     def _get(self, msg: m.Get) -> None:
+        """Read every object; the command's work is bounded by ``[server] max_objects`` (elements
+        addressed) and ``max_reply_bytes`` (an object past either answers ``DIMENSION``)."""
         tree = self.server.tree
+        settings = self.server.settings
+        budget, room = settings.max_objects, settings.max_reply_bytes
         items = []
         for ref in msg.objects:
             try:
-                targets = tree.resolve(ref)
+                targets = tree.resolve(ref, budget)
+                budget -= len(targets)
                 if len(targets) == 1:
                     value = tree.read(targets[0], ref.prop, self)
                 else:
                     value = ",".join([tree.read(t, ref.prop, self) for t in targets])
             except TcsError as exc:
                 value = exc.reply
+            room -= len(value) + len(ref.text)
+            if room < 0:
+                value = "DIMENSION"
             items.append((ref.text, value))
         self.write(self.proto.get_reply(msg.cmd_id, items))
 
@@ -327,7 +335,7 @@ class Session(asyncio.Protocol):
         ref = assignment.obj
         tree = self.server.tree
         try:
-            targets = tree.resolve(ref)
+            targets = tree.resolve(ref, self.server.settings.max_objects)
             values = tree.check_write(targets, ref.prop, assignment.values, self)
         except TcsError as exc:
             self.send(m.DataError(cmd_id, ref.text, (exc.reply,)))

@@ -225,23 +225,35 @@ class Tree:
 
     # -- lookup ------------------------------------------------------------------------------
 
-    def resolve(self, ref: ObjectRef) -> list[Target]:
+    def resolve(self, ref: ObjectRef, limit: int | None = None) -> list[Target]:
         """The objects ``ref`` names (several when one index selects several elements).
+
+        Every index is checked against the array it selects from *before* the selection is
+        expanded, so a range such as ``[0-999999999]`` costs nothing.
+
+        Parameters
+        ----------
+        ref:
+            The parsed object.
+        limit:
+            The most objects the reference may select (the caller's remaining budget, see
+            ``[server] max_objects``); None: no limit.
 
         Raises ``UnknownObject`` (no such member), ``RequestRefused`` with keyword ``INVALID``
         (two multi-selections, an index on a scalar, an array used without index inside a
-        path) or ``DIMENSION`` (an index out of range).
+        path) or ``DIMENSION`` (an index out of range, or more objects than ``limit``).
         """
         key = ref.text  # the exact text: cheaper to hash than the parsed parts
         cached = self._cache.get(key)
-        if cached is not None:
-            return cached
-        targets = self._resolve(ref)
-        if len(self._cache) < 8192:
-            self._cache[key] = targets
-        return targets
+        if cached is None:
+            cached = self._resolve(ref, limit)
+            if len(self._cache) < 8192 and len(cached) <= 64:  # small selections only
+                self._cache[key] = cached
+        if limit is not None and len(cached) > limit:
+            raise _too_many(ref, len(cached), limit)
+        return cached
 
-    def _resolve(self, ref: ObjectRef) -> list[Target]:
+    def _resolve(self, ref: ObjectRef, limit: int | None = None) -> list[Target]:
         current: list[Target] = [Target(self.root)]
         multi = False
         last = len(ref.parts) - 1
@@ -266,14 +278,17 @@ class Tree:
                         child.count if isinstance(child, VarNode) else None)
                     if size is None:
                         raise RequestRefused(f"{ref.text}: {child.name} is not an array")
-                    indices = [j for lo, hi in part.index for j in range(lo, hi + 1)]
-                    if any(j >= size for j in indices):
+                    # validate before expanding: the ranges' bounds and the count they select
+                    if max(hi for _, hi in part.index) >= size:
                         raise RequestRefused(f"{ref.text}: index beyond {size} elements", keyword="DIMENSION")
-                    if len(indices) > 1:
+                    selected = part.count
+                    if selected > 1:
                         if multi:
                             raise RequestRefused(f"{ref.text}: only one index may select several elements")
                         multi = True
-                    nxt.extend(Target(child, j) for j in indices)
+                    if limit is not None and len(nxt) + selected > limit:
+                        raise _too_many(ref, selected * len(current), limit)
+                    nxt.extend(Target(child, j) for j in part.elements())
                 else:
                     if isinstance(child, ArrayNode) and i != last:
                         raise RequestRefused(f"{ref.text}: {child.name} is an array, give an index")
@@ -358,6 +373,11 @@ class Tree:
         obj = conn if spec.per_connection else target.node.obj  # type: ignore[attr-defined]
         result = _call(spec.set, obj, value)
         return result if inspect.isawaitable(result) else None
+
+
+def _too_many(ref: ObjectRef, count: int, limit: int) -> RequestRefused:
+    return RequestRefused(f"{ref.text}: selects {count} objects, more than the {limit} one command may",
+                          keyword="DIMENSION")
 
 
 def _fast_reader(spec: VarSpec, obj: Any) -> Callable[[], str] | None:
