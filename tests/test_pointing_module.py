@@ -667,8 +667,8 @@ async def test_equatorial_mount(tmp_path, sky):
     svc, port = await start_service(tmp_path / "state", CONFIG.with_name("hw_pointing_eq.toml"))
     c = await Client.connect(port)
     try:
-        assert await c.get("POINTING.TARGET!MEMBERS") == '"RA,DEC,HA,PA,DH,DD,SIDEREAL_TIME"'
-        assert "IH,ID,CH,NP,MA,ME,TF" in await c.get("POINTING.POINTINGPARAMS!MEMBERS")
+        assert await c.members("POINTING.TARGET") == ["RA", "DEC", "HA", "PA", "DH", "DD", "SIDEREAL_TIME"]
+        assert "IH,ID,CH,NP,MA,ME,TF" in ",".join(await c.members("POINTING.POINTINGPARAMS"))
         assert await c.get("POINTING.TARGET.DA") == "UNKNOWN"
         assert ok(await c.set("CABINET.POWER=1"), "CABINET.POWER")
         await c.set("CABINET.REINIT=0")

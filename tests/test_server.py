@@ -96,7 +96,7 @@ async def test_properties(service):
     assert await c.get("SERVER.CONNECTION.ID!CLASS") == "2006"
     assert await c.get("CONFIG.MOUNT!MIN") == "UNKNOWN"  # strings have no range
     assert await c.get("LOCAL.UTC!COUNT") == "UNKNOWN"
-    members = (await c.get("!MEMBERS")).strip('"').split(",")
+    members = await c.members()
     assert members[:3] == ["SERVER", "LOCAL", "CONFIG"]
     assert await c.get("LOCAL!NAME") == '"LOCAL"'
     assert (await c.get("LOCAL.UTC!INFO")).startswith('"UTC')

@@ -6,9 +6,12 @@ server subscribes and turns each event into ``<id> EVENT <LEVEL> <source>:<numbe
 lines for every authenticated connection whose event mask lets it through.
 
 Which command caused an event is carried implicitly: the server runs each command with the
-context variable :data:`current_cause` set to ``(connection id, command id)``; tasks started
-from it inherit the value, so an event emitted while a long SET runs names that SET. Events
-from the control-loop thread or timers have no cause (id 0).
+context variable :data:`current_cause` set to ``(connection id, command id, serial)``; tasks
+started from it inherit the value, so an event emitted while a long SET runs names that SET.
+The serial tells the command from a later one that reuses its id: the server sends an event
+with the command's id only while that very command executes, and id 0 once its final line
+was sent (TPL2 §5). Events from the control-loop thread or timers without a stored cause
+have none (id 0). Domain code treats a cause as opaque: it stores and passes it on.
 
 ``emit`` may be called from any thread: events from other threads are handed to the event
 loop with ``call_soon_threadsafe`` so subscribers always run on the loop.
@@ -28,8 +31,8 @@ log = logging.getLogger(__name__)
 ERROR, WARN, INFO, DEBUG = "ERROR", "WARN", "INFO", "DEBUG"
 LEVEL_BITS = {ERROR: 1, WARN: 2, INFO: 4, DEBUG: 8}
 
-#: (connection id, command id) of the command being executed, or None.
-current_cause: contextvars.ContextVar[tuple[int, int] | None] = contextvars.ContextVar(
+#: (connection id, command id, serial) of the command being executed, or None.
+current_cause: contextvars.ContextVar[tuple[int, ...] | None] = contextvars.ContextVar(
     "current_cause", default=None)
 
 
@@ -39,7 +42,7 @@ class Event:
     source: str
     number: int
     text: str
-    cause: tuple[int, int] | None
+    cause: tuple[int, ...] | None
 
 
 class EventHub:
@@ -61,7 +64,7 @@ class EventHub:
         return lambda: self._subscribers.remove(callback) if callback in self._subscribers else None
 
     def emit(self, level: str, source: str, number: int, text: str = "",
-             cause: tuple[int, int] | None = None) -> None:
+             cause: tuple[int, ...] | None = None) -> None:
         """Announce an event; ``cause`` defaults to the command being executed."""
         event = Event(level, source, int(number), text, cause if cause is not None else current_cause.get())
         log.log(logging.WARNING if level in (ERROR, WARN) else logging.INFO,

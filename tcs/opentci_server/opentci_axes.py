@@ -9,7 +9,7 @@ hardware file's ``[axes]`` (and so the mount). Part of the one declaration of th
 from __future__ import annotations
 
 from tcs.opentci_server.opentci_common import common
-from tcs.opentci_server.tree import FLOAT, INT, OPERATE, module, module_array, var
+from tcs.opentci_server.tree import FLOAT, INT, NOBODY, OPERATE, module, module_array, var
 
 
 def _lo(axis):
@@ -51,7 +51,7 @@ def axis_members():
         var("MOTION_STATE", INT, get="motion_state",
             info="bits 0 moving, 1 trajectory, 2 blocked, 3 on target, 4 limited by speed/acc/jerk"),
         var("REFERENCED", FLOAT, get="referenced", info="0 not referenced … 1 referenced (progress)"),
-        var("REINIT", INT, get=lambda a: 0, set="set_reinit", min=0, max=1,
+        var("REINIT", INT, set="set_reinit", min=0, max=1, rlevel=NOBODY,
             info="reference: 0 if not referenced, 1 force; returns at once"),
         var("REALPOS", FLOAT, get="real_position", min=_lo, max=_hi,
             info="measured position; !MIN/!MAX are the software limits"),
@@ -69,7 +69,7 @@ def axis_members():
         var("OFFSET", FLOAT, get="offset", set="set_offset", long=True,
             info="added to every positioning request; returns when reached"),
         var("TARGETDISTANCE", FLOAT, get="target_distance", info="TARGETPOS - CURRPOS"),
-        var("STOP", INT, get=lambda a: 0, set="set_stop", min=0, max=1, wlevel=OPERATE,
+        var("STOP", INT, set="set_stop", min=0, max=1, wlevel=OPERATE, rlevel=NOBODY,
             info="quick stop, cancels targets and trajectories; returns at once"),
         TRAJECTORY,
     )

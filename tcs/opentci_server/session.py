@@ -34,6 +34,7 @@ reading is paused, and dropped when its backlog passes a hard limit, so it canno
 from __future__ import annotations
 
 import asyncio
+import itertools
 import logging
 import time
 from collections import deque
@@ -51,6 +52,7 @@ log = logging.getLogger(__name__)
 
 MAX_BACKLOG = 8 * 1024 * 1024  # bytes of unsent output before a client is dropped
 NO_ACCESS = 99
+_SERIALS = itertools.count(1)  # tells a command from a later one that reuses its id
 
 
 class _Command:
@@ -83,6 +85,7 @@ class Session(asyncio.Protocol):
         self.starttime = time.time()
         self._start_mono = time.monotonic()
         self.commands: dict[int, _Command] = {}
+        self._running: dict[int, int] = {}  # command id -> serial of the SET running under it
         self._queue: deque = deque()
         self._auth_task: asyncio.Task | None = None
         self._auth_failures = 0
@@ -163,13 +166,18 @@ class Session(asyncio.Protocol):
         if not self.authenticated or not (self.eventmask & LEVEL_BITS.get(event.level, 0)):
             return
         cause = event.cause
-        if cause is None:
-            cid = 0
-        elif cause[0] == self.id:
-            cid = cause[1]
-        else:
-            cid = (cause[0] << 32) | cause[1]
+        cid = 0  # TPL2 §5: only an event of a command still executing carries its id
+        if cause is not None:
+            owner = self if cause[0] == self.id else self.server.sessions.get(cause[0])
+            if owner is not None and owner.executing(cause):
+                cid = cause[1] if owner is self else (cause[0] << 32) | cause[1]
         self.send(m.Event(cid, event.level, event.source, event.number, event.text))
+
+    def executing(self, cause: tuple) -> bool:
+        """True while the command ``cause`` names (``(conn, id[, serial])``) has not sent its
+        final line; a later command reusing the id is another command."""
+        serial = self._running.get(cause[1])
+        return serial is not None and (len(cause) < 3 or cause[2] == serial)
 
     def close(self) -> None:
         if self.transport is not None and not self.transport.is_closing():
@@ -315,7 +323,8 @@ class Session(asyncio.Protocol):
     def _set(self, msg: m.Set) -> None:
         cmd_id = msg.cmd_id
         self.send(m.CommandOk(cmd_id))
-        token = current_cause.set((self.id, cmd_id))
+        serial = self._running[cmd_id] = next(_SERIALS)
+        token = current_cause.set((self.id, cmd_id, serial))
         try:
             for i, assignment in enumerate(msg.assignments):
                 pending = self._assign(cmd_id, assignment)
@@ -325,9 +334,13 @@ class Session(asyncio.Protocol):
                     cmd.task = self.server.spawn(
                         self._finish_set(cmd, assignment, pending, msg.assignments[i + 1:]))
                     return
+        except BaseException:
+            self._running.pop(cmd_id, None)
+            raise
         finally:
             current_cause.reset(token)
         self.send(m.CommandComplete(cmd_id))
+        self._running.pop(cmd_id, None)
 
     def _assign(self, cmd_id: int, assignment: m.Assignment):
         """Start one assignment. Returns None when it finished (line sent), else the
@@ -336,13 +349,16 @@ class Session(asyncio.Protocol):
         tree = self.server.tree
         try:
             targets = tree.resolve(ref, self.server.settings.max_objects)
-            values = tree.check_write(targets, ref.prop, assignment.values, self)
+            checked = tree.check_write_each(targets, ref.prop, assignment.values, self)
         except TcsError as exc:
             self.send(m.DataError(cmd_id, ref.text, (exc.reply,)))
             return None
         errors: list[str] = []
         waits = []
-        for target, value in zip(targets, values):
+        for target, (value, refused) in zip(targets, checked):
+            if refused is not None:  # this element only; the others are written
+                errors.append(refused)
+                continue
             try:
                 pending = tree.write(target, value, self)
             except TcsError as exc:
@@ -382,6 +398,7 @@ class Session(asyncio.Protocol):
                 self.send(m.CommandFailed(cmd_id))
         finally:
             self.commands.pop(cmd_id, None)
+            self._running.pop(cmd_id, None)
 
     async def _await_assignment(self, cmd_id: int, obj: str, pending) -> None:
         errors, waits = pending

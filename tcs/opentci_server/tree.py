@@ -29,7 +29,7 @@ import logging
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator, Sequence
 
-from tcs.errors import AccessDenied, RangeRefused, RequestRefused, TcsError, UnknownObject
+from tcs.errors import AccessDenied, ErrorNumber, RangeRefused, RequestRefused, TcsError, UnknownObject
 from tcs.opentci_server.paths import ObjectRef
 from tcs.opentci_server.values import Value, ValueType, convert, format_float, format_value
 
@@ -65,6 +65,7 @@ class VarSpec:
     per_connection: bool = False
     long: bool = False
     count: int | Callable[[Any], int] | None = None  # variable arrays only
+    absent: Any = None  # value on an element of a module array with no hardware (None: FAILED 4)
 
 
 @dataclass(frozen=True)
@@ -78,17 +79,19 @@ class ModuleSpec:
 
 def var(name: str, type: ValueType, *, get: Getter = None, set: Getter = None, min=None, max=None,
         init=None, info: str = "", rlevel: int = READ_ALL, wlevel: int | None = None,
-        long: bool = False) -> VarSpec:
+        long: bool = False, absent: Any = None) -> VarSpec:
     """Declare a variable.
 
     ``get``: attribute or zero-argument method name on the domain object, or ``f(obj)``.
     ``set``: method name called ``obj.method(value)``, or ``f(obj, value)``; it may return an
     awaitable for a long-running action (``long=True`` documents that). Without ``set`` the
-    variable is read-only (``WLEVEL`` −1). ``min``/``max`` may be callables of the object.
+    variable is read-only (``WLEVEL`` −1); with ``rlevel=NOBODY`` it is write-only (a GET is
+    ``DENIED``). ``min``/``max`` may be callables of the object. ``absent``: what the variable
+    reads on an element of a module array that has no hardware (default ``FAILED 4``, nocon).
     """
     if wlevel is None:
         wlevel = OPERATE if set is not None else NOBODY
-    return VarSpec(name, type, get, set, min, max, init, rlevel, wlevel, info, long=long)
+    return VarSpec(name, type, get, set, min, max, init, rlevel, wlevel, info, long=long, absent=absent)
 
 
 def sysvar(name: str, type: ValueType, *, get: Getter = None, set: Getter = None, min=None, max=None,
@@ -176,14 +179,23 @@ class ArrayNode(Node):
         return 1 + sum(e.object_count() for e in self.elements)
 
 
+#: The reply of a variable of a module-array element that has no hardware (nocon, App. B 4).
+ABSENT_REPLY = "FAILED 4"
+
+
 @dataclass(eq=False)
 class VarNode(Node):
     spec: VarSpec = None  # type: ignore[assignment]
     obj: Any = None
     fast: Callable[[], str] | None = None  # plain variable: reads and formats its value
+    absent: bool = False  # on a module-array element with no hardware
 
     def __post_init__(self) -> None:
-        self.fast = _fast_reader(self.spec, self.obj)
+        if self.absent:
+            reply = ABSENT_REPLY if self.spec.absent is None else format_value(self.spec.absent, self.spec.type)
+            self.fast = lambda: reply
+        else:
+            self.fast = _fast_reader(self.spec, self.obj)
 
     @property
     def cls_code(self):  # type: ignore[override]
@@ -195,19 +207,32 @@ class VarNode(Node):
     @property
     def count(self) -> int | None:
         c = self.spec.count
+        if c is not None and self.absent:
+            return 0
         return c(self.obj) if callable(c) else c
 
     def limit(self, which: str) -> float | None:
         value = getattr(self.spec, which)
-        return value(self.obj) if callable(value) else value
+        if callable(value):
+            return None if self.absent else value(self.obj)
+        return value
 
 
 @dataclass(frozen=True, slots=True)
 class Target:
-    """One resolved object: a node, and for arrays the selected element (None = the whole)."""
+    """One resolved object: a node, and for arrays the selected element (None = the whole).
+
+    ``error``: in a multi-element selection, the error keyword of this one slot (an element
+    that lacks the member asked for); the other slots are answered normally.
+    """
 
     node: Node
     element: int | None = None
+    error: str | None = None
+
+
+class _WholeRefused(RequestRefused):
+    """Refuses the whole object even inside a multi-element selection."""
 
 
 class Tree:
@@ -260,39 +285,18 @@ class Tree:
         for i, part in enumerate(ref.parts):
             nxt: list[Target] = []
             for t in current:
-                parent = t.node
-                if t.element is not None:  # element of a module array
-                    parent = parent.elements[t.element]  # type: ignore[attr-defined]
-                if not isinstance(parent, ModuleNode):
-                    raise UnknownObject(f"{ref.text}: {parent.path} has no members")
-                if part.number is not None:
-                    if not 0 <= part.number < len(parent.members):
-                        raise UnknownObject(f"{ref.text}: no member <{part.number}>")
-                    child = parent.members[part.number]
-                else:
-                    child = parent.by_name.get(part.name)
-                    if child is None:
-                        raise UnknownObject(f"{ref.text}: unknown object {part.name}")
-                if part.index is not None:
-                    size = len(child.elements) if isinstance(child, ArrayNode) else (
-                        child.count if isinstance(child, VarNode) else None)
-                    if size is None:
-                        raise RequestRefused(f"{ref.text}: {child.name} is not an array")
-                    # validate before expanding: the ranges' bounds and the count they select
-                    if max(hi for _, hi in part.index) >= size:
-                        raise RequestRefused(f"{ref.text}: index beyond {size} elements", keyword="DIMENSION")
-                    selected = part.count
-                    if selected > 1:
-                        if multi:
-                            raise RequestRefused(f"{ref.text}: only one index may select several elements")
-                        multi = True
-                    if limit is not None and len(nxt) + selected > limit:
-                        raise _too_many(ref, selected * len(current), limit)
-                    nxt.extend(Target(child, j) for j in part.elements())
-                else:
-                    if isinstance(child, ArrayNode) and i != last:
-                        raise RequestRefused(f"{ref.text}: {child.name} is an array, give an index")
-                    nxt.append(Target(child))
+                if t.error is not None:
+                    nxt.append(t)
+                    continue
+                try:
+                    _step(ref, part, i == last, t, nxt, limit, multi)
+                except _WholeRefused:
+                    raise
+                except RequestRefused as exc:
+                    if not multi:  # a single object: the error is the object's
+                        raise
+                    nxt.append(Target(t.node, t.element, exc.reply))  # this element's slot only
+            multi = multi or part.multi
             current = nxt
         return current
 
@@ -306,6 +310,8 @@ class Tree:
 
     def read(self, target: Target, prop: str | None, conn: Any) -> str:
         """The wire text of one object (value or property), or an error keyword."""
+        if target.error is not None:
+            return target.error
         node = target.node
         fast = getattr(node, "fast", None) if prop is None and target.element is None else None
         if fast is not None and conn.rlevel <= node.spec.rlevel:  # the common case: a plain variable
@@ -324,6 +330,10 @@ class Tree:
                 return "INVALID"
             spec = node.spec
             if conn.rlevel > spec.rlevel:
+                return "DENIED"
+            if node.absent:
+                return node.fast()  # type: ignore[misc]
+            if spec.get is None:  # write-only
                 return "DENIED"
             if spec.count is not None and target.element is None:
                 values = _call(spec.get, node.obj)
@@ -347,25 +357,51 @@ class Tree:
         Raises a ``RequestRefused`` whose keyword is the reply: INVALID (module, property,
         read-only array), DENIED (levels), DIMENSION (value count), TYPE, RANGE.
         """
+        self._check_shape(targets, prop, values)
+        return [self._check_one(t, v, conn) for t, v in zip(targets, values)]
+
+    def check_write_each(self, targets: list[Target], prop: str | None, values: tuple[Value, ...],
+                         conn: Any) -> list[tuple[Any, str | None]]:
+        """Like :meth:`check_write`, but element by element (TPL2: a multi-element SET answers
+        one OK/error per element and writes the good ones): ``(value, None)`` for an element
+        that may be written, ``(None, error keyword)`` for one that may not. A property, a
+        value count that does not match, or any error of a single object still raises."""
+        self._check_shape(targets, prop, values)
+        if len(targets) == 1:
+            return [(self._check_one(targets[0], values[0], conn), None)]
+        out: list[tuple[Any, str | None]] = []
+        for t, v in zip(targets, values):
+            try:
+                out.append((self._check_one(t, v, conn), None))
+            except TcsError as exc:
+                out.append((None, exc.reply))
+        return out
+
+    @staticmethod
+    def _check_shape(targets: list[Target], prop: str | None, values: tuple[Value, ...]) -> None:
         if prop is not None:
             raise RequestRefused("properties cannot be set")
         if len(values) != len(targets):
             raise RequestRefused(f"{len(values)} values for {len(targets)} elements", keyword="DIMENSION")
-        out = []
-        for t, v in zip(targets, values):
-            node = t.node
-            if not isinstance(node, VarNode) or (node.spec.count is not None):
-                raise RequestRefused(f"{node.path} is not a settable variable")
-            spec = node.spec
-            if spec.wlevel == NOBODY or spec.set is None or conn.wlevel > spec.wlevel:
-                raise AccessDenied(f"{node.path} is not writable at level {conn.wlevel}")
-            value = convert(v, spec.type)
-            if spec.type in (INT, FLOAT) and value is not None:
-                lo, hi = node.limit("min"), node.limit("max")
-                if (lo is not None and value < lo) or (hi is not None and value > hi):
-                    raise RangeRefused(f"{node.path}={value} outside [{lo}, {hi}]")
-            out.append(value)
-        return out
+
+    @staticmethod
+    def _check_one(t: Target, v: Value, conn: Any) -> Any:
+        if t.error is not None:
+            raise RequestRefused(f"{t.node.path}: {t.error}", keyword=t.error)
+        node = t.node
+        if not isinstance(node, VarNode) or (node.spec.count is not None):
+            raise RequestRefused(f"{node.path} is not a settable variable")
+        spec = node.spec
+        if spec.wlevel == NOBODY or spec.set is None or conn.wlevel > spec.wlevel:
+            raise AccessDenied(f"{node.path} is not writable at level {conn.wlevel}")
+        if node.absent:
+            raise TcsError(f"{node.path}: no hardware at this index", ErrorNumber.NOCON)
+        value = convert(v, spec.type)
+        if spec.type in (INT, FLOAT) and value is not None:
+            lo, hi = node.limit("min"), node.limit("max")
+            if (lo is not None and value < lo) or (hi is not None and value > hi):
+                raise RangeRefused(f"{node.path}={value} outside [{lo}, {hi}]")
+        return value
 
     def write(self, target: Target, value: Any, conn: Any) -> Any:
         """Apply one checked value; returns None or an awaitable for a long-running action."""
@@ -375,8 +411,45 @@ class Tree:
         return result if inspect.isawaitable(result) else None
 
 
+def _step(ref: ObjectRef, part, is_last: bool, t: Target, nxt: list[Target], limit: int | None,
+          multi: bool) -> None:
+    """Resolve ``part`` below ``t``, appending what it selects to ``nxt``.
+
+    Every index is validated against its array before it is expanded."""
+    parent = t.node
+    if t.element is not None:  # element of a module array
+        parent = parent.elements[t.element]  # type: ignore[attr-defined]
+    if not isinstance(parent, ModuleNode):
+        raise UnknownObject(f"{ref.text}: {parent.path} has no members")
+    if part.number is not None:
+        if not 0 <= part.number < len(parent.members):
+            raise UnknownObject(f"{ref.text}: no member <{part.number}>")
+        child = parent.members[part.number]
+    else:
+        child = parent.by_name.get(part.name)
+        if child is None:
+            raise UnknownObject(f"{ref.text}: unknown object {part.name}")
+    if part.index is None:
+        if isinstance(child, ArrayNode) and not is_last:
+            raise RequestRefused(f"{ref.text}: {child.name} is an array, give an index")
+        nxt.append(Target(child))
+        return
+    size = len(child.elements) if isinstance(child, ArrayNode) else (
+        child.count if isinstance(child, VarNode) else None)
+    if size is None:
+        raise RequestRefused(f"{ref.text}: {child.name} is not an array")
+    if part.multi and multi:
+        raise _WholeRefused(f"{ref.text}: only one index may select several elements")
+    if max(hi for _, hi in part.index) >= size:
+        raise RequestRefused(f"{ref.text}: index beyond {size} elements", keyword="DIMENSION")
+    selected = part.count
+    if limit is not None and len(nxt) + selected > limit:
+        raise _too_many(ref, len(nxt) + selected, limit)
+    nxt.extend(Target(child, j) for j in part.elements())
+
+
 def _too_many(ref: ObjectRef, count: int, limit: int) -> RequestRefused:
-    return RequestRefused(f"{ref.text}: selects {count} objects, more than the {limit} one command may",
+    return _WholeRefused(f"{ref.text}: selects {count} objects, more than the {limit} one command may",
                           keyword="DIMENSION")
 
 
@@ -384,7 +457,7 @@ def _fast_reader(spec: VarSpec, obj: Any) -> Callable[[], str] | None:
     """A closure reading and formatting a plain variable of ``obj`` with no per-read lookups
     (the hot path of GET); None where the general path is needed (per-connection variables,
     arrays, attributes whose kind cannot be told from the class)."""
-    if spec.per_connection or spec.count is not None or obj is None:
+    if spec.per_connection or spec.count is not None or obj is None or spec.get is None:
         return None
     get, vtype = spec.get, spec.type
     if vtype is FLOAT:
@@ -407,11 +480,22 @@ def _format_float_or_null(value) -> str:
     return "NULL" if value is None else format_float(value)
 
 
-def _build_members(parent: ModuleNode, members, obj) -> None:
+def _build_members(parent: ModuleNode, members, obj, absent: bool = False) -> None:
+    """Add the declared ``members`` bound to ``obj``; ``absent``: the parent is a module-array
+    element with no hardware, which still gets every declared member (TPL2 §8.3: all elements
+    of a module array have the same substructure) whose variables answer their ``absent``."""
     for spec in members:
         index = len(parent.members)
         if isinstance(spec, VarSpec):
-            parent.add(VarNode(spec.name, index, spec.info, parent, spec, obj))
+            parent.add(VarNode(spec.name, index, spec.info, parent, spec, obj, absent=absent))
+            continue
+        if absent:
+            if spec.array:
+                parent.add(ArrayNode(spec.name, index, spec.info, parent))  # COUNT 0
+            else:
+                child = ModuleNode(spec.name, index, spec.info, parent, None)
+                _build_members(child, spec.members, None, absent=True)
+                parent.add(child)
             continue
         bound = obj if spec.bind is None else _call(spec.bind, obj)
         if spec.array:
@@ -421,8 +505,8 @@ def _build_members(parent: ModuleNode, members, obj) -> None:
             array = ArrayNode(spec.name, index, spec.info, parent)
             for i, element_obj in enumerate(objs):
                 element = ModuleNode(f"{spec.name}[{i}]", i, spec.info, array, element_obj)
-                if element_obj is not None:  # None: an index with nothing configured (no members)
-                    _build_members(element, spec.members, element_obj)
+                # None: an index with nothing configured; it has the members, answering FAILED 4
+                _build_members(element, spec.members, element_obj, absent=element_obj is None)
                 array.elements.append(element)
             parent.add(array)
         else:
@@ -463,11 +547,15 @@ def _format_property(target: Target, prop: str) -> str:
     if prop in common:
         return common[prop]()
     if isinstance(node, ModuleNode):
-        if prop == "MEMBERS":
-            return _q(",".join(m.name for m in node.members))
+        if prop == "MEMBERS":  # the number of direct members: walk <0>!NAME … <n-1>!NAME
+            return str(len(node.members))
         if prop == "OBJECTCOUNT":
             return str(node.object_count() - 1)
+        if prop == "ATTACHED" and node.parent is not None:
+            return "0"  # 1 only for a module that lives on a sub-server
     elif isinstance(node, ArrayNode):
+        if prop == "ATTACHED":
+            return "0"
         if prop == "COUNT":
             return str(len(node.elements))
         if prop == "OBJECTCOUNT":
@@ -488,8 +576,10 @@ def _format_property(target: Target, prop: str) -> str:
             return str(spec.rlevel)
         if prop == "WLEVEL":
             return str(spec.wlevel)
-        if prop in ("RLOCK", "WLOCK", "CALLBACK", "CALLBACKTYPE"):
+        if prop in ("RLOCK", "WLOCK", "CALLBACKTYPE"):
             return "0"
+        if prop == "CALLBACK":
+            return '""'  # STRING: no callback
     return "UNKNOWN"
 
 
