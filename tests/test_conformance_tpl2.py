@@ -123,3 +123,109 @@ async def test_multi_element_set_answers_and_writes_per_element(service):
     assert await c.command(3, "SET AZ.TRAJECTORY.BUFFER[0-2].TIME=1,2") == [
         "3 COMMAND OK", "3 DATA ERROR AZ.TRAJECTORY.BUFFER[0-2].TIME DIMENSION", "3 COMMAND COMPLETE"]
     await c.close()
+
+
+# ------------------------------------------------------------------ item 5: ABORT by extended id
+
+
+async def test_abort_of_another_connections_extended_id(service):
+    _, port = service
+    a = await RawClient.connect(port)
+    b = await RawClient.connect(port)
+    weak = await RawClient.connect(port, login=None)
+    await weak.send('AUTH PLAIN "admin" "admin" 5 5')  # asks for less privilege
+    assert await weak.readline() == "AUTH OK 5 5"
+    conn_a = int(await a.get("SERVER.CONNECTION.ID"))
+    conn_b = int(await b.get("SERVER.CONNECTION.ID"))
+    await a.send("4 SET CABINET.POWER=1")  # long-running
+    assert await a.readline() == "4 COMMAND OK"
+    extended = (conn_a << 32) | 4
+    assert await weak.command(1, f"ABORT {extended}") == ["1 COMMAND ERROR DENIED", "1 COMMAND FAILED"]
+    assert await b.command(7, f"ABORT {(conn_a << 32) | 5}") == [
+        "7 COMMAND ERROR NOTRUNNING", "7 COMMAND FAILED"]
+    assert await b.command(8, f"ABORT {extended}", timeout=30) == ["8 COMMAND OK", "8 COMMAND COMPLETE"]
+    assert (await a.until(4, timeout=30))[-1] == f"4 COMMAND ABORTEDBY {(conn_b << 32) | 8}"
+    # one's own extended id names one's own commands
+    assert await a.command(6, f"ABORT {(conn_a << 32) | 99}") == ["6 COMMAND ERROR NOTRUNNING", "6 COMMAND FAILED"]
+    for x in (a, b, weak):
+        await x.close()
+
+
+# ------------------------------------------------------------------ item 6: string slices
+
+
+async def test_string_slices(service):
+    _, port = service
+    c = await RawClient.connect(port)
+    assert await c.get("CONFIG.MOUNT") == '"AZ-ZD"'
+    assert await c.get("CONFIG.MOUNT{0:1}") == '"AZ"'  # characters 0..1, inclusive
+    assert await c.get("CONFIG.MOUNT{3:99}") == '"ZD"'  # clipped to the string
+    assert await c.get("CONFIG.MOUNT{9:12}") == '""'
+    assert await c.get("LOCAL.LATITUDE{0:1}") == "TYPE"  # not a STRING
+    assert await c.get("CONFIG.MOUNT{0:1}!NAME") == "TYPE"
+    # a bad slice fails its object only, never the whole GET
+    lines = await c.command(2, "GET CONFIG.MOUNT{3:1};CONFIG.MOUNT{x};CONFIG{0:1}.MOUNT;CONFIG.MOUNT{0:0};"
+                               "SERVER.VERSION")
+    assert lines[1:5] == ["2 DATA INLINE CONFIG.MOUNT{3:1}=DIMENSION", "2 DATA INLINE CONFIG.MOUNT{x}=DIMENSION",
+                          "2 DATA INLINE CONFIG{0:1}.MOUNT=DIMENSION", '2 DATA INLINE CONFIG.MOUNT{0:0}="A"']
+    assert lines[5].startswith('2 DATA INLINE SERVER.VERSION="tcs '), lines
+    assert await c.command(3, 'SET CONFIG.MOUNT{0:1}="AZ"') == [
+        "3 COMMAND OK", "3 DATA ERROR CONFIG.MOUNT{0:1} TYPE", "3 COMMAND COMPLETE"]
+    await c.close()
+
+
+# ------------------------------------------------------------------ item 7: error vocabulary
+
+
+async def test_error_vocabulary(service):
+    _, port = service
+    c = await RawClient.connect(port)
+    assert await c.command(1, "SET LOCAL.LATITUDE=NULL") == [
+        "1 COMMAND OK", "1 DATA ERROR LOCAL.LATITUDE TYPE", "1 COMMAND COMPLETE"]
+    # variables served as writable accept writes; where the part cannot, they are read-only
+    assert await c.get("AZ.OFFSET!WLEVEL") == "3"
+    assert await c.get("DOME[0].OFFSET!WLEVEL") == "3"  # the dome rotation takes an offset
+    for obj in ("FILTER[2].OFFSET", "MIRROR.OFFSET", "COVER.OFFSET", "DOME[1].OFFSET",
+                "DOME[0].CURRSPEED", "DOME[3].CURRSPEED", "COVER.CURRSPEED"):
+        assert await c.get(f"{obj}!WLEVEL") == "-1", obj
+    assert await c.command(2, "SET MIRROR.OFFSET=1") == [
+        "2 COMMAND OK", "2 DATA ERROR MIRROR.OFFSET DENIED", "2 COMMAND COMPLETE"]
+    assert await c.get("AZ.CURRSPEED!WLEVEL") == "3"
+    # a value the variable cannot take: RANGE; a computation that cannot run: FAILED n
+    lines = await c.command(3, 'SET POINTING.POINTINGPARAMS.DUMPFILE="../x"')
+    assert lines[1] == "3 DATA ERROR POINTING.POINTINGPARAMS.DUMPFILE RANGE", lines
+    lines = await c.command(4, 'SET POINTING.POINTINGPARAMS.LOAD="no-such-model"')
+    assert lines[1] == "4 DATA ERROR POINTING.POINTINGPARAMS.LOAD RANGE", lines
+    lines = await c.command(5, "SET POINTING.POINTINGPARAMS.CALCULATE=1", timeout=30)
+    assert lines[1] == "5 DATA ERROR POINTING.POINTINGPARAMS.CALCULATE FAILED 1013", lines
+    # trajectory points: decreasing times are RANGE; ADDPOINTS of empty slots is FAILED 11
+    lines = await c.command(6, "SET AZ.TRAJECTORY.ADDPOINTS=2")
+    assert lines[1] == "6 DATA ERROR AZ.TRAJECTORY.ADDPOINTS FAILED 11", lines
+    await c.close()
+
+
+# ------------------------------------------------------------------ item 8: ASCII on the wire
+
+
+async def test_every_description_and_value_is_ascii(service):
+    svc, port = service
+    c = await RawClient.connect(port)
+    objects = []
+    for path, node in svc.server.tree.walk():
+        objects.append(f"{path}!INFO")
+        if hasattr(node, "spec") and node.spec.count is None:
+            objects.append(path)
+    raw = b""
+    for i in range(0, len(objects), 200):
+        await c.send(f"{10 + i} GET " + ";".join(objects[i:i + 200]))
+        while True:
+            line = await c.readraw()
+            raw += line
+            if line.startswith(f"{10 + i} COMMAND COMPLETE".encode()):
+                break
+    assert raw.isascii()
+    octal = re.findall(rb"[^\n]{0,40}\\[0-7]{3}[^\n]{0,10}", raw)
+    assert not octal, octal[:5]
+    assert b'"degC"' in raw  # SENSOR[].UNIT "°C" of the hardware file
+    assert await c.get("SERVER.CONNECTION.ADDRESS") == '"127.0.0.1"'
+    await c.close()

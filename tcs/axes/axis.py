@@ -89,8 +89,8 @@ def add_staged_points(axis, buffer: list[BufferSlot], queue: TrajectoryQueue, co
         raise RangeRefused(f"ADDPOINTS must be 1..{len(buffer)}")
     slots = buffer[:count]
     if any(s.time is None or s.targetpos is None for s in slots):
-        raise RequestRefused(f"{axis.module_name}.TRAJECTORY: BUFFER[0..{count - 1}] "
-                             "has points without TIME or TARGETPOS")
+        raise TcsError(f"{axis.module_name}.TRAJECTORY: BUFFER[0..{count - 1}] "
+                       "has points without TIME or TARGETPOS", ErrorNumber.NOPOINTS)
     result = queue.add_points([s.time for s in slots], [s.targetpos for s in slots], now)
     for s in slots:
         s.time = s.targetpos = None

@@ -45,7 +45,7 @@ import math
 import threading
 from typing import NamedTuple, Sequence
 
-from tcs.errors import ErrorNumber, RequestRefused, TcsError
+from tcs.errors import ErrorNumber, RangeRefused, RequestRefused, TcsError, TypeRefused
 
 #: shortest accepted spacing of two points, s (strictly increasing, and not absurdly close)
 MIN_SPACING = 1e-6
@@ -190,15 +190,15 @@ class TrajectoryQueue:
             raise RequestRefused(f"trajectory: {len(times)} times but {len(positions)} positions")
         for i, (t, p) in enumerate(zip(times, positions)):
             if not (math.isfinite(t) and math.isfinite(p)):
-                raise RequestRefused(f"trajectory point {i}: time {t!r} / position {p!r} "
-                                     f"is not a finite number")
+                raise TypeRefused(f"trajectory point {i}: time {t!r} / position {p!r} "
+                                  f"is not a finite number")
         with self._lock:
             last = self._t[-1] if self._t else None
             for i, t in enumerate(times):
                 if last is not None and not t - last >= MIN_SPACING:
                     which = "the last queued point" if i == 0 else f"point {i - 1}"
-                    raise RequestRefused(f"trajectory point {i}: time {t!r} is not after "
-                                         f"{which} ({last!r}); times must increase")
+                    raise RangeRefused(f"trajectory point {i}: time {t!r} is not after "
+                                       f"{which} ({last!r}); times must increase")
                 last = t
             n_old = len(self._t)
             drop = self._past_count(self._t + times, now)

@@ -103,6 +103,9 @@ class PlcAxisModule(PlcModule):
         Whether the weather interlock guards its opening moves.
     """
 
+    #: The PLC runs the motion at its own speed: ``CURRSPEED`` is served read-only.
+    speed_writable = False
+
     discrete = False
     positions: dict = {}
     referenced = 1.0

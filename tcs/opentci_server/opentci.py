@@ -30,6 +30,12 @@ class Root:
     server: Any
 
 
+def _host(address: str) -> str:
+    """``1.2.3.4:5678`` -> ``1.2.3.4``; ``::1:5678`` -> ``::1`` (TPL2 §9: the address only)."""
+    host, sep, port = address.rpartition(":")
+    return host if sep and port.isdigit() else address
+
+
 SERVER = module(
     "SERVER",
     var("UPTIME", FLOAT, get="uptime", info="seconds since the server started"),
@@ -42,7 +48,7 @@ SERVER = module(
            info="server identification"),
     module("CONNECTION",
            sysvar("ID", INT, get="id", info="number of this connection (CONN n of the greeting)"),
-           sysvar("ADDRESS", STRING, get="address", info="client address and port"),
+           sysvar("ADDRESS", STRING, get=lambda conn: _host(conn.address), info="client address (no port)"),
            sysvar("USERNAME", STRING, get="username", info="user logged in on this connection"),
            sysvar("RLEVEL", INT, get="rlevel", info="read level of this connection"),
            sysvar("WLEVEL", INT, get="wlevel", info="write level of this connection"),

@@ -20,6 +20,17 @@ def _hi(axis):
     return float(max(axis.positions)) if axis.discrete else axis.section.max
 
 
+def _offset_wlevel(axis) -> int:
+    """OFFSET is read-only where the part takes none: discrete axes (FILTER, MIRROR) and the
+    PLC parts other than the dome rotation (slit, flap, seal, covers)."""
+    return OPERATE if getattr(axis, "offset_allowed", not getattr(axis, "discrete", False)) else NOBODY
+
+
+def _speed_wlevel(axis) -> int:
+    """CURRSPEED is read-only where the hardware sets the speed itself (PLC parts)."""
+    return OPERATE if getattr(axis, "speed_writable", True) else NOBODY
+
+
 TRAJECTORY = module(
     "TRAJECTORY",
     module_array("BUFFER",
@@ -57,7 +68,7 @@ def axis_members():
             info="measured position; !MIN/!MAX are the software limits"),
         var("CYCLIC", FLOAT, get="cyclic", info="period of a rotary axis (0: not cyclic)"),
         var("CURRPOS", FLOAT, get="current_position", info="REALPOS - OFFSET"),
-        var("CURRSPEED", FLOAT, get="current_speed", set="set_speed", min=0.0,
+        var("CURRSPEED", FLOAT, get="current_speed", set="set_speed", min=0.0, wlevel=_speed_wlevel,
             max=lambda a: a.section.max_velocity,
             info="speed, units/s; writing lowers the speed of new motion"),
         var("CURRACC", FLOAT, get="current_acc", min=lambda a: -a.section.max_acceleration,
@@ -66,7 +77,7 @@ def axis_members():
             max=lambda a: a.section.max_jerk, info="jerk, units/s³"),
         var("TARGETPOS", FLOAT, get="target_position", set="set_target", min=_lo, max=_hi, long=True,
             info="demanded position (user frame); returns on arrival, a newer target supersedes"),
-        var("OFFSET", FLOAT, get="offset", set="set_offset", long=True,
+        var("OFFSET", FLOAT, get="offset", set="set_offset", long=True, wlevel=_offset_wlevel,
             info="added to every positioning request; returns when reached"),
         var("TARGETDISTANCE", FLOAT, get="target_distance", info="TARGETPOS - CURRPOS"),
         var("STOP", INT, set="set_stop", min=0, max=1, wlevel=OPERATE, rlevel=NOBODY,

@@ -307,7 +307,9 @@ class Session(asyncio.Protocol):
             try:
                 targets = tree.resolve(ref, budget)
                 budget -= len(targets)
-                if len(targets) == 1:
+                if ref.slice is not None or ref.slice_error is not None:  # X{a:b}
+                    value = ",".join([tree.read_slice(t, ref, self) for t in targets])
+                elif len(targets) == 1:
                     value = tree.read(targets[0], ref.prop, self)
                 else:
                     value = ",".join([tree.read(t, ref.prop, self) for t in targets])
@@ -347,6 +349,9 @@ class Session(asyncio.Protocol):
         awaitables still to wait for and the number of targets."""
         ref = assignment.obj
         tree = self.server.tree
+        if ref.slice is not None or ref.slice_error is not None:  # a string slice is read-only
+            self.send(m.DataError(cmd_id, ref.text, ("TYPE",)))
+            return None
         try:
             targets = tree.resolve(ref, self.server.settings.max_objects)
             checked = tree.check_write_each(targets, ref.prop, assignment.values, self)
@@ -417,6 +422,12 @@ class Session(asyncio.Protocol):
     # -- ABORT ---------------------------------------------------------------------------------
     def _abort(self, msg: m.Abort) -> None:
         cmd_id, target = msg.cmd_id, msg.target
+        by = cmd_id
+        if target >> 32:  # an extended id (conn << 32) | id
+            conn, target = target >> 32, target & 0xFFFFFFFF
+            if conn != self.id:
+                self._abort_other(cmd_id, conn, target)
+                return
         if target == 0:
             victims = [c for c in self.commands.values()]
         elif target in self.commands:
@@ -424,9 +435,25 @@ class Session(asyncio.Protocol):
         else:
             self._refuse(cmd_id, "NOTRUNNING")
             return
+        self._abort_victims(cmd_id, victims, by)
+
+    def _abort_other(self, cmd_id: int, conn: int, target: int) -> None:
+        """ABORT of another connection's command: allowed to a connection whose write level is
+        at least as privileged as the owner's (else DENIED); the victim ends with
+        ``ABORTEDBY <extended id of this ABORT>`` on its own connection."""
+        other = self.server.sessions.get(conn)
+        victim = other.commands.get(target) if other is not None else None
+        if victim is None or victim.task is None:
+            self._refuse(cmd_id, "NOTRUNNING")
+        elif self.wlevel > other.wlevel:
+            self._refuse(cmd_id, "DENIED")
+        else:
+            self._abort_victims(cmd_id, [victim], (self.id << 32) | cmd_id)
+
+    def _abort_victims(self, cmd_id: int, victims: list, by: int) -> None:
         self.send(m.CommandOk(cmd_id))
         for victim in victims:
-            victim.aborted_by = cmd_id
+            victim.aborted_by = by
             if victim.task is not None:
                 victim.task.cancel()
         tasks = [v.task for v in victims if v.task is not None]

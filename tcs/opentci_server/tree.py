@@ -29,9 +29,11 @@ import logging
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator, Sequence
 
-from tcs.errors import AccessDenied, ErrorNumber, RangeRefused, RequestRefused, TcsError, UnknownObject
+from tcs.errors import (AccessDenied, ErrorNumber, RangeRefused, RequestRefused, TcsError, TypeRefused,
+                        UnknownObject)
 from tcs.opentci_server.paths import ObjectRef
-from tcs.opentci_server.values import Value, ValueType, convert, format_float, format_value
+from tcs.opentci_server.values import Value, ValueType, ascii_text, convert, format_float
+from tcs.opentci_server.values import format_value as _format_any
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +62,7 @@ class VarSpec:
     max: float | Callable[[Any], float | None] | None
     init: Any
     rlevel: int
-    wlevel: int
+    wlevel: int | Callable[[Any], int]  # a callable of the domain object: writable on some objects only
     info: str
     per_connection: bool = False
     long: bool = False
@@ -211,6 +213,14 @@ class VarNode(Node):
             return 0
         return c(self.obj) if callable(c) else c
 
+    @property
+    def wlevel(self) -> int:
+        """The write level on this node's object (a declared callable is asked; −1 nobody)."""
+        w = self.spec.wlevel
+        if callable(w):
+            return NOBODY if self.absent else int(w(self.obj))
+        return w
+
     def limit(self, which: str) -> float | None:
         value = getattr(self.spec, which)
         if callable(value):
@@ -348,6 +358,37 @@ class Tree:
             log.exception("reading %s failed", target.node.path)
             return "FAILED 13"
 
+    def read_slice(self, target: Target, ref: ObjectRef, conn: Any) -> str:
+        """The wire text of the string slice ``X{a:b}`` (characters a to b inclusive, clipped
+        to the string) of one object: ``TYPE`` on anything but a STRING variable's value,
+        ``ref.slice_error`` for a slice that cannot be applied."""
+        if ref.slice_error is not None:
+            return ref.slice_error
+        if target.error is not None:
+            return target.error
+        node = target.node
+        if (ref.prop is not None or not isinstance(node, VarNode) or node.spec.type is not STRING
+                or (node.spec.count is not None and target.element is None)):
+            return "TYPE"
+        spec = node.spec
+        if conn.rlevel > spec.rlevel or spec.get is None:
+            return "DENIED"
+        if node.absent:
+            return node.fast()  # type: ignore[misc]
+        try:
+            value = _call(spec.get, conn if spec.per_connection else node.obj)
+            if target.element is not None:
+                value = value[target.element]
+        except TcsError as exc:
+            return exc.reply
+        except Exception:
+            log.exception("reading %s failed", node.path)
+            return "FAILED 13"
+        if value is None:
+            return "NULL"
+        a, b = ref.slice  # type: ignore[misc]
+        return format_value(ascii_text(str(value))[a:b + 1], STRING)
+
     # -- writes ------------------------------------------------------------------------------
 
     def check_write(self, targets: list[Target], prop: str | None, values: tuple[Value, ...],
@@ -392,11 +433,14 @@ class Tree:
         if not isinstance(node, VarNode) or (node.spec.count is not None):
             raise RequestRefused(f"{node.path} is not a settable variable")
         spec = node.spec
-        if spec.wlevel == NOBODY or spec.set is None or conn.wlevel > spec.wlevel:
+        wlevel = node.wlevel
+        if wlevel == NOBODY or spec.set is None or conn.wlevel > wlevel:
             raise AccessDenied(f"{node.path} is not writable at level {conn.wlevel}")
         if node.absent:
             raise TcsError(f"{node.path}: no hardware at this index", ErrorNumber.NOCON)
         value = convert(v, spec.type)
+        if value is None:
+            raise TypeRefused(f"{node.path} cannot be NULL")
         if spec.type in (INT, FLOAT) and value is not None:
             lo, hi = node.limit("min"), node.limit("max")
             if (lo is not None and value < lo) or (hi is not None and value > hi):
@@ -530,6 +574,14 @@ def _walk(node: Node, prefix: str) -> Iterator[tuple[str, Node]]:
             yield from _walk(e, path)
 
 
+def format_value(value: Any, vtype: ValueType | None = None) -> str:
+    """The wire form of a value read from the tree; text the server writes is 7-bit ASCII
+    (``°C`` reads ``degC``, see :func:`~tcs.opentci_server.values.ascii_text`)."""
+    if vtype is STRING and isinstance(value, str):
+        value = ascii_text(value)
+    return _format_any(value, vtype)
+
+
 def _q(text: str) -> str:
     return format_value(text, STRING)
 
@@ -575,7 +627,7 @@ def _format_property(target: Target, prop: str) -> str:
         if prop == "RLEVEL":
             return str(spec.rlevel)
         if prop == "WLEVEL":
-            return str(spec.wlevel)
+            return str(node.wlevel)
         if prop in ("RLOCK", "WLOCK", "CALLBACKTYPE"):
             return "0"
         if prop == "CALLBACK":
