@@ -135,6 +135,14 @@ class TrajectoryQueue:
         """``FREEPOINTS``: how many more points fit."""
         return self.capacity - len(self._t)
 
+    def free_points_at(self, now: float) -> int:
+        """``FREEPOINTS`` at UT1 ``now``: points already executed count as free, as
+        :meth:`add_points` drops them (all but the last one at or before ``now``, which starts
+        the current segment); so it rises while a run goes on and after it ended."""
+        with self._lock:
+            ts = self._t
+            return self.capacity - len(ts) + max(0, bisect.bisect_right(ts, now) - 1)
+
     @property
     def start_time(self) -> float | None:
         """``STARTTIME``: time of the first queued point (``None`` when empty)."""
