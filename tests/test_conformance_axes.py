@@ -117,3 +117,42 @@ async def test_run_reads_zero_once_run_0_answered(fast):
         assert "5 DATA OK AZ.TRAJECTORY.RUN" in lines, lines
         assert await c.get("AZ.TRAJECTORY.RUN") == "0"
     await c.until(run, WAIT)
+
+
+# ------------------------------------------------------------------ item 12
+
+
+def event_before_error(lines: list[str], cmd: int, obj: str, source: str, number: int) -> None:
+    error = next(i for i, x in enumerate(lines) if x.startswith(f"{cmd} DATA ERROR {obj} FAILED {number}"))
+    assert any(re.match(rf"{cmd} EVENT ERROR {re.escape(source)}:{number}( |$)", x) for x in lines[:error]), lines
+
+
+async def test_every_refused_request_sends_its_event(fast):
+    c = fast
+    lines = await c.command(1, "SET AZ.TARGETPOS=10")  # power off: 5 invmode
+    event_before_error(lines, 1, "AZ.TARGETPOS", "AZ", 5)
+    await ready(c, "AZ")
+    lines = await c.command(2, "SET AZ.TRAJECTORY.RUN=1", WAIT)  # no points: 11 nopoints
+    event_before_error(lines, 2, "AZ.TRAJECTORY.RUN", "AZ", 11)
+    # a full queue: 12 nobuffer
+    free = int(await c.num("AZ.TRAJECTORY.FREEPOINTS"))
+    t0 = await c.num("LOCAL.UT1") + 1000.0
+    p0 = await c.num("AZ.REALPOS")
+    assert ok(await upload(c, "AZ", [(t0 + i, p0) for i in range(free)]), "AZ.TRAJECTORY.ADDPOINTS")
+    await c.set(f"AZ.TRAJECTORY.BUFFER[0].TIME={t0 + free};AZ.TRAJECTORY.BUFFER[0].TARGETPOS={p0}")
+    lines = await c.command(3, "SET AZ.TRAJECTORY.ADDPOINTS=1")
+    event_before_error(lines, 3, "AZ.TRAJECTORY.ADDPOINTS", "AZ", 12)
+    assert ok(await c.set("AZ.TRAJECTORY.RUN=0"), "AZ.TRAJECTORY.RUN")
+    # a TARGETPOS cancelled by STOP
+    await c.send(f"4 SET AZ.TARGETPOS={p0 + 90.0}")
+    await c.wait("AZ.MOTION_STATE", lambda v: int(v) & MOVING, WAIT)
+    assert ok(await c.set("AZ.STOP=1"), "AZ.STOP")
+    lines = await c.until(4, WAIT)
+    event_before_error(lines, 4, "AZ.TARGETPOS", "AZ", 10)
+    # a superseded target is announced once (by the axis), not twice
+    await c.send(f"5 SET AZ.TARGETPOS={p0 + 90.0}")
+    await c.wait("AZ.MOTION_STATE", lambda v: int(v) & MOVING, WAIT)
+    lines6 = await c.command(6, f"SET AZ.TARGETPOS={p0}", WAIT)
+    lines = await c.until(5, WAIT)
+    assert len([x for x in lines if re.match(r"5 EVENT ERROR AZ:10\b", x)]) == 1, lines
+    assert ok(lines6, "AZ.TARGETPOS")

@@ -41,9 +41,10 @@ from collections import deque
 from typing import TYPE_CHECKING
 
 from tcs.errors import TcsError
-from tcs.model.events import LEVEL_BITS, Event, current_cause
+from tcs.model.events import ERROR, LEVEL_BITS, Event, current_cause
 from tcs.opentci_server import messages as m
 from tcs.opentci_server.protocol import Tpl2Connection
+from tcs.opentci_server.tree import module_of
 
 if TYPE_CHECKING:  # pragma: no cover
     from tcs.opentci_server.server import Tpl2Server
@@ -86,6 +87,7 @@ class Session(asyncio.Protocol):
         self._start_mono = time.monotonic()
         self.commands: dict[int, _Command] = {}
         self._running: dict[int, int] = {}  # command id -> serial of the SET running under it
+        self._announced: dict[int, set] = {}  # command id -> (source, number) of its events so far
         self._queue: deque = deque()
         self._auth_task: asyncio.Task | None = None
         self._auth_failures = 0
@@ -163,9 +165,11 @@ class Session(asyncio.Protocol):
 
     def deliver_event(self, event: Event) -> None:
         """Send ``event`` if this connection is logged in and its mask lets it through."""
+        cause = event.cause
+        if cause is not None and cause[0] == self.id and self.executing(cause):
+            self._announced.setdefault(cause[1], set()).add((event.source, event.number))
         if not self.authenticated or not (self.eventmask & LEVEL_BITS.get(event.level, 0)):
             return
-        cause = event.cause
         cid = 0  # TPL2 §5: only an event of a command still executing carries its id
         if cause is not None:
             owner = self if cause[0] == self.id else self.server.sessions.get(cause[0])
@@ -343,6 +347,7 @@ class Session(asyncio.Protocol):
             current_cause.reset(token)
         self.send(m.CommandComplete(cmd_id))
         self._running.pop(cmd_id, None)
+        self._announced.pop(cmd_id, None)
 
     def _assign(self, cmd_id: int, assignment: m.Assignment):
         """Start one assignment. Returns None when it finished (line sent), else the
@@ -368,6 +373,7 @@ class Session(asyncio.Protocol):
                 pending = tree.write(target, value, self)
             except TcsError as exc:
                 errors.append(exc.reply)
+                self._announce_failure(cmd_id, module_of(target), exc)
                 continue
             except Exception:
                 log.exception("setting %s failed", ref.text)
@@ -375,11 +381,19 @@ class Session(asyncio.Protocol):
                 continue
             errors.append("")
             if pending is not None:
-                waits.append((len(errors) - 1, pending))
+                waits.append((len(errors) - 1, pending, module_of(target)))
         if waits:
             return errors, waits
         self._data_result(cmd_id, ref.text, errors)
         return None
+
+    def _announce_failure(self, cmd_id: int, source: str, exc: TcsError) -> None:
+        """OpenTCI §4: a request the domain refused or failed (``FAILED n``) also sends its
+        event ``ERROR <module>:<n>``, under the command's id, unless the domain already sent
+        that number for that module during the command."""
+        if exc.keyword is not None or (source, exc.number) in self._announced.get(cmd_id, ()):
+            return
+        self.server.events.emit(ERROR, source, exc.number, exc.message)
 
     def _data_result(self, cmd_id: int, obj: str, errors: list[str]) -> None:
         if any(errors):
@@ -404,14 +418,16 @@ class Session(asyncio.Protocol):
         finally:
             self.commands.pop(cmd_id, None)
             self._running.pop(cmd_id, None)
+            self._announced.pop(cmd_id, None)
 
     async def _await_assignment(self, cmd_id: int, obj: str, pending) -> None:
         errors, waits = pending
-        for slot, awaitable in waits:
+        for slot, awaitable, source in waits:
             try:
                 await awaitable
             except TcsError as exc:
                 errors[slot] = exc.reply
+                self._announce_failure(cmd_id, source, exc)
             except asyncio.CancelledError:
                 raise
             except Exception:

@@ -492,6 +492,17 @@ def _step(ref: ObjectRef, part, is_last: bool, t: Target, nxt: list[Target], lim
     nxt.extend(Target(child, j) for j in part.elements())
 
 
+def module_of(target: Target) -> str:
+    """The top-level module a target belongs to, as events name it (``AZ`` for
+    ``AZ.TRAJECTORY.RUN``, ``DOME[0]`` for ``DOME[0].TARGETPOS``)."""
+    node, below = target.node, None
+    while node.parent is not None and node.parent.parent is not None:
+        node, below = node.parent, node
+    if isinstance(node, ArrayNode) and below is not None:
+        return below.name
+    return node.name
+
+
 def _too_many(ref: ObjectRef, count: int, limit: int) -> RequestRefused:
     return _WholeRefused(f"{ref.text}: selects {count} objects, more than the {limit} one command may",
                           keyword="DIMENSION")
@@ -635,5 +646,5 @@ def _format_property(target: Target, prop: str) -> str:
     return "UNKNOWN"
 
 
-__all__ = ["Tree", "Target", "VarSpec", "ModuleSpec", "var", "sysvar", "var_array", "module",
+__all__ = ["Tree", "Target", "module_of", "VarSpec", "ModuleSpec", "var", "sysvar", "var_array", "module",
            "module_array", "READ_ALL", "OPERATE", "CONFIGURE", "NOBODY", "INT", "FLOAT", "STRING"]
