@@ -38,7 +38,7 @@ import threading
 from typing import Any, Callable
 
 from tcs.axes.follower import TrajectoryFollower
-from tcs.axes.limits import SoftLimits
+from tcs.axes.limits import SoftLimits, limit_text
 from tcs.axes.motion import MotionPlanner
 from tcs.axes.profile import AxisDynamics, Setpoint
 from tcs.axes.trajectory import TrajectoryQueue
@@ -721,7 +721,7 @@ class Axis(ModuleHealth):
         if limit != prev_limit:
             hw, prev_hw = limit & (HW_MIN | HW_MAX), prev_limit & (HW_MIN | HW_MAX)
             hit = hw & ~prev_hw  # a switch that became active (not the blocking bit changing)
-            self.emit(ERROR if hit else INFO, ErrorNumber.LIMITCHANGE, f"limit state {limit}")
+            self.emit(ERROR if hit else INFO, ErrorNumber.LIMITCHANGE, limit_text(limit))
             if hit:
                 self.raise_condition("limit switch", WARNING, "hardware limit switch active")
                 self._fail_motion(TcsError(f"{self.module_name}: limit switch", ErrorNumber.LIMIT))

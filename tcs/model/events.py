@@ -26,6 +26,8 @@ import threading
 from dataclasses import dataclass
 from typing import Callable
 
+from tcs.errors import event_text
+
 log = logging.getLogger(__name__)
 
 ERROR, WARN, INFO, DEBUG = "ERROR", "WARN", "INFO", "DEBUG"
@@ -66,9 +68,10 @@ class EventHub:
     def emit(self, level: str, source: str, number: int, text: str = "",
              cause: tuple[int, ...] | None = None) -> None:
         """Announce an event; ``cause`` defaults to the command being executed."""
-        event = Event(level, source, int(number), text, cause if cause is not None else current_cause.get())
+        event = Event(level, source, int(number), event_text(number, text),
+                      cause if cause is not None else current_cause.get())
         log.log(logging.WARNING if level in (ERROR, WARN) else logging.INFO,
-                "event %s %s:%d %s", level, source, event.number, text)
+                "event %s %s:%d %s", level, source, event.number, event.text)
         loop = self._loop
         if loop is not None and threading.get_ident() != self._loop_thread:
             try:
