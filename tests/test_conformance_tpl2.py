@@ -229,3 +229,23 @@ async def test_every_description_and_value_is_ascii(service):
     assert b'"degC"' in raw  # SENSOR[].UNIT "°C" of the hardware file
     assert await c.get("SERVER.CONNECTION.ADDRESS") == '"127.0.0.1"'
     await c.close()
+
+
+# ------------------------------------------------------------------ item 14: value precision
+
+
+async def test_sensor_values_print_at_their_resolution(service):
+    """hwconfig/sim.toml scales its PLC registers by 0.1 and 0.01 and has a float32 point: a
+    reading prints at its resolution (9.6, not 9.600000000000001; a float32 with the fewest
+    digits that are the same float32), and nothing of it is lost."""
+    _, port = service
+    c = await RawClient.connect(port)
+    count = int(await c.get("SENSOR!COUNT"))
+    for _ in range(20):  # the simulated weather moves: several readings
+        values = (await c.get(f"SENSOR[0-{count - 1}].VALUE")).split(",")
+        floats = [v for v in values if "." in v]
+        assert floats, values
+        for v in floats:  # 0.1/0.01-scaled integers, and a float32 (at most 9 significant digits)
+            assert len(v.lstrip("-").replace(".", "").strip("0")) <= 9, values
+        await asyncio.sleep(0.05)
+    await c.close()

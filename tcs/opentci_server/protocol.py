@@ -80,7 +80,6 @@ from tcs.opentci_server.paths import PathSyntaxError, parse_object
 from tcs.opentci_server.values import (
     Value,
     ValueType,
-    ascii_text,
     classify_bare,
     escape_text,
     format_float,
@@ -341,7 +340,7 @@ def _format_command_error(m: CommandError) -> str:
 
 def _format_event(m: Event) -> str:
     s = f"{m.cmd_id} EVENT {_text(m.level)} {_text(m.obj)}:{m.number}"
-    return s + " " + escape_text(ascii_text(m.text)) if m.text else s
+    return s + " " + escape_text(m.text) if m.text else s
 
 
 _FORMATTERS: dict[type, Callable[..., str]] = {

@@ -45,6 +45,7 @@ from tcs.model.events import ERROR, LEVEL_BITS, Event, current_cause
 from tcs.opentci_server import messages as m
 from tcs.opentci_server.protocol import Tpl2Connection
 from tcs.opentci_server.tree import module_of
+from tcs.opentci_server.values import ascii_text
 
 if TYPE_CHECKING:  # pragma: no cover
     from tcs.opentci_server.server import Tpl2Server
@@ -175,7 +176,7 @@ class Session(asyncio.Protocol):
             owner = self if cause[0] == self.id else self.server.sessions.get(cause[0])
             if owner is not None and owner.executing(cause):
                 cid = cause[1] if owner is self else (cause[0] << 32) | cause[1]
-        self.send(m.Event(cid, event.level, event.source, event.number, event.text))
+        self.send(m.Event(cid, event.level, event.source, event.number, ascii_text(event.text)))
 
     def executing(self, cause: tuple) -> bool:
         """True while the command ``cause`` names (``(conn, id[, serial])``) has not sent its

@@ -217,8 +217,8 @@ class VarNode(Node):
     def wlevel(self) -> int:
         """The write level on this node's object (a declared callable is asked; −1 nobody)."""
         w = self.spec.wlevel
-        if callable(w):
-            return NOBODY if self.absent else int(w(self.obj))
+        if callable(w):  # (no hardware to ask: the operation level; a write answers FAILED 4)
+            return OPERATE if self.absent else int(w(self.obj))
         return w
 
     def limit(self, which: str) -> float | None:
