@@ -87,6 +87,7 @@ class Session(asyncio.Protocol):
         self.starttime = time.time()
         self._start_mono = time.monotonic()
         self.commands: dict[int, _Command] = {}
+        self.command_times: deque = deque(maxlen=4096)  # admitted commands (SERVER.*.COMMAND_RATE)
         self._running: dict[int, int] = {}  # command id -> serial of the SET running under it
         self._announced: dict[int, set] = {}  # command id -> (source, number) of its events so far
         self._queue: deque = deque()
@@ -262,6 +263,7 @@ class Session(asyncio.Protocol):
         if len(self.commands) >= self.server.settings.max_in_flight:
             self._refuse(cmd_id, "TOOMANY")
             return False
+        self.command_times.append(time.monotonic())
         return True
 
     # -- AUTH --------------------------------------------------------------------------------
