@@ -197,10 +197,10 @@ async def test_error_vocabulary(service):
     lines = await c.command(4, 'SET POINTING.POINTINGPARAMS.LOAD="no-such-model"')
     assert lines[1] == "4 DATA ERROR POINTING.POINTINGPARAMS.LOAD RANGE", lines
     lines = await c.command(5, "SET POINTING.POINTINGPARAMS.CALCULATE=1", timeout=30)
-    assert lines[1] == "5 DATA ERROR POINTING.POINTINGPARAMS.CALCULATE FAILED 1013", lines
+    assert lines[-2] == "5 DATA ERROR POINTING.POINTINGPARAMS.CALCULATE FAILED 1013", lines
     # trajectory points: decreasing times are RANGE; ADDPOINTS of empty slots is FAILED 11
     lines = await c.command(6, "SET AZ.TRAJECTORY.ADDPOINTS=2")
-    assert lines[1] == "6 DATA ERROR AZ.TRAJECTORY.ADDPOINTS FAILED 11", lines
+    assert lines[-2] == "6 DATA ERROR AZ.TRAJECTORY.ADDPOINTS FAILED 11", lines
     await c.close()
 
 

@@ -168,8 +168,9 @@ class Session(asyncio.Protocol):
     def deliver_event(self, event: Event) -> None:
         """Send ``event`` if this connection is logged in and its mask lets it through."""
         cause = event.cause
-        if cause is not None and cause[0] == self.id and self.executing(cause):
-            self._announced.setdefault(cause[1], set()).add((event.source, event.number))
+        if self._running:  # what the client heard while its commands ran (_announce_failure)
+            for cmd_id in self._running:
+                self._announced.setdefault(cmd_id, set()).add((event.source, event.number))
         if not self.authenticated or not (self.eventmask & LEVEL_BITS.get(event.level, 0)):
             return
         cid = 0  # TPL2 §5: only an event of a command still executing carries its id
@@ -392,8 +393,8 @@ class Session(asyncio.Protocol):
 
     def _announce_failure(self, cmd_id: int, source: str, exc: TcsError) -> None:
         """OpenTCI §4: a request the domain refused or failed (``FAILED n``) also sends its
-        event ``ERROR <module>:<n>``, under the command's id, unless the domain already sent
-        that number for that module during the command."""
+        event ``ERROR <module>:<n>``, under the command's id, unless this connection already
+        got an event of that number for that module while the command ran."""
         if exc.keyword is not None or (source, exc.number) in self._announced.get(cmd_id, ()):
             return
         self.server.events.emit(ERROR, source, exc.number, exc.message)
