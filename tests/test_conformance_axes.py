@@ -10,7 +10,6 @@
 
 from __future__ import annotations
 
-import asyncio
 import re
 from pathlib import Path
 

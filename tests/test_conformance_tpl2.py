@@ -10,7 +10,6 @@ import asyncio
 import re
 from pathlib import Path
 
-import pytest
 
 from support.service import start_service
 from support.tpl2 import RawClient

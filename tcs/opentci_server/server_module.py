@@ -28,7 +28,6 @@ Everything runs on the event loop; password hashing runs in a worker thread.
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import logging
 import os
 import platform
@@ -37,12 +36,11 @@ import signal
 import socket
 import subprocess
 import time
-import weakref
 from collections import deque
 from typing import Any
 
-import tcs
 from tcs.config.passwords import hash_password
+from tcs.config.sections import UserSection
 from tcs.errors import ErrorNumber, RequestRefused, TcsError
 from tcs.model.events import LEVEL_BITS, Event
 from tcs.model.state_store import StateStore
@@ -57,14 +55,13 @@ _NAME = re.compile(r"[A-Za-z0-9_.-]{1,64}\Z")
 class ServerModule:
     """``SERVER.*`` of one server (and its telescope's state directory)."""
 
-    _instances: "weakref.WeakKeyDictionary[Any, ServerModule]" = weakref.WeakKeyDictionary()
-
     @classmethod
     def of(cls, server: Any, telescope: Any = None) -> "ServerModule":
-        """The one module of ``server`` (made on first use)."""
-        module = cls._instances.get(server)
+        """The one module of ``server`` (made on first use, kept on the server object)."""
+        module = getattr(server, "_server_module", None)
         if module is None:
-            module = cls._instances[server] = cls(server, telescope)
+            module = cls(server, telescope)
+            server._server_module = module
         return module
 
     def __init__(self, server: Any, telescope: Any = None):
@@ -261,12 +258,8 @@ class ServerModule:
         if entry.get("blocked"):
             users.pop(name, None)
             return
-        template = base if base is not None else next(iter(self.file_users.values()), None)
-        user = dataclasses.replace(template, name=name, password=entry["password"],
-                                   rlevel=int(entry["rlevel"]), wlevel=int(entry["wlevel"])) \
-            if template is not None else None
-        if user is not None:
-            users[name] = user
+        users[name] = UserSection(name=name, password=entry["password"], rlevel=int(entry["rlevel"]),
+                                  wlevel=int(entry["wlevel"]))
 
     def _entry(self, name: str) -> dict:
         entry = self.accounts.get(name)
