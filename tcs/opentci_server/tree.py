@@ -10,6 +10,17 @@ writes the **domain object** the module is bound to (an attribute/method name, o
 picks its domain object from the parent's; a module whose object is ``None`` (an array whose
 list is empty) is not configured and simply does not exist. Member numbers (``!INDEX`` and
 numeric access ``<n>``) are the positions among the members that exist, in declaration order.
+An element of a module array whose object is ``None`` (a port with no hardware) still gets every
+declared member (TPL2 §8.3: all elements have the same substructure); its variables answer
+their declared ``absent`` value (``VERSION`` 0) or ``FAILED 4``, reads and writes alike.
+
+Lookup validates every index against its array *before* expanding a range, and takes a limit
+on the number of objects one reference may select (the server's per-command budget). In a
+multi-element selection an element that lacks the member asked for becomes an error in its
+own slot (``Target.error``) instead of failing the whole object; :meth:`Tree.check_write_each`
+does the same for writes. A variable's ``WLEVEL`` may be a callable of its object (writable on
+some parts only); ``RLEVEL`` −1 makes it write-only. String values and descriptions are sent
+as 7-bit ASCII (``°`` -> ``deg``, see :func:`~tcs.opentci_server.values.ascii_text`).
 
 Reads are synchronous and fast (the spec asks ~5 ms); a write calls the domain setter, which
 validates at once (raising :class:`~tcs.errors.TcsError` subclasses) and either finishes or
