@@ -52,6 +52,9 @@ async def test_clients_drop_and_block(service):
     assert ids[2] == 0 and ids[0] < ids[1]
     assert await admin.get("SERVER.CLIENT[1].USERNAME") == '"admin"'
     assert await admin.get("SERVER.CLIENT[1].ADDRESS") == '"127.0.0.1"'
+    assert await admin.get("SERVER.CLIENT[1].EVENTMASK") == "15"
+    assert float(await admin.get("SERVER.CLIENT[1].UPTIME")) > 0.0
+    assert await admin.get("SERVER.CLIENT[5].UPTIME") == "0.0"
     weak = await RawClient.connect(port, login=None)
     await weak.send('AUTH PLAIN "admin" "admin" 1 1')
     assert await weak.readline() == "AUTH OK 1 1"

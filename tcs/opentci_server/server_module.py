@@ -407,6 +407,18 @@ class ClientSlot:
         return self._get("starttime", 0.0)
 
     @property
+    def uptime(self) -> float:
+        return self._get("uptime", 0.0)
+
+    @property
+    def eventmask(self) -> int:
+        return self._get("eventmask", 0)
+
+    @property
+    def abort_on_disconnect(self) -> int:
+        return self._get("abort_on_disconnect", 0)
+
+    @property
     def command_rate(self) -> float:
         s = self.session
         return command_rate(s) if s is not None else 0.0
