@@ -16,7 +16,8 @@ A change never weakens the hardware file: a file user cannot be removed, nor giv
 privilege than the file gives, and a password changed over TPL2 is dropped once the file's
 hash for that user was edited (the file wins, as for every persisted value). A changed account
 takes effect in the server's user table at once (the next login); a connection logged in
-stays logged in.
+stays logged in. A blocked user keeps its entry with a hash no password matches (implicit
+authentication, which checks no password, is the hardware file's decision and unaffected).
 
 ``REBOOT`` and ``SHUTDOWN`` are refused (``FAILED 6``, localmode) unless the hardware file
 sets ``[server] allow_system_control``; then ``SERVER.SHUTDOWN`` and ``SYSTEM.SHUTDOWN`` stop
@@ -49,6 +50,7 @@ log = logging.getLogger(__name__)
 
 LOG_CAPACITY = 200          # events kept for LOG.EVENTS
 RATE_WINDOW = 10.0          # s over which COMMAND_RATE counts
+BLOCKED_HASH = "blocked"    # not a valid hash: verify_password() is False for every password
 _NAME = re.compile(r"[A-Za-z0-9_.-]{1,64}\Z")
 
 
@@ -255,10 +257,10 @@ class ServerModule:
             else:
                 users.pop(name, None)
             return
-        if entry.get("blocked"):
-            users.pop(name, None)
-            return
-        users[name] = UserSection(name=name, password=entry["password"], rlevel=int(entry["rlevel"]),
+        # a blocked user stays in the table (other code may look it up) with a hash that no
+        # password matches: every login fails
+        password = BLOCKED_HASH if entry.get("blocked") else entry["password"]
+        users[name] = UserSection(name=name, password=password, rlevel=int(entry["rlevel"]),
                                   wlevel=int(entry["wlevel"]))
 
     def _entry(self, name: str) -> dict:
