@@ -54,6 +54,37 @@ class ErrorNumber(enum.IntEnum):
     TRAJ_STOP = 32
 
 
+#: Every event/error number the server sends, with its meaning: Appendix B (1-32) and the
+#: project's own (from 1000; each defined beside the code that sends it). The text of an event
+#: sent without one, and the table of the generated reference (``tools/opentci_reference.py``).
+EVENT_MEANINGS: dict[int, str] = {
+    1: "unknown error", 2: "a hardware library failed", 3: "communication error with the hardware",
+    4: "no communication with the hardware", 5: "invalid operation mode (power off, not referenced, fault)",
+    6: "local (manual) operation only", 7: "timeout while positioning", 8: "limit reached",
+    9: "software limit reached", 10: "target changed (superseded, stopped or aborted)",
+    11: "trajectory cannot start: no points", 12: "no more trajectory buffers", 13: "internal error",
+    14: "TCS state change", 15: "errors changed", 16: "manual control setting changed",
+    17: "operation mode changed", 18: "referencing started", 19: "referenced",
+    20: "not referenced (referencing failed or stopped)", 21: "power changed",
+    22: "limit switch state changed", 23: "movement state changed", 24: "GPS position uncertain",
+    25: "GPS position good", 26: "clock uncertain", 27: "clock good", 28: "leap second inserted",
+    29: "trajectory runs, accuracy good", 30: "trajectory runs but not accurate",
+    31: "trajectory almost at its end", 32: "trajectory ended",
+    1000: "trajectory points already in the past were dropped",
+    1010: "POINTING: an axis cannot follow (zenith/limit), tracking limited",
+    1011: "POINTING: the axis follows again", 1012: "POINTING: the dome does not follow",
+    1013: "POINTING: the pointing-model fit cannot run (too few samples, inseparable terms)",
+    1014: "POINTING: tracking started or changed (target, orientation, followers)",
+    1015: "POINTING: tracking ended as asked",
+    1020: "weather interlock changed", 1021: "weather: closing the enclosure",
+}
+
+
+def event_text(number: int, text: str = "") -> str:
+    """``text``, or the meaning of ``number`` when there is no text (every event has one)."""
+    return text or EVENT_MEANINGS.get(int(number), f"event {int(number)}")
+
+
 class TcsError(Exception):
     """Root of every error the TCS reports.
 

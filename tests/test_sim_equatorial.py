@@ -16,7 +16,7 @@ async def test_equatorial_telescope_moves_dec(tmp_path):
     svc, port = await start_service(tmp_path / "state", EQUATORIAL)
     try:
         c = await RawClient.connect(port)
-        members = (await c.get("!MEMBERS")).strip('"').split(",")
+        members = await c.members()
         assert {"HA", "DEC", "POINTING"} <= set(members) and "AZ" not in members
         assert await c.get("CONFIG.MOUNT") == '"RA-DEC"'
         assert (await c.command(1, "SET CABINET.POWER=1", timeout=60))[-2:] == [

@@ -174,6 +174,7 @@ PARSE_ONLY_ROWS = [
     ("6 SET X=12.500000", Set(6, (assign("X", FLT(12.5)),))),
     ("7 abort 0005", Abort(7, 5)),
     ("8 ABORT 000", Abort(8, 0)),
+    ("8 ABORT 30064771077", Abort(8, (7 << 32) | 5)),  # another connection's extended id
     ("auth plain admin secret", Auth("PLAIN", "admin", "secret")),
     ('AUTH PLAIN "admin" "admin" ', Auth("PLAIN", "admin", "admin")),
     ('Auth Plain "u" p 0 9', Auth("PLAIN", "u", "p", 0, 9)),
@@ -235,7 +236,8 @@ BAD_SYNTAX_LINES = [
     ("5 ABORT", 5),
     ("5 ABORT x", 5),
     ("5 ABORT 1 2", 5),
-    ("5 ABORT 99999999999", 5),
+    ("5 ABORT 99999999999999999999", 5),  # beyond an extended id (64 bits)
+    ("5 ABORT 21474836480", 5),  # extended id of connection 5 with command id 0
 ]
 
 # ------------------------------------------------------------------ server table

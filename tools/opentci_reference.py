@@ -16,24 +16,41 @@ from pathlib import Path
 
 from tcs.config import DEFAULT_CONFIG, load_config
 from tcs.config.sections import StateSection
+from tcs.errors import EVENT_MEANINGS
 from tcs.opentci_server.tree import ArrayNode, ModuleNode, NOBODY, VarNode
 
 TYPE_NAMES = {0: "NULL", 1: "INT", 2: "FLOAT", 3: "STRING"}
 
 
+def _shown_element(array: ArrayNode) -> int | None:
+    """The element an array's rows show: the first one with hardware (members answer)."""
+    for element in array.elements:
+        if not any(getattr(m, "absent", False) for m in element.members):
+            return element.index
+    return array.elements[0].index if array.elements else None
+
+
 def rows(tree):
+    shown: dict[str, int | None] = {}
     for path, node in tree.walk():
+        if not _is_shown(path, shown):
+            continue
         if isinstance(node, ArrayNode):
-            yield f"| `{path}[]` | module array ({len(node.elements)}) | | | | {node.info} |"
-        elif isinstance(node, ModuleNode):
-            if "[" in path and not path.endswith("[0]"):
-                continue
+            shown[path] = _shown_element(node)
+            absent = [e.index for e in node.elements if e.index != shown[path] and any(
+                getattr(m, "absent", False) for m in e.members)]
+            note = f"; no hardware at {absent} (VERSION 0, else FAILED 4)" if absent else ""
+            yield f"| `{path}[]` | module array ({len(node.elements)}{note}) | | | | {node.info} |"
+            continue
+        if isinstance(node, ModuleNode):
             yield f"| `{path}` | module | | | | {node.info} |"
         elif isinstance(node, VarNode):
-            if "[" in path and "[0]" not in path:
-                continue
             spec = node.spec
-            access = "RO" if spec.wlevel == NOBODY else f"RW (w≤{spec.wlevel})"
+            wlevel = node.wlevel
+            if spec.rlevel == NOBODY:
+                access = f"WO (w<={wlevel})"
+            else:
+                access = "RO" if wlevel == NOBODY else f"RW (w<={wlevel})"
             lo, hi = node.limit("min"), node.limit("max")
             rng = "" if lo is None and hi is None else f"{'' if lo is None else lo} … {'' if hi is None else hi}"
             kind = "per connection" if spec.per_connection else ("long SET" if spec.long else "")
@@ -58,6 +75,20 @@ async def build(config_path: Path):
             await service.stop()
 
 
+def _is_shown(path: str, shown: dict[str, int | None]) -> bool:
+    """Only the shown element of each array (``DEROTATOR[2]`` when 0 and 1 have no hardware)."""
+    for array, index in shown.items():
+        prefix = array + "["
+        if path.startswith(prefix) and not path.startswith(f"{array}[{index}]"):
+            return False
+    return True
+
+
+def event_rows():
+    for number, meaning in sorted(EVENT_MEANINGS.items()):
+        yield f"| {number} | {meaning} |"
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--config", default=str(DEFAULT_CONFIG))
@@ -68,6 +99,13 @@ def main() -> None:
     print("| object | type | access | range | notes | description |")
     print("|---|---|---|---|---|---|")
     for row in asyncio.run(build(Path(args.config))):
+        print(row)
+    print("\n## Event and error numbers\n")
+    print("`<id> EVENT <LEVEL> <module>:<number> <text>`; `FAILED <number>` in DATA replies. "
+          "1-32: OpenTCI Appendix B; from 1000: this server's own.\n")
+    print("| number | meaning |")
+    print("|---|---|")
+    for row in event_rows():
         print(row)
 
 

@@ -38,7 +38,7 @@ import threading
 from typing import Any, Callable
 
 from tcs.axes.follower import TrajectoryFollower
-from tcs.axes.limits import SoftLimits
+from tcs.axes.limits import SoftLimits, limit_text
 from tcs.axes.motion import MotionPlanner
 from tcs.axes.profile import AxisDynamics, Setpoint
 from tcs.axes.trajectory import TrajectoryQueue
@@ -89,8 +89,8 @@ def add_staged_points(axis, buffer: list[BufferSlot], queue: TrajectoryQueue, co
         raise RangeRefused(f"ADDPOINTS must be 1..{len(buffer)}")
     slots = buffer[:count]
     if any(s.time is None or s.targetpos is None for s in slots):
-        raise RequestRefused(f"{axis.module_name}.TRAJECTORY: BUFFER[0..{count - 1}] "
-                             "has points without TIME or TARGETPOS")
+        raise TcsError(f"{axis.module_name}.TRAJECTORY: BUFFER[0..{count - 1}] "
+                       "has points without TIME or TARGETPOS", ErrorNumber.NOPOINTS)
     result = queue.add_points([s.time for s in slots], [s.targetpos for s in slots], now)
     for s in slots:
         s.time = s.targetpos = None
@@ -109,7 +109,7 @@ class AxisTrajectory:
 
     @property
     def freepoints(self) -> int:
-        return self.axis.queue.free_points
+        return self.axis.queue.free_points_at(self.axis.ut1())
 
     def set_addpoints(self, count: int) -> None:
         """Move BUFFER[0..count-1] into the running queue (returns at once)."""
@@ -118,7 +118,9 @@ class AxisTrajectory:
 
     @property
     def run(self) -> int:
-        return 1 if self.axis.trajectory_running else 0
+        # RUN=0 empties the queue before it answers; the axis may still brake on the path
+        # (MOTION_STATE bit 1) but the run is over: 0 as soon as RUN=0 answered
+        return 1 if self.axis.trajectory_running and len(self.axis.queue) else 0
 
     def set_run(self, value: int):
         return self.axis.set_run(int(value))
@@ -592,6 +594,10 @@ class Axis(ModuleHealth):
                 self.referenced = 1.0
                 self._sp = Setpoint(st.position)
                 self.planner.take_over(self._sp)
+                if self.discrete:  # TARGETPOS: where it stands (a port: on target, bit 3)
+                    self.target_position = self._discrete_position(st.position)
+                    on_port = float(self.target_position).is_integer() and int(self.target_position) in self.positions
+                    self._discrete_target = int(self.target_position) if on_port else None
                 self._resolve("reference")
                 self.emit(INFO, ErrorNumber.REFERENCE_GOOD, "referenced", self._reference_cause)
             elif st.homing is Progress.FAILED:
@@ -715,7 +721,7 @@ class Axis(ModuleHealth):
         if limit != prev_limit:
             hw, prev_hw = limit & (HW_MIN | HW_MAX), prev_limit & (HW_MIN | HW_MAX)
             hit = hw & ~prev_hw  # a switch that became active (not the blocking bit changing)
-            self.emit(ERROR if hit else INFO, ErrorNumber.LIMITCHANGE, f"limit state {limit}")
+            self.emit(ERROR if hit else INFO, ErrorNumber.LIMITCHANGE, limit_text(limit))
             if hit:
                 self.raise_condition("limit switch", WARNING, "hardware limit switch active")
                 self._fail_motion(TcsError(f"{self.module_name}: limit switch", ErrorNumber.LIMIT))

@@ -26,6 +26,7 @@ How it works
    outside a limit may move back in but not further out.
 
 Owned by one planner or trajectory follower each (not thread-safe).
+:func:`limit_text` (pure) words a ``LIMIT_STATE`` for events.
 """
 
 from __future__ import annotations
@@ -281,3 +282,17 @@ class LimitGuard:
             return Setpoint(self._brake_end.position, 0.0, 0.0, -previous.acceleration / self.dt)
         p, v, a = sample(traj, t)
         return Setpoint(p, v, a, (a - previous.acceleration) / self.dt)
+
+
+_LIMIT_BITS = ((0, "hardware min limit"), (1, "hardware max limit"), (7, "hardware blocking"),
+               (8, "software min limit"), (9, "software max limit"), (15, "software blocking"))
+
+
+def limit_text(bits: int) -> str:
+    """``LIMIT_STATE`` in words for the LIMITCHANGE (22) event: ``"hardware min limit,
+    hardware blocking"``; ``"limits clear"`` for 0 (spec §5.1: bits 0/1, 7, 8/9, 15)."""
+    words = [name for bit, name in _LIMIT_BITS if bits >> bit & 1]
+    rest = bits & ~sum(1 << bit for bit, _ in _LIMIT_BITS)
+    if rest:
+        words.append(f"other bits 0x{rest:x}")
+    return ", ".join(words) if words else "limits clear"

@@ -45,7 +45,7 @@ import math
 import threading
 from typing import NamedTuple, Sequence
 
-from tcs.errors import ErrorNumber, RequestRefused, TcsError
+from tcs.errors import ErrorNumber, RangeRefused, RequestRefused, TcsError, TypeRefused
 
 #: shortest accepted spacing of two points, s (strictly increasing, and not absurdly close)
 MIN_SPACING = 1e-6
@@ -135,6 +135,14 @@ class TrajectoryQueue:
         """``FREEPOINTS``: how many more points fit."""
         return self.capacity - len(self._t)
 
+    def free_points_at(self, now: float) -> int:
+        """``FREEPOINTS`` at UT1 ``now``: points already executed count as free, as
+        :meth:`add_points` drops them (all but the last one at or before ``now``, which starts
+        the current segment); so it rises while a run goes on and after it ended."""
+        with self._lock:
+            ts = self._t
+            return self.capacity - len(ts) + max(0, bisect.bisect_right(ts, now) - 1)
+
     @property
     def start_time(self) -> float | None:
         """``STARTTIME``: time of the first queued point (``None`` when empty)."""
@@ -190,15 +198,15 @@ class TrajectoryQueue:
             raise RequestRefused(f"trajectory: {len(times)} times but {len(positions)} positions")
         for i, (t, p) in enumerate(zip(times, positions)):
             if not (math.isfinite(t) and math.isfinite(p)):
-                raise RequestRefused(f"trajectory point {i}: time {t!r} / position {p!r} "
-                                     f"is not a finite number")
+                raise TypeRefused(f"trajectory point {i}: time {t!r} / position {p!r} "
+                                  f"is not a finite number")
         with self._lock:
             last = self._t[-1] if self._t else None
             for i, t in enumerate(times):
                 if last is not None and not t - last >= MIN_SPACING:
                     which = "the last queued point" if i == 0 else f"point {i - 1}"
-                    raise RequestRefused(f"trajectory point {i}: time {t!r} is not after "
-                                         f"{which} ({last!r}); times must increase")
+                    raise RangeRefused(f"trajectory point {i}: time {t!r} is not after "
+                                       f"{which} ({last!r}); times must increase")
                 last = t
             n_old = len(self._t)
             drop = self._past_count(self._t + times, now)

@@ -60,6 +60,28 @@ _INT_RANGE = {"int16": (-2**15, 2**15 - 1), "uint16": (0, 2**16 - 1),
               "int32": (-2**31, 2**31 - 1), "uint32": (0, 2**32 - 1)}
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
+
+def _decimal_places(x: float) -> int:
+    """Decimals of the shortest text of ``x`` (0.1 -> 1, 0.05 -> 2, 2.0 -> 0)."""
+    text = repr(float(x))
+    if "e" in text or "E" in text:
+        mantissa, exp = text.lower().split("e")
+        return max(0, len(mantissa.partition(".")[2].rstrip("0")) - int(exp))
+    return len(text.partition(".")[2].rstrip("0"))
+
+
+def _shortest_float32(x: float) -> float:
+    """The value with the fewest significant digits that is the same float32 as ``x`` (a
+    float32 register holding 9.6 reads 9.6, not 9.600000381469727)."""
+    if not math.isfinite(x):
+        return x
+    target = struct.pack(">f", x)
+    for digits in range(1, 10):
+        candidate = float(f"{x:.{digits}g}")
+        if struct.pack(">f", candidate) == target:
+            return candidate
+    return x
+
 #: The status bits an axis must have (bit names in ``X_status.bits``).
 AXIS_STATUS_BITS = ("moving", "at_target", "closed", "open", "fault", "stalled")
 #: ``X_command`` values (the PLC resets the register to IDLE once it accepted a command).
@@ -179,7 +201,17 @@ class RegisterPoint:
         number = struct.unpack(">" + _STRUCT[self.type], struct.pack(f">{len(words)}H", *words))[0]
         if self.is_integer:
             return number
-        return number * self.scale + self.offset
+        if self.type == "float32":
+            number = _shortest_float32(number)
+            value = number * self.scale + self.offset
+            return value if self.scale == 1.0 and self.offset == 0.0 else float(f"{value:.7g}")
+        # raw * scale + offset has at most `_decimals` decimals: the nearest double to that
+        # decimal prints as such (9.6, not 9.600000000000001); no resolution is lost
+        return round(number * self.scale + self.offset, self._decimals)
+
+    @cached_property
+    def _decimals(self) -> int:
+        return max(_decimal_places(self.scale), _decimal_places(self.offset))
 
     def encode(self, value: Value) -> list:
         if self.type == "bool":

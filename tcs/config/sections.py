@@ -29,6 +29,12 @@ class ServerSection:
     auth_fail_delay: float = setting(1.0, min=0.0, max=60.0, doc="seconds before answering AUTH FAILED")
     auth_max_failures: int = setting(3, min=1, max=100, doc="failed logins before the connection is dropped")
     abort_timeout: float = setting(5.0, min=0.1, max=600.0, doc="seconds ABORT waits before COMMAND TIMEOUT")
+    max_objects: int = setting(20000, min=1, max=10_000_000,
+                               doc="objects (array elements count one each) one GET or SET may address")
+    allow_system_control: bool = setting(
+        False, doc="SERVER.SHUTDOWN, SYSTEM.SHUTDOWN and SYSTEM.REBOOT over TPL2 (level 0) are allowed")
+    max_reply_bytes: int = setting(4 * 1024 * 1024, min=1024, max=1024 * 1024 * 1024,
+                                   doc="bytes of values one GET may answer; objects past it answer DIMENSION")
 
     def check(self):
         return []

@@ -6,9 +6,12 @@ server subscribes and turns each event into ``<id> EVENT <LEVEL> <source>:<numbe
 lines for every authenticated connection whose event mask lets it through.
 
 Which command caused an event is carried implicitly: the server runs each command with the
-context variable :data:`current_cause` set to ``(connection id, command id)``; tasks started
-from it inherit the value, so an event emitted while a long SET runs names that SET. Events
-from the control-loop thread or timers have no cause (id 0).
+context variable :data:`current_cause` set to ``(connection id, command id, serial)``; tasks
+started from it inherit the value, so an event emitted while a long SET runs names that SET.
+The serial tells the command from a later one that reuses its id: the server sends an event
+with the command's id only while that very command executes, and id 0 once its final line
+was sent (TPL2 §5). Events from the control-loop thread or timers without a stored cause
+have none (id 0). Domain code treats a cause as opaque: it stores and passes it on.
 
 ``emit`` may be called from any thread: events from other threads are handed to the event
 loop with ``call_soon_threadsafe`` so subscribers always run on the loop.
@@ -23,14 +26,16 @@ import threading
 from dataclasses import dataclass
 from typing import Callable
 
+from tcs.errors import event_text
+
 log = logging.getLogger(__name__)
 
 ERROR, WARN, INFO, DEBUG = "ERROR", "WARN", "INFO", "DEBUG"
 LEVEL_BITS = {ERROR: 1, WARN: 2, INFO: 4, DEBUG: 8}
 ERRORCHANGE = 15  # tcs.errors.ErrorNumber.ERRORCHANGE
 
-#: (connection id, command id) of the command being executed, or None.
-current_cause: contextvars.ContextVar[tuple[int, int] | None] = contextvars.ContextVar(
+#: (connection id, command id, serial) of the command being executed, or None.
+current_cause: contextvars.ContextVar[tuple[int, ...] | None] = contextvars.ContextVar(
     "current_cause", default=None)
 
 
@@ -40,7 +45,7 @@ class Event:
     source: str
     number: int
     text: str
-    cause: tuple[int, int] | None
+    cause: tuple[int, ...] | None
 
 
 class EventHub:
@@ -62,17 +67,18 @@ class EventHub:
         return lambda: self._subscribers.remove(callback) if callback in self._subscribers else None
 
     def emit(self, level: str, source: str, number: int, text: str = "",
-             cause: tuple[int, int] | None = None, *, quiet: bool = False) -> None:
+             cause: tuple[int, ...] | None = None, *, quiet: bool = False) -> None:
         """Announce an event; ``cause`` defaults to the command being executed.
 
         ERROR and WARN events are logged as warnings, except ERRORCHANGE (15: it follows an
         event or a log line of its cause) and ``quiet`` ones (their cause was logged once
         already, e.g. a lost PLC by its driver, however many modules it serves).
         """
-        event = Event(level, source, int(number), text, cause if cause is not None else current_cause.get())
+        event = Event(level, source, int(number), event_text(number, text),
+                      cause if cause is not None else current_cause.get())
         loud = level in (ERROR, WARN) and not quiet and event.number != ERRORCHANGE
         log.log(logging.WARNING if loud else logging.INFO,
-                "event %s %s:%d %s", level, source, event.number, text)
+                "event %s %s:%d %s", level, source, event.number, event.text)
         loop = self._loop
         if loop is not None and threading.get_ident() != self._loop_thread:
             try:

@@ -64,6 +64,7 @@ import asyncio
 import logging
 from typing import Callable
 
+from tcs.axes.limits import limit_text
 from tcs.drivers.modbus import PlcConnectionEvent, PlcSnapshot
 from tcs.drivers.plc_axis import AxisState
 from tcs.errors import ErrorNumber, HardwareError, RangeRefused, RequestRefused, TcsError
@@ -102,6 +103,9 @@ class PlcAxisModule(PlcModule):
     guarded:
         Whether the weather interlock guards its opening moves.
     """
+
+    #: The PLC runs the motion at its own speed: ``CURRSPEED`` is served read-only.
+    speed_writable = False
 
     discrete = False
     positions: dict = {}
@@ -578,7 +582,7 @@ class PlcAxisModule(PlcModule):
         if (motion ^ before_motion) & (MOVING | TRAJECTORY | BLOCKED):
             self.emit(INFO, ErrorNumber.MOTIONCHANGE, "moving" if motion & MOVING else "stopped")
         if limit != before_limit:
-            self.emit(INFO, ErrorNumber.LIMITCHANGE, f"limit state {limit}")
+            self.emit(INFO, ErrorNumber.LIMITCHANGE, limit_text(limit))
 
     def _update_power(self) -> None:
         state = 1.0 if self._power_on and self.plc_connected and self._fault is None else 0.0

@@ -67,7 +67,7 @@ class PlcTrajectory:
     # -- the variables -----------------------------------------------------------------------
     @property
     def freepoints(self) -> int:
-        return self.queue.free_points
+        return self.queue.free_points_at(self.ut1())
 
     def set_addpoints(self, count: int) -> None:
         """Move BUFFER[0..count-1] into the queue (returns at once)."""

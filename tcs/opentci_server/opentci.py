@@ -20,8 +20,11 @@ from tcs.opentci_server.opentci_cabinet import CABINET
 from tcs.opentci_server.opentci_common import common
 from tcs.opentci_server.opentci_enclosure import ENCLOSURE
 from tcs.opentci_server.opentci_pointing import POINTING
-from tcs.opentci_server.tree import (CONFIGURE, FLOAT, INT, OPERATE, READ_ALL, STRING, Tree, module,
-                                     sysvar, var)
+from tcs.opentci_server.server_module import ServerModule, command_rate
+from tcs.opentci_server.tree import (CONFIGURE, FLOAT, INT, NOBODY, OPERATE, READ_ALL, STRING, Tree, module,
+                                     module_array, sysvar, var)
+
+ADMIN = 0  # SERVER.CLIENT[] and ACCOUNTS.*: user management is for level 0
 
 
 @dataclass
@@ -30,19 +33,35 @@ class Root:
     server: Any
 
 
+def _host(address: str) -> str:
+    """``1.2.3.4:5678`` -> ``1.2.3.4``; ``::1:5678`` -> ``::1`` (TPL2 §9: the address only)."""
+    host, sep, port = address.rpartition(":")
+    return host if sep and port.isdigit() else address
+
+
+def _module_of(conn):
+    return ServerModule.of(conn.server)
+
+
 SERVER = module(
     "SERVER",
     var("UPTIME", FLOAT, get="uptime", info="seconds since the server started"),
     var("STARTTIME", FLOAT, get="starttime", info="start of the server, UTC seconds since 1970"),
     var("VERSION", STRING, get="version", info="server software version"),
+    var("LOAD", FLOAT, get="load", info="CPU time the server used per second (1.0: one core busy)"),
+    var("LOAD_DETAIL", STRING, get="load_detail", info="load: CPU, connections, command rate, commands running"),
+    var("SHUTDOWN", INT, set="shutdown", min=1, max=1, rlevel=NOBODY, wlevel=ADMIN,
+        info="1 stops the server; refused (FAILED 6) unless [server] allow_system_control"),
     module("INFO",
            var("DEVICE", STRING, get="device", info="what this server controls"),
            var("VENDOR", STRING, get="vendor", info="software vendor"),
            var("MANUFACTURER", STRING, get="manufacturer", info="manufacturer of the cabinet"),
+           var("FLAGS", INT, get="flags", info="optional TPL2 features (0: no encryption, no sub-servers)"),
+           var("INFO", STRING, get="info", info="interface and software versions"),
            info="server identification"),
     module("CONNECTION",
            sysvar("ID", INT, get="id", info="number of this connection (CONN n of the greeting)"),
-           sysvar("ADDRESS", STRING, get="address", info="client address and port"),
+           sysvar("ADDRESS", STRING, get=lambda conn: _host(conn.address), info="client address (no port)"),
            sysvar("USERNAME", STRING, get="username", info="user logged in on this connection"),
            sysvar("RLEVEL", INT, get="rlevel", info="read level of this connection"),
            sysvar("WLEVEL", INT, get="wlevel", info="write level of this connection"),
@@ -52,9 +71,69 @@ SERVER = module(
                   min=0, max=1, info="1: a disconnect aborts this connection's running commands"),
            sysvar("STARTTIME", FLOAT, get="starttime", info="when this connection was opened, UTC"),
            sysvar("UPTIME", FLOAT, get="uptime", info="seconds since this connection was opened"),
+           sysvar("PASSWORD", STRING, set=lambda conn, v: _module_of(conn).change_password(conn.username, v),
+                  rlevel=NOBODY, info="write: a new password for the user of this connection (kept "
+                                      "hashed in the state directory; the next login needs it)"),
+           sysvar("COMMAND_RATE", FLOAT, get=command_rate,
+                  info="commands per second this connection sent over the last 10 s"),
            info="per-connection settings (each connection sees its own)"),
+    module_array("CLIENT",
+                 var("ID", INT, get="id", info="connection number (0: slot empty)"),
+                 var("ADDRESS", STRING, get="address", info="client address"),
+                 var("USERNAME", STRING, get="username", info="user logged in"),
+                 var("RLEVEL", INT, get="rlevel", info="read level (-1: not logged in)"),
+                 var("WLEVEL", INT, get="wlevel", info="write level (-1: not logged in)"),
+                 var("EVENTMASK", INT, get="eventmask", info="its SERVER.CONNECTION.EVENTMASK"),
+                 var("ABORT_ON_DISCONNECT", INT, get="abort_on_disconnect",
+                     info="its SERVER.CONNECTION.ABORT_ON_DISCONNECT"),
+                 var("STARTTIME", FLOAT, get="starttime", info="when the connection was opened, UTC"),
+                 var("UPTIME", FLOAT, get="uptime", info="seconds since it was opened (0: slot empty)"),
+                 var("COMMAND_RATE", FLOAT, get="command_rate", info="commands per second, last 10 s"),
+                 var("DROP", INT, set="drop", min=1, max=1, rlevel=NOBODY, wlevel=ADMIN,
+                     info="1 closes this connection"),
+                 var("BLOCK", INT, set="block", min=1, max=1, rlevel=NOBODY, wlevel=ADMIN,
+                     info="1 blocks the user of this connection (ACCOUNTS) and closes it"),
+                 info="every connection slot, open connections by number first",
+                 bind=lambda m: m.client_slots()),
+    module("ACCOUNTS",
+           var("LIST", STRING, get="account_list", rlevel=ADMIN,
+               info="name:rlevel:wlevel:blocked:source (file or tpl2), comma-separated"),
+           var("ADD", STRING, set="add_account", rlevel=NOBODY, wlevel=ADMIN,
+               info="write name:password:rlevel:wlevel to add a user (kept hashed)"),
+           var("REMOVE", STRING, set="remove_account", rlevel=NOBODY, wlevel=ADMIN,
+               info="write a name to remove a user added over TPL2"),
+           var("BLOCK", STRING, set="block_account", rlevel=NOBODY, wlevel=ADMIN,
+               info="write a name: no more logins for that user"),
+           var("UNBLOCK", STRING, set="unblock_account", rlevel=NOBODY, wlevel=ADMIN,
+               info="write a name to allow its logins again"),
+           var("MODIFY", STRING, set="modify_account", rlevel=NOBODY, wlevel=ADMIN,
+               info="write name:rlevel:wlevel (never more privilege than the hardware file gives)"),
+           info="user accounts: the hardware file's, changed or added over TPL2 (persisted)"),
+    module("LOG",
+           var("EVENTS", STRING, get="log_events",
+               info="recent events, oldest first: '<unix time> <extended id> EVENT ...' per line"),
+           var("COUNT", INT, get="log_count", info="events in EVENTS"),
+           var("CLEAR", INT, set="clear_log", min=1, max=1, rlevel=NOBODY, wlevel=CONFIGURE,
+               info="1 empties the log"),
+           var("EVENTMASK", INT, get="log_eventmask", set="set_log_eventmask", min=0, max=15,
+               wlevel=CONFIGURE, info="levels logged: bit 0 ERROR, 1 WARN, 2 INFO, 3 DEBUG"),
+           info="the event log a client connecting late can read"),
+    module("SYSTEM",
+           var("ARCHITECTURE", STRING, get="architecture", info="machine architecture"),
+           var("CPUS", INT, get="cpus", info="processors"),
+           var("HOSTNAME", STRING, get="hostname", info="host name"),
+           var("LOAD", FLOAT, get="system_load", info="1-minute load average"),
+           var("OSTYPE", STRING, get="ostype", info="operating system"),
+           var("OSVERSION", STRING, get="osversion", info="its release"),
+           var("STARTTIME", FLOAT, get="system_starttime", info="boot time, UTC seconds since 1970"),
+           var("UPTIME", FLOAT, get="system_uptime", info="seconds since boot"),
+           var("REBOOT", INT, set="reboot", min=1, max=1, rlevel=NOBODY, wlevel=ADMIN,
+               info="1 reboots the computer; refused (FAILED 6) unless [server] allow_system_control"),
+           var("SHUTDOWN", INT, set="shutdown", min=1, max=1, rlevel=NOBODY, wlevel=ADMIN,
+               info="1 stops the server; refused (FAILED 6) unless [server] allow_system_control"),
+           info="the computer the server runs on"),
     info="the TPL2 server itself",
-    bind=lambda root: root.server,
+    bind=lambda root: ServerModule.of(root.server, getattr(root, "telescope", None)),
 )
 
 LOCAL = module(

@@ -9,7 +9,7 @@ hardware file's ``[axes]`` (and so the mount). Part of the one declaration of th
 from __future__ import annotations
 
 from tcs.opentci_server.opentci_common import common
-from tcs.opentci_server.tree import FLOAT, INT, OPERATE, module, module_array, var
+from tcs.opentci_server.tree import FLOAT, INT, NOBODY, OPERATE, module, module_array, var
 
 
 def _lo(axis):
@@ -18,6 +18,17 @@ def _lo(axis):
 
 def _hi(axis):
     return float(max(axis.positions)) if axis.discrete else axis.section.max
+
+
+def _offset_wlevel(axis) -> int:
+    """OFFSET is read-only where the part takes none: discrete axes (FILTER, MIRROR) and the
+    PLC parts other than the dome rotation (slit, flap, seal, covers)."""
+    return OPERATE if getattr(axis, "offset_allowed", not getattr(axis, "discrete", False)) else NOBODY
+
+
+def _speed_wlevel(axis) -> int:
+    """CURRSPEED is read-only where the hardware sets the speed itself (PLC parts)."""
+    return OPERATE if getattr(axis, "speed_writable", True) else NOBODY
 
 
 TRAJECTORY = module(
@@ -51,13 +62,13 @@ def axis_members():
         var("MOTION_STATE", INT, get="motion_state",
             info="bits 0 moving, 1 trajectory, 2 blocked, 3 on target, 4 limited by speed/acc/jerk"),
         var("REFERENCED", FLOAT, get="referenced", info="0 not referenced … 1 referenced (progress)"),
-        var("REINIT", INT, get=lambda a: 0, set="set_reinit", min=0, max=1,
+        var("REINIT", INT, set="set_reinit", min=0, max=1, rlevel=NOBODY,
             info="reference: 0 if not referenced, 1 force; returns at once"),
         var("REALPOS", FLOAT, get="real_position", min=_lo, max=_hi,
             info="measured position; !MIN/!MAX are the software limits"),
         var("CYCLIC", FLOAT, get="cyclic", info="period of a rotary axis (0: not cyclic)"),
         var("CURRPOS", FLOAT, get="current_position", info="REALPOS - OFFSET"),
-        var("CURRSPEED", FLOAT, get="current_speed", set="set_speed", min=0.0,
+        var("CURRSPEED", FLOAT, get="current_speed", set="set_speed", min=0.0, wlevel=_speed_wlevel,
             max=lambda a: a.section.max_velocity,
             info="speed, units/s; writing lowers the speed of new motion"),
         var("CURRACC", FLOAT, get="current_acc", min=lambda a: -a.section.max_acceleration,
@@ -66,10 +77,10 @@ def axis_members():
             max=lambda a: a.section.max_jerk, info="jerk, units/s³"),
         var("TARGETPOS", FLOAT, get="target_position", set="set_target", min=_lo, max=_hi, long=True,
             info="demanded position (user frame); returns on arrival, a newer target supersedes"),
-        var("OFFSET", FLOAT, get="offset", set="set_offset", long=True,
+        var("OFFSET", FLOAT, get="offset", set="set_offset", long=True, wlevel=_offset_wlevel,
             info="added to every positioning request; returns when reached"),
         var("TARGETDISTANCE", FLOAT, get="target_distance", info="TARGETPOS - CURRPOS"),
-        var("STOP", INT, get=lambda a: 0, set="set_stop", min=0, max=1, wlevel=OPERATE,
+        var("STOP", INT, set="set_stop", min=0, max=1, wlevel=OPERATE, rlevel=NOBODY,
             info="quick stop, cancels targets and trajectories; returns at once"),
         TRAJECTORY,
     )

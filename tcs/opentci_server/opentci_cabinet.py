@@ -9,11 +9,7 @@ documented in ``tcs/model/cabinet.py`` and ``tcs/model/status_list.py``; the COR
 from __future__ import annotations
 
 from tcs.opentci_server.opentci_common import common
-from tcs.opentci_server.tree import FLOAT, INT, STRING, module, module_array, var
-
-
-def _zero(_obj) -> int:
-    return 0
+from tcs.opentci_server.tree import FLOAT, INT, NOBODY, STRING, module, module_array, var
 
 
 MANUAL_CONTROL = module(
@@ -63,7 +59,7 @@ STATUS = module(
     var("LIST", STRING, get=lambda c: c.status_list.text(),
         info="Age:Error:Status:TotalCount:Count:Active:Device[:comment],… newest first; kept "
              "until CLEAR=-1 and across restarts"),
-    var("CLEAR", INT, get=_zero, set="clear_status", min=-1, max=-1,
+    var("CLEAR", INT, set="clear_status", min=-1, max=-1, rlevel=NOBODY,
         info="write -1 to delete every LIST entry"),
     info="system status: error memory and log",
 )
@@ -112,13 +108,13 @@ CABINET = module(
         info="main power 0 off / 1 on, then every component; returns when reached"),
     var("POWER_STATE", FLOAT, get="power_state", info="-1 emergency off, 0 off, 1 on (all components)"),
     var("REFERENCED", FLOAT, get="referenced", info="mean REFERENCED of all axes, 0..1"),
-    var("REINIT", INT, get=_zero, set="set_reinit", min=0, max=1,
+    var("REINIT", INT, set="set_reinit", min=0, max=1, rlevel=NOBODY,
         info="reference 0 unreferenced / 1 all axes (main axes first); returns at once"),
     var("MODE", INT, get="mode", info="1: remote operation permitted"),
     MANUAL_CONTROL,
     SETUP,
     STATUS,
-    var("STOP", INT, get=_zero, set="set_stop", min=0, max=1,
+    var("STOP", INT, set="set_stop", min=0, max=1, rlevel=NOBODY,
         info="stop all movement and POWER/REINIT sequences; returns at once"),
     CORE,
     info="the control cabinet: power, referencing, status",

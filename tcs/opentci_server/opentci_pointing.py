@@ -11,7 +11,7 @@ mount binds, the other is absent. Behaviour and units are documented in
 from __future__ import annotations
 
 from tcs.opentci_server.opentci_common import common
-from tcs.opentci_server.tree import FLOAT, INT, STRING, module, var
+from tcs.opentci_server.tree import FLOAT, INT, NOBODY, STRING, module, var
 from tcs.pointing.model import MOUNT_TERMS
 
 _CORRECTIONS = {"AZ-ZD": (("DA", "azimuth"), ("DZ", "zenith distance")),
@@ -60,9 +60,9 @@ def _pointing(mount: str):
         module("POINTINGPARAMS",
                var("DUMPFILE", STRING, get="dumpfile", set="set_dumpfile",
                    info="dump file name (in the model directory) samples are appended to; '' none"),
-               var("LOADFILE", STRING, get="loadfile", set="set_loadfile",
+               var("LOADFILE", STRING, set="set_loadfile", rlevel=NOBODY,
                    info="load a dump file's samples to resume a model (it becomes DUMPFILE)"),
-               var("SAMPLE", INT, get="sample", set="set_sample", min=1, max=1,
+               var("SAMPLE", INT, set="set_sample", min=1, max=1, rlevel=NOBODY,
                    info="1: record TARGET and the axes' REALPOS (with OFFSET)"),
                var("CALCULATE", FLOAT, get="calculate", set="set_calculate", min=1.0, max=2.0,
                    long=True, info="1 fit, 2 fit and set the axes' OFFSET to 0; reads the fit "
@@ -72,8 +72,8 @@ def _pointing(mount: str):
                var("LIST", STRING, get="list", info="saved models, comma-separated"),
                var("LOAD", STRING, get="load", set="set_load",
                    info="load a saved model by name; reads the last loaded or saved name"),
-               var("SAVE", STRING, get="save", set="set_save", info="save the active model by name"),
-               var("ERASE", STRING, get="erase", set="set_erase", info="delete a saved model"),
+               var("SAVE", STRING, set="set_save", rlevel=NOBODY, info="save the active model by name"),
+               var("ERASE", STRING, set="set_erase", rlevel=NOBODY, info="delete a saved model"),
                *(_coefficient(term) for term in MOUNT_TERMS[mount]),
                info="pointing model: samples, fit, named models, coefficients (degrees)",
                bind="params"),

@@ -3,7 +3,8 @@
 Grammar (protocol doc §3)::
 
     object   := [ part ( "." part )* ] [ "!" name ]      -- not empty; "!NAME" is the root's
-    part     := ( name | "<" digits ">" ) [ "[" ranges "]" ]
+    part     := ( name | "<" digits ">" ) [ "[" ranges "]" ] [ "{" slice "}" ]
+    slice    := digits ":" digits                         -- characters a..b of a STRING (§4.1.2)
     ranges   := range ( "," range )*                      -- spaces allowed around items
     range    := digits [ "-" digits ]                     -- inclusive, never decreasing
     name     := ( letter | digit | "_" | "-" )+           -- case-insensitive
@@ -12,6 +13,9 @@ Grammar (protocol doc §3)::
 upper-cased in the parts, while :attr:`ObjectRef.text` keeps the object exactly as the client
 wrote it: replies echo it. Numbers have at most 9 digits. Semantic checks (does it exist,
 is the index inside the array, at most one multi-element index per path) belong to the tree.
+A string slice ``X{a:b}`` never makes the line a syntax error: a slice that is malformed,
+decreasing or not on the last part is recorded in :attr:`ObjectRef.slice_error` and fails
+that object only.
 
 :func:`parse_object` is pure and memoised in a bounded LRU cache (4096 texts of at most 200
 characters): status polls repeat the same objects, so the common case costs one lookup.
@@ -83,11 +87,18 @@ class ObjectRef:
         The path components; empty for a root property (``!MEMBERS``).
     prop:
         The upper-cased property name after ``!``, or ``None``.
+    slice:
+        ``(a, b)`` of a string slice ``X{a:b}``: characters a to b inclusive, 0-based.
+    slice_error:
+        The error keyword of a slice that cannot be applied (malformed, decreasing or not on
+        the last part: ``DIMENSION``), else ``None``.
     """
 
     text: str
     parts: tuple[PathPart, ...]
     prop: str | None = None
+    slice: tuple[int, int] | None = None
+    slice_error: str | None = None
 
     @property
     def multi_count(self) -> int:
@@ -99,7 +110,8 @@ class ObjectRef:
 
 
 _SIMPLE = re.compile(r"[A-Za-z0-9_-]+(?:\.[A-Za-z0-9_-]+)*(?:![A-Za-z0-9_-]+)?\Z", re.ASCII)
-_PART = re.compile(r"(?:([A-Za-z0-9_-]+)|<([0-9]{1,9})>)(?:\[([^\]]*)\])?", re.ASCII)
+_PART = re.compile(r"(?:([A-Za-z0-9_-]+)|<([0-9]{1,9})>)(?:\[([^\]]*)\])?(?:\{([^}]*)\})?", re.ASCII)
+_SLICE = re.compile(r"\s*([0-9]{1,9})\s*:\s*([0-9]{1,9})\s*\Z", re.ASCII)
 _PROP = re.compile(r"!([A-Za-z0-9_-]+)\Z", re.ASCII)
 _RANGE = re.compile(r"\s*([0-9]{1,9})\s*(?:-\s*([0-9]{1,9})\s*)?\Z", re.ASCII)
 
@@ -127,12 +139,17 @@ def _parse_object(text: str) -> ObjectRef:
         raise PathSyntaxError("empty object name")
     parts: list[PathPart] = []
     pos, end = 0, len(text)
+    slice_text: str | None = None
+    slice_error: str | None = None
     if text[0] != "!":
         while True:
             m = _PART.match(text, pos)
             if m is None:
                 raise PathSyntaxError(f"bad object name {text!r} at position {pos + 1}")
-            name, number, index = m.groups()
+            name, number, index, sliced = m.groups()
+            if slice_text is not None:  # a slice before the last part
+                slice_error = "DIMENSION"
+            slice_text = sliced
             parts.append(
                 PathPart(
                     name.upper() if name is not None else None,
@@ -152,7 +169,14 @@ def _parse_object(text: str) -> ObjectRef:
         if m is None:
             raise PathSyntaxError(f"bad property in {text!r}")
         prop = m.group(1).upper()
-    return ObjectRef(text, tuple(parts), prop)
+    slice = None
+    if slice_text is not None and slice_error is None:
+        s = _SLICE.match(slice_text)
+        if s is None or int(s.group(1)) > int(s.group(2)):
+            slice_error = "DIMENSION"
+        else:
+            slice = (int(s.group(1)), int(s.group(2)))
+    return ObjectRef(text, tuple(parts), prop, slice, slice_error)
 
 
 _parse_cached = lru_cache(maxsize=4096)(_parse_object)

@@ -228,12 +228,25 @@ def _parse_set(cmd_id: int, args: str | None) -> ClientMessage:
 
 
 def _parse_abort(cmd_id: int, args: str | None) -> ClientMessage:
+    """``ABORT <id>``: 0 (all of this connection), an id of this connection, or another
+    connection's extended id ``(conn << 32) | id`` as its events show it (TPL2 §5)."""
     if not args or not _NUMBER.match(args):
         return BadSyntax(cmd_id, "ABORT needs one command id")
     target = 0 if not args.strip("0") else _number(args)
     if target is None:
+        target = _extended_id(args)
+    if target is None:
         return BadSyntax(cmd_id, f"ABORT of an id out of range: {_clip(args)}")
     return Abort(cmd_id, target)
+
+
+def _extended_id(text: str) -> int | None:
+    """``(conn << 32) | id`` with conn and id ≥ 1, below 2**64, else None."""
+    t = text.lstrip("0")
+    if len(t) > 20:
+        return None
+    n = int(t)
+    return n if n < 1 << 64 and n & MAX_COMMAND_ID else None
 
 
 _VERBS: dict[str, Callable[[int, str | None], ClientMessage]] = {

@@ -34,15 +34,18 @@ reading is paused, and dropped when its backlog passes a hard limit, so it canno
 from __future__ import annotations
 
 import asyncio
+import itertools
 import logging
 import time
 from collections import deque
 from typing import TYPE_CHECKING
 
 from tcs.errors import TcsError
-from tcs.model.events import LEVEL_BITS, Event, current_cause
+from tcs.model.events import ERROR, LEVEL_BITS, Event, current_cause
 from tcs.opentci_server import messages as m
 from tcs.opentci_server.protocol import Tpl2Connection
+from tcs.opentci_server.tree import module_of
+from tcs.opentci_server.values import ascii_text
 
 if TYPE_CHECKING:  # pragma: no cover
     from tcs.opentci_server.server import Tpl2Server
@@ -51,6 +54,7 @@ log = logging.getLogger(__name__)
 
 MAX_BACKLOG = 8 * 1024 * 1024  # bytes of unsent output before a client is dropped
 NO_ACCESS = 99
+_SERIALS = itertools.count(1)  # tells a command from a later one that reuses its id
 
 
 class _Command:
@@ -83,6 +87,9 @@ class Session(asyncio.Protocol):
         self.starttime = time.time()
         self._start_mono = time.monotonic()
         self.commands: dict[int, _Command] = {}
+        self.command_times: deque = deque(maxlen=4096)  # admitted commands (SERVER.*.COMMAND_RATE)
+        self._running: dict[int, int] = {}  # command id -> serial of the SET running under it
+        self._announced: dict[int, set] = {}  # command id -> (source, number) of its events so far
         self._queue: deque = deque()
         self._auth_task: asyncio.Task | None = None
         self._auth_failures = 0
@@ -160,16 +167,24 @@ class Session(asyncio.Protocol):
 
     def deliver_event(self, event: Event) -> None:
         """Send ``event`` if this connection is logged in and its mask lets it through."""
+        cause = event.cause
+        if self._running:  # what the client heard while its commands ran (_announce_failure)
+            for cmd_id in self._running:
+                self._announced.setdefault(cmd_id, set()).add((event.source, event.number))
         if not self.authenticated or not (self.eventmask & LEVEL_BITS.get(event.level, 0)):
             return
-        cause = event.cause
-        if cause is None:
-            cid = 0
-        elif cause[0] == self.id:
-            cid = cause[1]
-        else:
-            cid = (cause[0] << 32) | cause[1]
-        self.send(m.Event(cid, event.level, event.source, event.number, event.text))
+        cid = 0  # TPL2 §5: only an event of a command still executing carries its id
+        if cause is not None:
+            owner = self if cause[0] == self.id else self.server.sessions.get(cause[0])
+            if owner is not None and owner.executing(cause):
+                cid = cause[1] if owner is self else (cause[0] << 32) | cause[1]
+        self.send(m.Event(cid, event.level, event.source, event.number, ascii_text(event.text)))
+
+    def executing(self, cause: tuple) -> bool:
+        """True while the command ``cause`` names (``(conn, id[, serial])``) has not sent its
+        final line; a later command reusing the id is another command."""
+        serial = self._running.get(cause[1])
+        return serial is not None and (len(cause) < 3 or cause[2] == serial)
 
     def close(self) -> None:
         if self.transport is not None and not self.transport.is_closing():
@@ -249,6 +264,7 @@ class Session(asyncio.Protocol):
         if len(self.commands) >= self.server.settings.max_in_flight:
             self._refuse(cmd_id, "TOOMANY")
             return False
+        self.command_times.append(time.monotonic())
         return True
 
     # -- AUTH --------------------------------------------------------------------------------
@@ -290,17 +306,27 @@ class Session(asyncio.Protocol):
 
     # -- GET -----------------------------------------------------------------------------------
     def _get(self, msg: m.Get) -> None:
+        """Read every object; the command's work is bounded by ``[server] max_objects`` (elements
+        addressed) and ``max_reply_bytes`` (an object past either answers ``DIMENSION``)."""
         tree = self.server.tree
+        settings = self.server.settings
+        budget, room = settings.max_objects, settings.max_reply_bytes
         items = []
         for ref in msg.objects:
             try:
-                targets = tree.resolve(ref)
-                if len(targets) == 1:
+                targets = tree.resolve(ref, budget)
+                budget -= len(targets)
+                if ref.slice is not None or ref.slice_error is not None:  # X{a:b}
+                    value = ",".join([tree.read_slice(t, ref, self) for t in targets])
+                elif len(targets) == 1:
                     value = tree.read(targets[0], ref.prop, self)
                 else:
                     value = ",".join([tree.read(t, ref.prop, self) for t in targets])
             except TcsError as exc:
                 value = exc.reply
+            room -= len(value) + len(ref.text)
+            if room < 0:
+                value = "DIMENSION"
             items.append((ref.text, value))
         self.write(self.proto.get_reply(msg.cmd_id, items))
 
@@ -308,7 +334,8 @@ class Session(asyncio.Protocol):
     def _set(self, msg: m.Set) -> None:
         cmd_id = msg.cmd_id
         self.send(m.CommandOk(cmd_id))
-        token = current_cause.set((self.id, cmd_id))
+        serial = self._running[cmd_id] = next(_SERIALS)
+        token = current_cause.set((self.id, cmd_id, serial))
         try:
             for i, assignment in enumerate(msg.assignments):
                 pending = self._assign(cmd_id, assignment)
@@ -318,28 +345,40 @@ class Session(asyncio.Protocol):
                     cmd.task = self.server.spawn(
                         self._finish_set(cmd, assignment, pending, msg.assignments[i + 1:]))
                     return
+        except BaseException:
+            self._running.pop(cmd_id, None)
+            raise
         finally:
             current_cause.reset(token)
         self.send(m.CommandComplete(cmd_id))
+        self._running.pop(cmd_id, None)
+        self._announced.pop(cmd_id, None)
 
     def _assign(self, cmd_id: int, assignment: m.Assignment):
         """Start one assignment. Returns None when it finished (line sent), else the
         awaitables still to wait for and the number of targets."""
         ref = assignment.obj
         tree = self.server.tree
+        if ref.slice is not None or ref.slice_error is not None:  # a string slice is read-only
+            self.send(m.DataError(cmd_id, ref.text, ("TYPE",)))
+            return None
         try:
-            targets = tree.resolve(ref)
-            values = tree.check_write(targets, ref.prop, assignment.values, self)
+            targets = tree.resolve(ref, self.server.settings.max_objects)
+            checked = tree.check_write_each(targets, ref.prop, assignment.values, self)
         except TcsError as exc:
             self.send(m.DataError(cmd_id, ref.text, (exc.reply,)))
             return None
         errors: list[str] = []
         waits = []
-        for target, value in zip(targets, values):
+        for target, (value, refused) in zip(targets, checked):
+            if refused is not None:  # this element only; the others are written
+                errors.append(refused)
+                continue
             try:
                 pending = tree.write(target, value, self)
             except TcsError as exc:
                 errors.append(exc.reply)
+                self._announce_failure(cmd_id, module_of(target), exc)
                 continue
             except Exception:
                 log.exception("setting %s failed", ref.text)
@@ -347,11 +386,19 @@ class Session(asyncio.Protocol):
                 continue
             errors.append("")
             if pending is not None:
-                waits.append((len(errors) - 1, pending))
+                waits.append((len(errors) - 1, pending, module_of(target)))
         if waits:
             return errors, waits
         self._data_result(cmd_id, ref.text, errors)
         return None
+
+    def _announce_failure(self, cmd_id: int, source: str, exc: TcsError) -> None:
+        """OpenTCI §4: a request the domain refused or failed (``FAILED n``) also sends its
+        event ``ERROR <module>:<n>``, under the command's id, unless this connection already
+        got an event of that number for that module while the command ran."""
+        if exc.keyword is not None or (source, exc.number) in self._announced.get(cmd_id, ()):
+            return
+        self.server.events.emit(ERROR, source, exc.number, exc.message)
 
     def _data_result(self, cmd_id: int, obj: str, errors: list[str]) -> None:
         if any(errors):
@@ -375,14 +422,17 @@ class Session(asyncio.Protocol):
                 self.send(m.CommandFailed(cmd_id))
         finally:
             self.commands.pop(cmd_id, None)
+            self._running.pop(cmd_id, None)
+            self._announced.pop(cmd_id, None)
 
     async def _await_assignment(self, cmd_id: int, obj: str, pending) -> None:
         errors, waits = pending
-        for slot, awaitable in waits:
+        for slot, awaitable, source in waits:
             try:
                 await awaitable
             except TcsError as exc:
                 errors[slot] = exc.reply
+                self._announce_failure(cmd_id, source, exc)
             except asyncio.CancelledError:
                 raise
             except Exception:
@@ -393,6 +443,12 @@ class Session(asyncio.Protocol):
     # -- ABORT ---------------------------------------------------------------------------------
     def _abort(self, msg: m.Abort) -> None:
         cmd_id, target = msg.cmd_id, msg.target
+        by = cmd_id
+        if target >> 32:  # an extended id (conn << 32) | id
+            conn, target = target >> 32, target & 0xFFFFFFFF
+            if conn != self.id:
+                self._abort_other(cmd_id, conn, target)
+                return
         if target == 0:
             victims = [c for c in self.commands.values()]
         elif target in self.commands:
@@ -400,9 +456,25 @@ class Session(asyncio.Protocol):
         else:
             self._refuse(cmd_id, "NOTRUNNING")
             return
+        self._abort_victims(cmd_id, victims, by)
+
+    def _abort_other(self, cmd_id: int, conn: int, target: int) -> None:
+        """ABORT of another connection's command: allowed to a connection whose write level is
+        at least as privileged as the owner's (else DENIED); the victim ends with
+        ``ABORTEDBY <extended id of this ABORT>`` on its own connection."""
+        other = self.server.sessions.get(conn)
+        victim = other.commands.get(target) if other is not None else None
+        if victim is None or victim.task is None:
+            self._refuse(cmd_id, "NOTRUNNING")
+        elif self.wlevel > other.wlevel:
+            self._refuse(cmd_id, "DENIED")
+        else:
+            self._abort_victims(cmd_id, [victim], (self.id << 32) | cmd_id)
+
+    def _abort_victims(self, cmd_id: int, victims: list, by: int) -> None:
         self.send(m.CommandOk(cmd_id))
         for victim in victims:
-            victim.aborted_by = cmd_id
+            victim.aborted_by = by
             if victim.task is not None:
                 victim.task.cancel()
         tasks = [v.task for v in victims if v.task is not None]

@@ -10,6 +10,17 @@ writes the **domain object** the module is bound to (an attribute/method name, o
 picks its domain object from the parent's; a module whose object is ``None`` (an array whose
 list is empty) is not configured and simply does not exist. Member numbers (``!INDEX`` and
 numeric access ``<n>``) are the positions among the members that exist, in declaration order.
+An element of a module array whose object is ``None`` (a port with no hardware) still gets every
+declared member (TPL2 §8.3: all elements have the same substructure); its variables answer
+their declared ``absent`` value (``VERSION`` 0) or ``FAILED 4``, reads and writes alike.
+
+Lookup validates every index against its array *before* expanding a range, and takes a limit
+on the number of objects one reference may select (the server's per-command budget). In a
+multi-element selection an element that lacks the member asked for becomes an error in its
+own slot (``Target.error``) instead of failing the whole object; :meth:`Tree.check_write_each`
+does the same for writes. A variable's ``WLEVEL`` may be a callable of its object (writable on
+some parts only); ``RLEVEL`` −1 makes it write-only. String values and descriptions are sent
+as 7-bit ASCII (``°`` -> ``deg``, see :func:`~tcs.opentci_server.values.ascii_text`).
 
 Reads are synchronous and fast (the spec asks ~5 ms); a write calls the domain setter, which
 validates at once (raising :class:`~tcs.errors.TcsError` subclasses) and either finishes or
@@ -29,9 +40,11 @@ import logging
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator, Sequence
 
-from tcs.errors import AccessDenied, RangeRefused, RequestRefused, TcsError, UnknownObject
+from tcs.errors import (AccessDenied, ErrorNumber, RangeRefused, RequestRefused, TcsError, TypeRefused,
+                        UnknownObject)
 from tcs.opentci_server.paths import ObjectRef
-from tcs.opentci_server.values import Value, ValueType, convert, format_float, format_value
+from tcs.opentci_server.values import Value, ValueType, ascii_text, convert, format_float
+from tcs.opentci_server.values import format_value as _format_any
 
 log = logging.getLogger(__name__)
 
@@ -60,11 +73,12 @@ class VarSpec:
     max: float | Callable[[Any], float | None] | None
     init: Any
     rlevel: int
-    wlevel: int
+    wlevel: int | Callable[[Any], int]  # a callable of the domain object: writable on some objects only
     info: str
     per_connection: bool = False
     long: bool = False
     count: int | Callable[[Any], int] | None = None  # variable arrays only
+    absent: Any = None  # value on an element of a module array with no hardware (None: FAILED 4)
 
 
 @dataclass(frozen=True)
@@ -78,17 +92,19 @@ class ModuleSpec:
 
 def var(name: str, type: ValueType, *, get: Getter = None, set: Getter = None, min=None, max=None,
         init=None, info: str = "", rlevel: int = READ_ALL, wlevel: int | None = None,
-        long: bool = False) -> VarSpec:
+        long: bool = False, absent: Any = None) -> VarSpec:
     """Declare a variable.
 
     ``get``: attribute or zero-argument method name on the domain object, or ``f(obj)``.
     ``set``: method name called ``obj.method(value)``, or ``f(obj, value)``; it may return an
     awaitable for a long-running action (``long=True`` documents that). Without ``set`` the
-    variable is read-only (``WLEVEL`` −1). ``min``/``max`` may be callables of the object.
+    variable is read-only (``WLEVEL`` −1); with ``rlevel=NOBODY`` it is write-only (a GET is
+    ``DENIED``). ``min``/``max`` may be callables of the object. ``absent``: what the variable
+    reads on an element of a module array that has no hardware (default ``FAILED 4``, nocon).
     """
     if wlevel is None:
         wlevel = OPERATE if set is not None else NOBODY
-    return VarSpec(name, type, get, set, min, max, init, rlevel, wlevel, info, long=long)
+    return VarSpec(name, type, get, set, min, max, init, rlevel, wlevel, info, long=long, absent=absent)
 
 
 def sysvar(name: str, type: ValueType, *, get: Getter = None, set: Getter = None, min=None, max=None,
@@ -176,14 +192,23 @@ class ArrayNode(Node):
         return 1 + sum(e.object_count() for e in self.elements)
 
 
+#: The reply of a variable of a module-array element that has no hardware (nocon, App. B 4).
+ABSENT_REPLY = "FAILED 4"
+
+
 @dataclass(eq=False)
 class VarNode(Node):
     spec: VarSpec = None  # type: ignore[assignment]
     obj: Any = None
     fast: Callable[[], str] | None = None  # plain variable: reads and formats its value
+    absent: bool = False  # on a module-array element with no hardware
 
     def __post_init__(self) -> None:
-        self.fast = _fast_reader(self.spec, self.obj)
+        if self.absent:
+            reply = ABSENT_REPLY if self.spec.absent is None else format_value(self.spec.absent, self.spec.type)
+            self.fast = lambda: reply
+        else:
+            self.fast = _fast_reader(self.spec, self.obj)
 
     @property
     def cls_code(self):  # type: ignore[override]
@@ -195,19 +220,40 @@ class VarNode(Node):
     @property
     def count(self) -> int | None:
         c = self.spec.count
+        if c is not None and self.absent:
+            return 0
         return c(self.obj) if callable(c) else c
+
+    @property
+    def wlevel(self) -> int:
+        """The write level on this node's object (a declared callable is asked; −1 nobody)."""
+        w = self.spec.wlevel
+        if callable(w):  # (no hardware to ask: the operation level; a write answers FAILED 4)
+            return OPERATE if self.absent else int(w(self.obj))
+        return w
 
     def limit(self, which: str) -> float | None:
         value = getattr(self.spec, which)
-        return value(self.obj) if callable(value) else value
+        if callable(value):
+            return None if self.absent else value(self.obj)
+        return value
 
 
 @dataclass(frozen=True, slots=True)
 class Target:
-    """One resolved object: a node, and for arrays the selected element (None = the whole)."""
+    """One resolved object: a node, and for arrays the selected element (None = the whole).
+
+    ``error``: in a multi-element selection, the error keyword of this one slot (an element
+    that lacks the member asked for); the other slots are answered normally.
+    """
 
     node: Node
     element: int | None = None
+    error: str | None = None
+
+
+class _WholeRefused(RequestRefused):
+    """Refuses the whole object even inside a multi-element selection."""
 
 
 class Tree:
@@ -225,59 +271,53 @@ class Tree:
 
     # -- lookup ------------------------------------------------------------------------------
 
-    def resolve(self, ref: ObjectRef) -> list[Target]:
+    def resolve(self, ref: ObjectRef, limit: int | None = None) -> list[Target]:
         """The objects ``ref`` names (several when one index selects several elements).
+
+        Every index is checked against the array it selects from *before* the selection is
+        expanded, so a range such as ``[0-999999999]`` costs nothing.
+
+        Parameters
+        ----------
+        ref:
+            The parsed object.
+        limit:
+            The most objects the reference may select (the caller's remaining budget, see
+            ``[server] max_objects``); None: no limit.
 
         Raises ``UnknownObject`` (no such member), ``RequestRefused`` with keyword ``INVALID``
         (two multi-selections, an index on a scalar, an array used without index inside a
-        path) or ``DIMENSION`` (an index out of range).
+        path) or ``DIMENSION`` (an index out of range, or more objects than ``limit``).
         """
         key = ref.text  # the exact text: cheaper to hash than the parsed parts
         cached = self._cache.get(key)
-        if cached is not None:
-            return cached
-        targets = self._resolve(ref)
-        if len(self._cache) < 8192:
-            self._cache[key] = targets
-        return targets
+        if cached is None:
+            cached = self._resolve(ref, limit)
+            if len(self._cache) < 8192 and len(cached) <= 64:  # small selections only
+                self._cache[key] = cached
+        if limit is not None and len(cached) > limit:
+            raise _too_many(ref, len(cached), limit)
+        return cached
 
-    def _resolve(self, ref: ObjectRef) -> list[Target]:
+    def _resolve(self, ref: ObjectRef, limit: int | None = None) -> list[Target]:
         current: list[Target] = [Target(self.root)]
         multi = False
         last = len(ref.parts) - 1
         for i, part in enumerate(ref.parts):
             nxt: list[Target] = []
             for t in current:
-                parent = t.node
-                if t.element is not None:  # element of a module array
-                    parent = parent.elements[t.element]  # type: ignore[attr-defined]
-                if not isinstance(parent, ModuleNode):
-                    raise UnknownObject(f"{ref.text}: {parent.path} has no members")
-                if part.number is not None:
-                    if not 0 <= part.number < len(parent.members):
-                        raise UnknownObject(f"{ref.text}: no member <{part.number}>")
-                    child = parent.members[part.number]
-                else:
-                    child = parent.by_name.get(part.name)
-                    if child is None:
-                        raise UnknownObject(f"{ref.text}: unknown object {part.name}")
-                if part.index is not None:
-                    size = len(child.elements) if isinstance(child, ArrayNode) else (
-                        child.count if isinstance(child, VarNode) else None)
-                    if size is None:
-                        raise RequestRefused(f"{ref.text}: {child.name} is not an array")
-                    indices = [j for lo, hi in part.index for j in range(lo, hi + 1)]
-                    if any(j >= size for j in indices):
-                        raise RequestRefused(f"{ref.text}: index beyond {size} elements", keyword="DIMENSION")
-                    if len(indices) > 1:
-                        if multi:
-                            raise RequestRefused(f"{ref.text}: only one index may select several elements")
-                        multi = True
-                    nxt.extend(Target(child, j) for j in indices)
-                else:
-                    if isinstance(child, ArrayNode) and i != last:
-                        raise RequestRefused(f"{ref.text}: {child.name} is an array, give an index")
-                    nxt.append(Target(child))
+                if t.error is not None:
+                    nxt.append(t)
+                    continue
+                try:
+                    _step(ref, part, i == last, t, nxt, limit, multi)
+                except _WholeRefused:
+                    raise
+                except RequestRefused as exc:
+                    if not multi:  # a single object: the error is the object's
+                        raise
+                    nxt.append(Target(t.node, t.element, exc.reply))  # this element's slot only
+            multi = multi or part.multi
             current = nxt
         return current
 
@@ -291,6 +331,8 @@ class Tree:
 
     def read(self, target: Target, prop: str | None, conn: Any) -> str:
         """The wire text of one object (value or property), or an error keyword."""
+        if target.error is not None:
+            return target.error
         node = target.node
         fast = getattr(node, "fast", None) if prop is None and target.element is None else None
         if fast is not None and conn.rlevel <= node.spec.rlevel:  # the common case: a plain variable
@@ -310,6 +352,10 @@ class Tree:
             spec = node.spec
             if conn.rlevel > spec.rlevel:
                 return "DENIED"
+            if node.absent:
+                return node.fast()  # type: ignore[misc]
+            if spec.get is None:  # write-only
+                return "DENIED"
             if spec.count is not None and target.element is None:
                 values = _call(spec.get, node.obj)
                 return ",".join(format_value(v, spec.type) for v in values)
@@ -323,6 +369,37 @@ class Tree:
             log.exception("reading %s failed", target.node.path)
             return "FAILED 13"
 
+    def read_slice(self, target: Target, ref: ObjectRef, conn: Any) -> str:
+        """The wire text of the string slice ``X{a:b}`` (characters a to b inclusive, clipped
+        to the string) of one object: ``TYPE`` on anything but a STRING variable's value,
+        ``ref.slice_error`` for a slice that cannot be applied."""
+        if ref.slice_error is not None:
+            return ref.slice_error
+        if target.error is not None:
+            return target.error
+        node = target.node
+        if (ref.prop is not None or not isinstance(node, VarNode) or node.spec.type is not STRING
+                or (node.spec.count is not None and target.element is None)):
+            return "TYPE"
+        spec = node.spec
+        if conn.rlevel > spec.rlevel or spec.get is None:
+            return "DENIED"
+        if node.absent:
+            return node.fast()  # type: ignore[misc]
+        try:
+            value = _call(spec.get, conn if spec.per_connection else node.obj)
+            if target.element is not None:
+                value = value[target.element]
+        except TcsError as exc:
+            return exc.reply
+        except Exception:
+            log.exception("reading %s failed", node.path)
+            return "FAILED 13"
+        if value is None:
+            return "NULL"
+        a, b = ref.slice  # type: ignore[misc]
+        return format_value(ascii_text(str(value))[a:b + 1], STRING)
+
     # -- writes ------------------------------------------------------------------------------
 
     def check_write(self, targets: list[Target], prop: str | None, values: tuple[Value, ...],
@@ -332,25 +409,54 @@ class Tree:
         Raises a ``RequestRefused`` whose keyword is the reply: INVALID (module, property,
         read-only array), DENIED (levels), DIMENSION (value count), TYPE, RANGE.
         """
+        self._check_shape(targets, prop, values)
+        return [self._check_one(t, v, conn) for t, v in zip(targets, values)]
+
+    def check_write_each(self, targets: list[Target], prop: str | None, values: tuple[Value, ...],
+                         conn: Any) -> list[tuple[Any, str | None]]:
+        """Like :meth:`check_write`, but element by element (TPL2: a multi-element SET answers
+        one OK/error per element and writes the good ones): ``(value, None)`` for an element
+        that may be written, ``(None, error keyword)`` for one that may not. A property, a
+        value count that does not match, or any error of a single object still raises."""
+        self._check_shape(targets, prop, values)
+        if len(targets) == 1:
+            return [(self._check_one(targets[0], values[0], conn), None)]
+        out: list[tuple[Any, str | None]] = []
+        for t, v in zip(targets, values):
+            try:
+                out.append((self._check_one(t, v, conn), None))
+            except TcsError as exc:
+                out.append((None, exc.reply))
+        return out
+
+    @staticmethod
+    def _check_shape(targets: list[Target], prop: str | None, values: tuple[Value, ...]) -> None:
         if prop is not None:
             raise RequestRefused("properties cannot be set")
         if len(values) != len(targets):
             raise RequestRefused(f"{len(values)} values for {len(targets)} elements", keyword="DIMENSION")
-        out = []
-        for t, v in zip(targets, values):
-            node = t.node
-            if not isinstance(node, VarNode) or (node.spec.count is not None):
-                raise RequestRefused(f"{node.path} is not a settable variable")
-            spec = node.spec
-            if spec.wlevel == NOBODY or spec.set is None or conn.wlevel > spec.wlevel:
-                raise AccessDenied(f"{node.path} is not writable at level {conn.wlevel}")
-            value = convert(v, spec.type)
-            if spec.type in (INT, FLOAT) and value is not None:
-                lo, hi = node.limit("min"), node.limit("max")
-                if (lo is not None and value < lo) or (hi is not None and value > hi):
-                    raise RangeRefused(f"{node.path}={value} outside [{lo}, {hi}]")
-            out.append(value)
-        return out
+
+    @staticmethod
+    def _check_one(t: Target, v: Value, conn: Any) -> Any:
+        if t.error is not None:
+            raise RequestRefused(f"{t.node.path}: {t.error}", keyword=t.error)
+        node = t.node
+        if not isinstance(node, VarNode) or (node.spec.count is not None):
+            raise RequestRefused(f"{node.path} is not a settable variable")
+        spec = node.spec
+        wlevel = node.wlevel
+        if wlevel == NOBODY or spec.set is None or conn.wlevel > wlevel:
+            raise AccessDenied(f"{node.path} is not writable at level {conn.wlevel}")
+        if node.absent:
+            raise TcsError(f"{node.path}: no hardware at this index", ErrorNumber.NOCON)
+        value = convert(v, spec.type)
+        if value is None:
+            raise TypeRefused(f"{node.path} cannot be NULL")
+        if spec.type in (INT, FLOAT) and value is not None:
+            lo, hi = node.limit("min"), node.limit("max")
+            if (lo is not None and value < lo) or (hi is not None and value > hi):
+                raise RangeRefused(f"{node.path}={value} outside [{lo}, {hi}]")
+        return value
 
     def write(self, target: Target, value: Any, conn: Any) -> Any:
         """Apply one checked value; returns None or an awaitable for a long-running action."""
@@ -360,11 +466,64 @@ class Tree:
         return result if inspect.isawaitable(result) else None
 
 
+def _step(ref: ObjectRef, part, is_last: bool, t: Target, nxt: list[Target], limit: int | None,
+          multi: bool) -> None:
+    """Resolve ``part`` below ``t``, appending what it selects to ``nxt``.
+
+    Every index is validated against its array before it is expanded."""
+    parent = t.node
+    if t.element is not None:  # element of a module array
+        parent = parent.elements[t.element]  # type: ignore[attr-defined]
+    if not isinstance(parent, ModuleNode):
+        raise UnknownObject(f"{ref.text}: {parent.path} has no members")
+    if part.number is not None:
+        if not 0 <= part.number < len(parent.members):
+            raise UnknownObject(f"{ref.text}: no member <{part.number}>")
+        child = parent.members[part.number]
+    else:
+        child = parent.by_name.get(part.name)
+        if child is None:
+            raise UnknownObject(f"{ref.text}: unknown object {part.name}")
+    if part.index is None:
+        if isinstance(child, ArrayNode) and not is_last:
+            raise RequestRefused(f"{ref.text}: {child.name} is an array, give an index")
+        nxt.append(Target(child))
+        return
+    size = len(child.elements) if isinstance(child, ArrayNode) else (
+        child.count if isinstance(child, VarNode) else None)
+    if size is None:
+        raise RequestRefused(f"{ref.text}: {child.name} is not an array")
+    if part.multi and multi:
+        raise _WholeRefused(f"{ref.text}: only one index may select several elements")
+    if max(hi for _, hi in part.index) >= size:
+        raise RequestRefused(f"{ref.text}: index beyond {size} elements", keyword="DIMENSION")
+    selected = part.count
+    if limit is not None and len(nxt) + selected > limit:
+        raise _too_many(ref, len(nxt) + selected, limit)
+    nxt.extend(Target(child, j) for j in part.elements())
+
+
+def module_of(target: Target) -> str:
+    """The top-level module a target belongs to, as events name it (``AZ`` for
+    ``AZ.TRAJECTORY.RUN``, ``DOME[0]`` for ``DOME[0].TARGETPOS``)."""
+    node, below = target.node, None
+    while node.parent is not None and node.parent.parent is not None:
+        node, below = node.parent, node
+    if isinstance(node, ArrayNode) and below is not None:
+        return below.name
+    return node.name
+
+
+def _too_many(ref: ObjectRef, count: int, limit: int) -> RequestRefused:
+    return _WholeRefused(f"{ref.text}: selects {count} objects, more than the {limit} one command may",
+                          keyword="DIMENSION")
+
+
 def _fast_reader(spec: VarSpec, obj: Any) -> Callable[[], str] | None:
     """A closure reading and formatting a plain variable of ``obj`` with no per-read lookups
     (the hot path of GET); None where the general path is needed (per-connection variables,
     arrays, attributes whose kind cannot be told from the class)."""
-    if spec.per_connection or spec.count is not None or obj is None:
+    if spec.per_connection or spec.count is not None or obj is None or spec.get is None:
         return None
     get, vtype = spec.get, spec.type
     if vtype is FLOAT:
@@ -387,11 +546,22 @@ def _format_float_or_null(value) -> str:
     return "NULL" if value is None else format_float(value)
 
 
-def _build_members(parent: ModuleNode, members, obj) -> None:
+def _build_members(parent: ModuleNode, members, obj, absent: bool = False) -> None:
+    """Add the declared ``members`` bound to ``obj``; ``absent``: the parent is a module-array
+    element with no hardware, which still gets every declared member (TPL2 §8.3: all elements
+    of a module array have the same substructure) whose variables answer their ``absent``."""
     for spec in members:
         index = len(parent.members)
         if isinstance(spec, VarSpec):
-            parent.add(VarNode(spec.name, index, spec.info, parent, spec, obj))
+            parent.add(VarNode(spec.name, index, spec.info, parent, spec, obj, absent=absent))
+            continue
+        if absent:
+            if spec.array:
+                parent.add(ArrayNode(spec.name, index, spec.info, parent))  # COUNT 0
+            else:
+                child = ModuleNode(spec.name, index, spec.info, parent, None)
+                _build_members(child, spec.members, None, absent=True)
+                parent.add(child)
             continue
         bound = obj if spec.bind is None else _call(spec.bind, obj)
         if spec.array:
@@ -401,8 +571,8 @@ def _build_members(parent: ModuleNode, members, obj) -> None:
             array = ArrayNode(spec.name, index, spec.info, parent)
             for i, element_obj in enumerate(objs):
                 element = ModuleNode(f"{spec.name}[{i}]", i, spec.info, array, element_obj)
-                if element_obj is not None:  # None: an index with nothing configured (no members)
-                    _build_members(element, spec.members, element_obj)
+                # None: an index with nothing configured; it has the members, answering FAILED 4
+                _build_members(element, spec.members, element_obj, absent=element_obj is None)
                 array.elements.append(element)
             parent.add(array)
         else:
@@ -426,6 +596,14 @@ def _walk(node: Node, prefix: str) -> Iterator[tuple[str, Node]]:
             yield from _walk(e, path)
 
 
+def format_value(value: Any, vtype: ValueType | None = None) -> str:
+    """The wire form of a value read from the tree; text the server writes is 7-bit ASCII
+    (``°C`` reads ``degC``, see :func:`~tcs.opentci_server.values.ascii_text`)."""
+    if vtype is STRING and isinstance(value, str):
+        value = ascii_text(value)
+    return _format_any(value, vtype)
+
+
 def _q(text: str) -> str:
     return format_value(text, STRING)
 
@@ -443,11 +621,15 @@ def _format_property(target: Target, prop: str) -> str:
     if prop in common:
         return common[prop]()
     if isinstance(node, ModuleNode):
-        if prop == "MEMBERS":
-            return _q(",".join(m.name for m in node.members))
+        if prop == "MEMBERS":  # the number of direct members: walk <0>!NAME … <n-1>!NAME
+            return str(len(node.members))
         if prop == "OBJECTCOUNT":
             return str(node.object_count() - 1)
+        if prop == "ATTACHED" and node.parent is not None:
+            return "0"  # 1 only for a module that lives on a sub-server
     elif isinstance(node, ArrayNode):
+        if prop == "ATTACHED":
+            return "0"
         if prop == "COUNT":
             return str(len(node.elements))
         if prop == "OBJECTCOUNT":
@@ -467,11 +649,13 @@ def _format_property(target: Target, prop: str) -> str:
         if prop == "RLEVEL":
             return str(spec.rlevel)
         if prop == "WLEVEL":
-            return str(spec.wlevel)
-        if prop in ("RLOCK", "WLOCK", "CALLBACK", "CALLBACKTYPE"):
+            return str(node.wlevel)
+        if prop in ("RLOCK", "WLOCK", "CALLBACKTYPE"):
             return "0"
+        if prop == "CALLBACK":
+            return '""'  # STRING: no callback
     return "UNKNOWN"
 
 
-__all__ = ["Tree", "Target", "VarSpec", "ModuleSpec", "var", "sysvar", "var_array", "module",
+__all__ = ["Tree", "Target", "module_of", "VarSpec", "ModuleSpec", "var", "sysvar", "var_array", "module",
            "module_array", "READ_ALL", "OPERATE", "CONFIGURE", "NOBODY", "INT", "FLOAT", "STRING"]

@@ -51,6 +51,7 @@ __all__ = [
     "format_float",
     "quote_string",
     "escape_text",
+    "ascii_text",
     "unescape",
     "classify_bare",
     "NULL_VALUE",
@@ -213,6 +214,22 @@ def convert(value: Value, target: ValueType) -> int | float | str | None:
 
 
 # --------------------------------------------------------------------------- formatting
+
+
+_ASCII = str.maketrans({
+    "°": "deg", "²": "^2", "³": "^3", "…": "...", "−": "-", "–": "-", "—": "-", "·": "*",
+    "×": "x", "±": "+/-", "µ": "u", "μ": "u", "≤": "<=", "≥": ">=", "≠": "!=", "≈": "~",
+    "→": "->", "←": "<-", "↔": "<->", "″": '"', "′": "'", "‘": "'", "’": "'", "“": '"', "”": '"',
+    "§": "S", "Δ": "d", "δ": "d", "σ": "sigma", "φ": "phi", "Σ": "sum", "↑": "^", "↓": "v",
+})
+
+
+def ascii_text(text: str) -> str:
+    """Text the server itself writes (descriptions, event texts, units, status comments) in
+    7-bit ASCII: ``°`` becomes ``deg``, ``²`` ``^2``, ``…`` ``...``, ``−`` ``-`` (protocol doc §1:
+    clients compare and parse these texts; escapes like ``\\302\\260`` are unreadable). Other
+    non-ASCII characters are left to the string escapes."""
+    return text if text.isascii() else text.translate(_ASCII)
 
 
 def format_float(x: float) -> str:

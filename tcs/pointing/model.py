@@ -71,6 +71,10 @@ import numpy as np
 
 from tcs.errors import RequestRefused, TcsError
 
+#: A pointing-model fit that cannot run (no or too few samples, terms the samples cannot
+#: separate): ``FAILED 1013`` — the request was well formed, the computation is impossible.
+FIT_IMPOSSIBLE = 1013
+
 __all__ = [
     "ALTAZ_TERMS", "EQUATORIAL_TERMS", "MOUNT_TERMS", "PointingModel", "Sample", "FitResult",
     "fit", "fit_samples", "basis",
@@ -378,8 +382,8 @@ def fit(ideal1, ideal2, measured1, measured2, *, mount: str, terms: Iterable[str
     if not (i2.size == m1.size == m2.size == n):
         raise RequestRefused("pointing model fit: ideal and measured positions differ in length")
     if 2 * n <= len(free):
-        raise RequestRefused(f"pointing model fit: {n} samples are too few for {len(free)} terms "
-                             f"({', '.join(free)})")
+        raise TcsError(f"pointing model fit: {n} samples are too few for {len(free)} terms "
+                       f"({', '.join(free)})", FIT_IMPOSSIBLE)
     y1 = (m1 - i1 + 180.0) % 360.0 - 180.0
     y2 = m2 - i2
     if fixed:
@@ -399,8 +403,8 @@ def fit(ideal1, ideal2, measured1, measured2, *, mount: str, terms: Iterable[str
             _u, _s, vt = np.linalg.svd(dn, full_matrices=False)
             weight = np.abs(vt[rank:]).max(axis=0)       # the null space's share of each term
             involved = [free[i] for i in range(len(free)) if weight[i] > 0.1]
-            raise RequestRefused("pointing model fit: the samples cannot separate terms "
-                                 f"{', '.join(involved)}; fix one of them or add samples")
+            raise TcsError("pointing model fit: the samples cannot separate terms "
+                           f"{', '.join(involved)}; fix one of them or add samples", FIT_IMPOSSIBLE)
         coef = coef_n / scale
         resid = y - design @ coef
         dof = max(2 * n - len(free), 1)
@@ -432,7 +436,7 @@ def fit_samples(samples: Sequence[Sample], *, mount: str, terms: Iterable[str] |
                 fixed: Mapping[str, float] | None = None, latitude: float = 0.0) -> FitResult:
     """:func:`fit` on recorded :class:`Sample` s (ideal vs measured axis positions)."""
     if not samples:
-        raise RequestRefused("pointing model fit: no samples recorded")
+        raise TcsError("pointing model fit: no samples recorded", FIT_IMPOSSIBLE)
     cols = np.array([(s.ideal1, s.ideal2, s.axis1, s.axis2) for s in samples], float)
     return fit(cols[:, 0], cols[:, 1], cols[:, 2], cols[:, 3], mount=mount, terms=terms,
                fixed=fixed, latitude=latitude)

@@ -177,7 +177,7 @@ class PointingParams:
     def _path(self, name: str) -> Path:
         if not _FILE_NAME.fullmatch(name) or name.endswith(".model"):
             raise RequestRefused(f"dump file name {name!r}: use 1-100 letters, digits, '_', '-', "
-                                 "'+', '.', not starting with '.' nor ending in '.model'")
+                                 "'+', '.', not starting with '.' nor ending in '.model'", keyword="RANGE")
         return self.directory / name
 
     # -- the fit --------------------------------------------------------------------------------

@@ -190,7 +190,7 @@ def load_dump(path: str | os.PathLike) -> tuple[DumpHeader, list[Sample]]:
 def _check_name(name: str) -> str:
     if not isinstance(name, str) or not _NAME.fullmatch(name):
         raise RequestRefused(f"pointing model name {name!r}: use 1-64 letters, digits, '_', "
-                             "'-', '+', '.', not starting with '.'")
+                             "'-', '+', '.', not starting with '.'", keyword="RANGE")
     return name
 
 
@@ -252,7 +252,7 @@ class ModelStore:
         try:
             text = path.read_text(encoding="utf-8")
         except FileNotFoundError:
-            raise RequestRefused(f"no saved pointing model named {name!r}") from None
+            raise RequestRefused(f"no saved pointing model named {name!r}", keyword="RANGE") from None
         except OSError as e:
             raise TcsError(f"pointing model {path}: cannot read: {e.strerror or e}") from None
         except UnicodeDecodeError:
@@ -265,7 +265,7 @@ class ModelStore:
         try:
             path.unlink()
         except FileNotFoundError:
-            raise RequestRefused(f"no saved pointing model named {name!r}") from None
+            raise RequestRefused(f"no saved pointing model named {name!r}", keyword="RANGE") from None
 
 
 def _parse_model(path: Path, text: str) -> PointingModel:

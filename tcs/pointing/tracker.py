@@ -41,7 +41,7 @@ the moving path with ruckig and then follows it, checking speed, acceleration an
 6. **End**: TRACK=0 (the SET that started tracking answers DATA OK), a STOP or another
    command taking an axis away (FAILED 10), an axis fault or power loss (the axis's number),
    the target setting / an axis limit (FAILED 9). The session then sends ``RUN=0`` to every
-   axis still running and emits ``INFO POINTING:32`` (ended as asked) or
+   axis still running and emits ``INFO POINTING:1015`` (ended as asked) or
    ``ERROR POINTING:<n>``. An ABORT of the TRACK SET (or a disconnect with
    ABORT_ON_DISCONNECT) ends only the wait, as for the axes' long SETs: tracking goes on
    until TRACK=0 or STOP, and its end is still announced by the events.
@@ -84,6 +84,9 @@ MODE_MASK = 0x7F
 ZENITH_LIMITED = 1010
 ZENITH_CLEAR = 1011
 DOME_STUCK = 1012
+#: POINTING's own state changes (not the axes' 23 MOTIONCHANGE / 32 TRAJ_STOP).
+TRACKING = 1014               # tracking starts or changes: target, orientation, followers
+TRACKING_ENDED = 1015         # tracking ended as asked
 _COARSE_STEP = 60.0           # s between the samples of the planning path
 _LIMITED_SHARE = 0.95         # of an axis's speed / acceleration: "cannot follow"
 _STOP_WAIT = 3.0              # s to wait for RUN=0 answers when ending
@@ -365,7 +368,7 @@ class TrackSession:
         if self._zenith:
             self.owner.clear_condition("zenith")
         if error is None:
-            self.owner.emit(INFO, ErrorNumber.TRAJ_STOP, "tracking ended", self.cause)
+            self.owner.emit(INFO, TRACKING_ENDED, "tracking ended", self.cause)
         else:
             self.owner.emit(ERROR, error.number, f"tracking ended: {error.message}", self.cause)
         if not self.result.done():
@@ -422,7 +425,7 @@ class TrackSession:
         await self._taken(lanes)
         self._check_zenith(points)
         ra_text = f"RA {plan.request.ra:.6f} h, Dec {plan.request.dec:+.5f}°"
-        owner.emit(INFO, ErrorNumber.MOTIONCHANGE,
+        owner.emit(INFO, TRACKING,
                    f"tracking {ra_text}, {'reverse' if plan.reverse else 'normal'} orientation"
                    + (f", {lanes[2].axis.module_name} follows the field" if len(lanes) > 2 else ""),
                    cause)

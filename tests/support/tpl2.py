@@ -84,6 +84,13 @@ class RawClient:
         assert data.startswith(prefix), data
         return data[len(prefix):]
 
+    async def members(self, obj: str = "") -> list[str]:
+        """The names of ``obj``'s members, walked as TPL2 clients do: ``!MEMBERS`` is their
+        number, ``<i>!NAME`` each name ("" = the root)."""
+        prefix = f"{obj}." if obj else ""
+        count = int(await self.get(f"{obj}!MEMBERS"))
+        return [(await self.get(f"{prefix}<{i}>!NAME")).strip('"') for i in range(count)]
+
     async def close(self) -> None:
         self.writer.close()
         try:
