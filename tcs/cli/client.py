@@ -416,6 +416,21 @@ def cmd_set(conn: Connection, args) -> int:
     return OK if reply.ok else FAILED
 
 
+def member_names(conn: Connection, prefix: str) -> list[str]:
+    """Names of the members of ``prefix`` ("" = the root), as TPL2 clients walk the tree:
+    ``!MEMBERS`` is their number, ``<i>!NAME`` each name (an older server's comma-separated
+    list is accepted too)."""
+    members = conn.get(f"{prefix}!MEMBERS").get(f"{prefix}!MEMBERS")
+    if isinstance(members, str):
+        return [m for m in members.split(",") if m]
+    if not isinstance(members, int) or members <= 0:
+        return []
+    sep = "." if prefix else ""
+    objs = [f"{prefix}{sep}<{i}>!NAME" for i in range(members)]
+    values = conn.get(*objs)
+    return [v for v in (values.get(o) for o in objs) if isinstance(v, str) and v]
+
+
 @dataclass
 class StatusPlan:
     """Which variables the status line reads, from the tree's root members."""
@@ -425,8 +440,7 @@ class StatusPlan:
 
     @classmethod
     def of(cls, conn: Connection, extra: list[str]) -> "StatusPlan":
-        members = conn.get("!MEMBERS").get("!MEMBERS") or ""
-        members = members.split(",") if isinstance(members, str) else []
+        members = member_names(conn, "")
         objs = []
         if "CABINET" in members:
             objs += ["CABINET.POWER_STATE", "CABINET.REFERENCED", "CABINET.ERROR_STATE"]
@@ -498,10 +512,10 @@ def cmd_watch(conn: Connection, args) -> int:
 def walk(conn: Connection, prefix: str, all_elements: bool, out: list) -> None:
     """Depth-first through the tree below ``prefix`` ("" = root), one GET per level."""
     sep = "." if prefix else ""
-    members = conn.get(f"{prefix}!MEMBERS").get(f"{prefix}!MEMBERS")
-    if not isinstance(members, str) or not members:
+    members = member_names(conn, prefix)
+    if not members:
         return
-    names = [f"{prefix}{sep}{n}" for n in members.split(",")]
+    names = [f"{prefix}{sep}{n}" for n in members]
     props = ("CLASS", "TYPE", "COUNT", "RLEVEL", "WLEVEL", "MIN", "MAX", "INFO")
     values = conn.get(*(f"{n}!{p}" for n in names for p in props))
     for name in names:
