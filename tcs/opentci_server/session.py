@@ -42,6 +42,7 @@ from typing import TYPE_CHECKING
 from tcs.errors import TcsError
 from tcs.model.events import LEVEL_BITS, Event, current_cause
 from tcs.opentci_server import messages as m
+from tcs.opentci_server.guard import host_of
 from tcs.opentci_server.protocol import Tpl2Connection
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -75,6 +76,10 @@ class Session(asyncio.Protocol):
                                     max_line_length=cfg.max_line_length)
         self.transport: asyncio.Transport | None = None
         self.address = ""
+        self.host = ""
+        self.reserved = False  # admitted into the level-0 reserve (see guard.py)
+        self._timer: asyncio.TimerHandle | None = None  # login, then idle time-out
+        self._last_input = time.monotonic()
         self.username = ""
         self.rlevel = self.wlevel = NO_ACCESS
         self.authenticated = False
@@ -105,12 +110,15 @@ class Session(asyncio.Protocol):
         self.transport = transport
         peer = transport.get_extra_info("peername")
         self.address = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer or "")
+        self.host = peer[0] if isinstance(peer, tuple) else host_of(self.address)
         cfg = self.server.settings
-        if not self.server.admit(self):
-            self.send(m.Greeting("2.1", self.id, (), (), "too many connections"))
+        refusal = self.server.admit(self)
+        if refusal is not None:
+            self.send(m.Greeting("2.1", self.id, (), (), refusal))
             transport.close()
             self._closed = True
             return
+        self._arm_timer(cfg.login_timeout)
         implicit = cfg.implicit_auth
         self.send(m.Greeting("2.1", self.id, () if implicit else ("PLAIN",), (), cfg.greeting))
         if implicit:
@@ -118,6 +126,7 @@ class Session(asyncio.Protocol):
             self._login(user.name, user.rlevel, user.wlevel)
 
     def data_received(self, data: bytes) -> None:
+        self._last_input = time.monotonic()
         self._handle_all(self.proto.receive(data))
 
     def eof_received(self) -> bool:
@@ -126,6 +135,7 @@ class Session(asyncio.Protocol):
 
     def connection_lost(self, exc) -> None:
         self._closed = True
+        self._arm_timer(0.0)
         if self._auth_task is not None:
             self._auth_task.cancel()
         if self.abort_on_disconnect:
@@ -262,18 +272,26 @@ class Session(asyncio.Protocol):
         self._auth_task = asyncio.get_running_loop().create_task(self._verify(msg))
 
     async def _verify(self, msg: m.Auth) -> None:
+        guard = self.server.guard
         try:
-            user = await self.server.authenticate(msg.user, msg.password)
+            locked = guard.locked_out(self.host)
+            user = None if locked else await self.server.authenticate(msg.user, msg.password)
             if user is None:
                 self._auth_failures += 1
+                if not locked and guard.failed(self.host):
+                    log.warning("%s: %d failed logins, locked out for %.0f s", self.host,
+                                self.server.settings.auth_lockout_failures,
+                                self.server.settings.auth_lockout_time)
+                    locked = True
                 await asyncio.sleep(self.server.settings.auth_fail_delay)
                 self.send(m.AuthFailed())
-                if self._auth_failures >= self.server.settings.auth_max_failures:
+                if locked or self._auth_failures >= self.server.settings.auth_max_failures:
                     log.warning("connection %d (%s): %d failed logins, dropping it",
                                 self.id, self.address, self._auth_failures)
                     self._closed = True
                     self.close()
                 return
+            guard.succeeded(self.host)
             rlevel = max(user.rlevel, msg.rlevel if msg.rlevel is not None else 0)
             wlevel = max(user.wlevel, msg.wlevel if msg.wlevel is not None else 0)
             self._login(user.name, rlevel, wlevel)
@@ -282,10 +300,44 @@ class Session(asyncio.Protocol):
             self._drain_queue()
 
     def _login(self, name: str, rlevel: int, wlevel: int) -> None:
+        if self.reserved and wlevel != 0:
+            log.warning("connection %d (%s) in the level-0 reserve logged in as %s (level %d): dropped",
+                        self.id, self.address, name, wlevel)
+            self.send(m.AuthFailed())
+            self._closed = True
+            self.close()
+            return
         self.username, self.rlevel, self.wlevel = name, rlevel, wlevel
+        self._arm_timer(self.server.settings.idle_timeout)
         self.authenticated = True
         self.send(m.AuthOk(rlevel, wlevel))
         log.info("connection %d (%s) logged in as %s (%d %d)", self.id, self.address, name, rlevel, wlevel)
+
+    # -- time-outs -----------------------------------------------------------------------------
+    def _arm_timer(self, seconds: float) -> None:
+        """(Re)start the one time-out of this connection: login before, idle after login."""
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        if seconds > 0 and not self._closed:
+            self._timer = asyncio.get_running_loop().call_later(seconds, self._time_out)
+
+    def _time_out(self) -> None:
+        self._timer = None
+        if self._closed:
+            return
+        cfg = self.server.settings
+        if not self.authenticated:
+            log.info("connection %d (%s): no login within %.1f s, closing it", self.id, self.address,
+                     cfg.login_timeout)
+        else:
+            quiet = time.monotonic() - self._last_input
+            if self.commands or quiet < cfg.idle_timeout:  # busy, or spoke since the timer began
+                self._arm_timer(max(0.05, cfg.idle_timeout - quiet))
+                return
+            log.info("connection %d (%s): idle for %.0f s, closing it", self.id, self.address, quiet)
+        self._closed = True
+        self.close()
 
     # -- GET -----------------------------------------------------------------------------------
     def _get(self, msg: m.Get) -> None:
