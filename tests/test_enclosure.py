@@ -364,6 +364,26 @@ async def test_plc_lost_and_back(live, c, how):
     await move(c, "DOME[1]", 0)
 
 
+async def test_stop_that_cannot_reach_the_plc_fails(live, c):
+    """STOP of a module whose PLC is unreachable is not answered DATA OK: it fails with the
+    link's number and an event (the driver writes stop when the link returns); CABINET.STOP
+    stops everything else and fails the same way."""
+    await ready(c, "DOME[0]")
+    s = sim(live, "dome")
+    await live.call(s.power_off)
+    try:
+        await c.event(r"EVENT ERROR DOME\[0\]:4 PLC dome")
+        lines = await c.set("DOME[0].STOP=1")
+        assert failed(lines, "DOME[0].STOP") == 4, lines
+        assert any("EVENT ERROR DOME[0]:4 STOP not delivered" in line for line in lines), lines
+        assert failed(await c.set("CABINET.STOP=1"), "CABINET.STOP") == 4
+        assert done_ok(await c.set("COVER.STOP=1"), "COVER.STOP")  # its PLC is there
+    finally:
+        await live.call(s.power_on)
+    await c.event(r"EVENT INFO DOME\[0\]:15 PLC dome reachable again")
+    assert done_ok(await c.set("DOME[0].STOP=1"), "DOME[0].STOP")
+
+
 # ------------------------------------------------------------------------------ weather
 
 
