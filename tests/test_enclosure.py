@@ -410,6 +410,9 @@ async def test_rain_closes_and_refuses_opening_until_released(live, c):
         assert int(await c.num(f"{m}.ERROR_STATE")) & WARNING_BIT
     assert await c.value("DOME[0].ERROR_STATE") == "0"  # the rotation is not guarded
     assert await c.value("SENSOR[3].VALUE") == "1.0"
+    entries = [e.split(":") for e in (await c.value("CABINET.STATUS.LIST")).strip('"').split(",")]
+    closes = {e[6] for e in entries if e[1] == "weather close" and e[5] == "1" and "rain detected" in e[7]}
+    assert {"DOME[1]", "COVER"} <= closes, entries  # the close itself is on record
 
     lines = await c.set("DOME[1].TARGETPOS=50")
     assert failed(lines, "DOME[1].TARGETPOS") == 1020, lines

@@ -18,7 +18,9 @@ While active:
 
 When rain starts and ``close_on_rain`` is set (wind above the limit and ``close_on_wind``), the
 guarded modules close by themselves — whatever their POWER (the PLC's motors are the PLC's) —
-with ``EVENT WARN <module>:1021 closing: <reason>``; their pending SETs fail with 1021.
+with ``EVENT WARN <module>:1021 closing: <reason>``; their pending SETs fail with 1021. Each
+module closed so carries the condition ``weather close`` (WARNING, the reason as its text), so
+the close is in ``CABINET.STATUS.LIST``; it ends with the interlock's release.
 Unknown weather (sensor PLC lost) refuses opening but closes nothing: the TCS may not even
 reach the dome then, and a PLC usually closes on its own rain input.
 
@@ -46,6 +48,7 @@ log = logging.getLogger(__name__)
 WEATHER_INTERLOCK = 1020
 WEATHER_CLOSE = 1021
 CONDITION = "weather interlock"
+CLOSE_CONDITION = "weather close"
 
 
 class WeatherInterlock:
@@ -148,6 +151,7 @@ class WeatherInterlock:
         log.info("weather interlock released")
         for module in self.guarded:
             module.clear_condition(CONDITION)
+            module.clear_condition(CLOSE_CONDITION)
             module.emit(INFO, WEATHER_INTERLOCK, text)
 
     def _close(self, reason: str) -> None:
@@ -159,6 +163,7 @@ class WeatherInterlock:
                 log.exception("%s: closing for the weather failed", module.module_name)
                 continue
             if moved:
+                module.raise_condition(CLOSE_CONDITION, WARNING, error.message)
                 module.emit(WARN, WEATHER_CLOSE, error.message)
 
     # -- asked by the modules ------------------------------------------------------------------

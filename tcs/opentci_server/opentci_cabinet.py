@@ -9,7 +9,7 @@ documented in ``tcs/model/cabinet.py`` and ``tcs/model/status_list.py``; the COR
 from __future__ import annotations
 
 from tcs.opentci_server.opentci_common import common
-from tcs.opentci_server.tree import FLOAT, INT, STRING, module, module_array, var
+from tcs.opentci_server.tree import CONFIGURE, FLOAT, INT, STRING, module, module_array, var
 
 
 def _zero(_obj) -> int:
@@ -63,8 +63,8 @@ STATUS = module(
     var("LIST", STRING, get=lambda c: c.status_list.text(),
         info="Age:Error:Status:TotalCount:Count:Active:Device[:comment],… newest first; kept "
              "until CLEAR=-1 and across restarts"),
-    var("CLEAR", INT, get=_zero, set="clear_status", min=-1, max=-1,
-        info="write -1 to delete every LIST entry"),
+    var("CLEAR", INT, get=_zero, set="clear_status", min=-1, max=-1, wlevel=CONFIGURE,
+        info="write -1 to delete every LIST entry (configuration level: the record is the operators')"),
     info="system status: error memory and log",
 )
 
