@@ -61,8 +61,10 @@ async def make_server():
 async def closed_by_server(c: RawClient, timeout: float = 10.0) -> bool:
     """True when the server closes the connection (EOF or reset) within ``timeout``."""
     try:
-        while await asyncio.wait_for(c.reader.read(4096), timeout):
+        while await asyncio.wait_for(c.reader.read(65536), timeout):
             pass
+    except asyncio.TimeoutError:
+        return False
     except (ConnectionError, OSError):
         pass
     return True
@@ -280,3 +282,93 @@ def test_tls_settings_go_together():
 
     assert ServerSection(tls_cert="x").check()
     assert not dataclasses.replace(ServerSection(), tls_cert="x", tls_key="y").check()
+
+
+# ------------------------------------------------------------------------------ item 5
+class _Counter:
+    """Domain object of a tiny module whose reads record their order."""
+
+    def __init__(self, server):
+        self.server = server
+        self.order: list[str] = []
+
+    def tick(self, who: str) -> int:
+        self.order.append(who)
+        return len(self.order)
+
+
+async def start_counting(**settings) -> tuple[Tpl2Server, _Counter]:
+    from tcs.opentci_server.tree import INT, module, var
+
+    hub = EventHub()
+    hub.bind_loop()
+    base = dict(port=0, auth_fail_delay=0.01, max_pending_per_address=1000)
+    base.update(settings)
+    server = Tpl2Server(ServerSection(**base), USERS, hub)
+    counter = _Counter(server)
+    tree = (SERVER, module("COUNT", var("A", INT, get=lambda c: c.tick("A")),
+                           var("B", INT, get=lambda c: c.tick("B")),
+                           var("BIG", INT, get=lambda c: 10 ** 200 and 7), bind=lambda root: root))
+    server.tree = Tree.build(tree, counter)
+    await server.start("127.0.0.1", 0)
+    return server, counter
+
+
+async def test_pipelined_commands_of_one_client_take_turns_with_others():
+    """3000 GETs pipelined by one client do not run as one burst: a GET another client sends
+    meanwhile is handled long before the burst ends (old code: after the whole read chunk)."""
+    server, counter = await start_counting(commands_per_turn=4)
+    try:
+        a, _ = await login(server.port, "observer", "obs-pw")
+        b, _ = await login(server.port, "observer", "obs-pw")
+        n = 3000
+        a.writer.write(b"".join(b"%d GET COUNT.A\n" % (i + 1) for i in range(n)))
+        await a.writer.drain()
+        assert await a.readline() == "1 COMMAND OK"
+        assert await b.get("COUNT.B") != ""
+        position = counter.order.index("B")
+        assert position < n // 2, position
+        for _ in range(3 * n - 1):  # every command of A is still answered, in order
+            await a.readline()
+        assert counter.order.count("A") == n
+        for x in (a, b):
+            await x.close()
+    finally:
+        await server.stop()
+
+
+async def test_a_client_that_does_not_read_is_paused_then_dropped():
+    """A client pipelines GETs and never reads: the server stops handling its commands once
+    ``max_output`` bytes wait, keeps its unsent output bounded, serves everyone else, and drops
+    it after ``output_stall_timeout`` (old code kept it for as long as it liked)."""
+    server, counter = await start_counting(max_output=16384, max_output_hard=1 << 20,
+                                           output_stall_timeout=1.0)
+    try:
+        hog, _ = await login(server.port, "observer", "obs-pw")
+        other, _ = await login(server.port, "observer", "obs-pw")
+        line = b"1 GET " + b";".join([b"COUNT.A"] * 200) + b"\n"   # ~3 kB of reply each
+        sent = 0
+        try:
+            for _ in range(2000):
+                hog.writer.write(line.replace(b"1 GET", b"%d GET" % (sent % 60000 + 1)))
+                sent += 1
+                await asyncio.wait_for(hog.writer.drain(), 0.5)
+        except (asyncio.TimeoutError, ConnectionError):
+            pass  # the server stopped reading from it: back-pressure reached the client
+        hog_session = next(s for s in server.sessions.values() if s.address.endswith(
+            str(hog.writer.get_extra_info("sockname")[1])))
+        assert hog_session.transport.get_write_buffer_size() <= server.settings.max_output_hard
+        handled = counter.order.count("A")
+        assert await other.get("COUNT.B") != ""      # others are served meanwhile
+        assert handled < sent * 200                  # the hog's backlog was not all processed
+        for _ in range(int(10 / 0.02)):              # dropped after the stall time-out, unread
+            if hog_session.id not in server.sessions:
+                break
+            await asyncio.sleep(0.02)
+        assert hog_session.id not in server.sessions
+        assert await closed_by_server(hog)
+        assert await other.get("COUNT.B") != ""
+        for x in (hog, other):
+            await x.close()
+    finally:
+        await server.stop()

@@ -50,6 +50,8 @@ class ServerSection:
                               doc="bytes of unsent replies before a connection's input is paused")
     max_output_hard: int = setting(8 * 1024 * 1024, min=4096, max=1024 * 1024 * 1024,
                                    doc="bytes of unsent replies after which a connection is dropped")
+    output_stall_timeout: float = setting(
+        30.0, min=0.1, max=3600.0, doc="seconds a connection may stay paused with unread replies before it is dropped")
     commands_per_turn: int = setting(
         4, min=1, max=10000, doc="commands of one connection handled before others get their turn")
     abort_timeout: float = setting(5.0, min=0.1, max=600.0, doc="seconds ABORT waits before COMMAND TIMEOUT")

@@ -27,8 +27,19 @@ server shutting down       ``<id> COMMAND FAILED``
 =========================  =============================================================
 
 Errors raised by the domain (:class:`~tcs.errors.TcsError`) become reply text here and only
-here (``DATA ERROR <obj> FAILED n`` / keyword). Output is flow-controlled: a client that stops
-reading is paused, and dropped when its backlog passes a hard limit, so it cannot slow others.
+here (``DATA ERROR <obj> FAILED n`` / keyword).
+
+Fairness and back-pressure (``[server]`` limits, README "Security")
+-------------------------------------------------------------------
+Parsed lines wait in one queue per connection. :meth:`Session._pump` handles at most
+``commands_per_turn`` of them, then yields to the event loop (``call_soon``), so pipelined
+commands of one client take turns with every other client and with the loop's own work
+instead of running in one long burst. Reading from the socket pauses while more than
+:data:`QUEUE_HIGH` lines wait. Output: past ``max_output`` unsent bytes the transport calls
+``pause_writing`` — the connection then neither handles commands nor reads until the client
+has read its replies; a client that stays paused ``output_stall_timeout`` seconds, or whose
+unsent output passes ``max_output_hard``, is dropped. Nothing a client does can grow the
+server's memory or its share of the loop without bound.
 """
 
 from __future__ import annotations
@@ -50,7 +61,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-MAX_BACKLOG = 8 * 1024 * 1024  # bytes of unsent output before a client is dropped
+QUEUE_HIGH, QUEUE_LOW = 512, 128  # parsed lines waiting: stop reading above, read again below
 NO_ACCESS = 99
 
 
@@ -92,7 +103,10 @@ class Session(asyncio.Protocol):
         self._auth_task: asyncio.Task | None = None
         self._auth_failures = 0
         self._closed = False
-        self._paused = False
+        self._paused = False              # the transport asked us to stop writing
+        self._reading_paused = False
+        self._pump_handle: asyncio.Handle | None = None
+        self._stall_timer: asyncio.TimerHandle | None = None
 
     # -- SERVER.CONNECTION.* ---------------------------------------------------------------------
     @property
@@ -119,6 +133,7 @@ class Session(asyncio.Protocol):
             self._closed = True
             return
         self._arm_timer(cfg.login_timeout)
+        transport.set_write_buffer_limits(high=cfg.max_output)
         implicit = cfg.implicit_auth
         self.send(m.Greeting("2.1", self.id, () if implicit else ("PLAIN",), (), cfg.greeting))
         if implicit:
@@ -136,6 +151,10 @@ class Session(asyncio.Protocol):
     def connection_lost(self, exc) -> None:
         self._closed = True
         self._arm_timer(0.0)
+        self._queue.clear()
+        for handle in (self._pump_handle, self._stall_timer):
+            if handle is not None:
+                handle.cancel()
         if self._auth_task is not None:
             self._auth_task.cancel()
         if self.abort_on_disconnect:
@@ -145,14 +164,45 @@ class Session(asyncio.Protocol):
         self.server.forget(self)
 
     def pause_writing(self) -> None:
+        """More than ``max_output`` unsent: stop handling and reading until the client reads."""
         self._paused = True
-        if self.transport is not None:
-            self.transport.pause_reading()
+        self._flow_input()
+        if self._stall_timer is None and not self._closed:
+            self._stall_timer = asyncio.get_running_loop().call_later(
+                self.server.settings.output_stall_timeout, self._stalled)
 
     def resume_writing(self) -> None:
         self._paused = False
-        if self.transport is not None and not self._closed:
-            self.transport.resume_reading()
+        if self._stall_timer is not None:
+            self._stall_timer.cancel()
+            self._stall_timer = None
+        if not self._closed:
+            self._pump()
+
+    def _stalled(self) -> None:
+        self._stall_timer = None
+        if self._paused and not self._closed:
+            self._drop(f"has not read its replies for {self.server.settings.output_stall_timeout:g} s")
+
+    def _drop(self, why: str) -> None:
+        log.warning("connection %d (%s) %s; dropping it", self.id, self.address, why)
+        self._closed = True
+        self._queue.clear()
+        if self.transport is not None:
+            self.transport.abort()
+
+    def _flow_input(self) -> None:
+        """Read from the client only while its backlog (waiting lines, unsent output) is small."""
+        t = self.transport
+        if t is None or self._closed or t.is_closing():
+            return
+        if self._paused or len(self._queue) > QUEUE_HIGH:
+            if not self._reading_paused:
+                self._reading_paused = True
+                t.pause_reading()
+        elif self._reading_paused and len(self._queue) <= QUEUE_LOW:
+            self._reading_paused = False
+            t.resume_reading()
 
     # -- output ----------------------------------------------------------------------------------
     def send(self, msg) -> None:
@@ -163,10 +213,8 @@ class Session(asyncio.Protocol):
         if t is None or self._closed or t.is_closing():
             return
         t.write(data)
-        if self._paused and t.get_write_buffer_size() > MAX_BACKLOG:
-            log.warning("connection %d (%s) does not read its replies; dropping it", self.id, self.address)
-            self._closed = True
-            t.abort()
+        if t.get_write_buffer_size() > self.server.settings.max_output_hard:
+            self._drop(f"has more than {self.server.settings.max_output_hard} bytes of replies unread")
 
     def deliver_event(self, event: Event) -> None:
         """Send ``event`` if this connection is logged in and its mask lets it through."""
@@ -187,17 +235,28 @@ class Session(asyncio.Protocol):
 
     # -- dispatch --------------------------------------------------------------------------------
     def _handle_all(self, msgs) -> None:
-        for msg in msgs:
-            if self._closed:
-                return
-            if self._auth_task is not None or self._queue:
-                self._queue.append(msg)
-            else:
-                self._handle_safely(msg)
+        if self._closed:
+            return
+        self._queue.extend(msgs)
+        self._pump()
 
     def _drain_queue(self) -> None:
-        while self._queue and self._auth_task is None and not self._closed:
+        self._pump()
+
+    def _pump(self) -> None:
+        """Handle up to ``commands_per_turn`` waiting lines, in order; the rest on a later turn
+        of the event loop. Waits while AUTH is being checked and while output is paused."""
+        self._pump_handle = None
+        budget = self.server.settings.commands_per_turn
+        while self._queue and budget > 0 and self._auth_task is None and not self._paused and not self._closed:
             self._handle_safely(self._queue.popleft())
+            budget -= 1
+        if self._closed:
+            self._queue.clear()
+            return
+        if self._queue and self._auth_task is None and not self._paused and self._pump_handle is None:
+            self._pump_handle = asyncio.get_running_loop().call_soon(self._pump)
+        self._flow_input()
 
     def _handle_safely(self, msg) -> None:
         """A bug in handling one command must not cost the client its connection."""
