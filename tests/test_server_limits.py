@@ -317,7 +317,7 @@ async def start_counting(**settings) -> tuple[Tpl2Server, _Counter]:
 async def test_pipelined_commands_of_one_client_take_turns_with_others():
     """3000 GETs pipelined by one client do not run as one burst: a GET another client sends
     meanwhile is handled long before the burst ends (old code: after the whole read chunk)."""
-    server, counter = await start_counting(commands_per_turn=4)
+    server, counter = await start_counting()
     try:
         a, _ = await login(server.port, "observer", "obs-pw")
         b, _ = await login(server.port, "observer", "obs-pw")

@@ -52,8 +52,10 @@ class ServerSection:
                                    doc="bytes of unsent replies after which a connection is dropped")
     output_stall_timeout: float = setting(
         30.0, min=0.1, max=3600.0, doc="seconds a connection may stay paused with unread replies before it is dropped")
-    commands_per_turn: int = setting(
-        4, min=1, max=10000, doc="commands of one connection handled before others get their turn")
+    work_slice: float = setting(0.002, min=0.0001, max=1.0,
+                                doc="seconds of command work before the server yields to the event loop")
+    work_rest: float = setting(1.0, min=0.0, max=100.0, doc="after a full work slice under load, rest this "
+                               "many times as long (command work takes at most 1/(1+work_rest) of the loop)")
     abort_timeout: float = setting(5.0, min=0.1, max=600.0, doc="seconds ABORT waits before COMMAND TIMEOUT")
 
     def check(self):

@@ -37,6 +37,7 @@ from tcs.config.sections import ServerSection, UserSection
 from tcs.errors import ConfigError
 from tcs.model.events import Event, EventHub
 from tcs.opentci_server.guard import ConnectionGuard
+from tcs.opentci_server.scheduler import FairScheduler
 from tcs.opentci_server.session import Session
 
 log = logging.getLogger(__name__)
@@ -75,6 +76,7 @@ class Tpl2Server:
         self._server: asyncio.base_events.Server | None = None
         self._tls_server: asyncio.base_events.Server | None = None
         self.guard = ConnectionGuard(settings)
+        self.scheduler = FairScheduler(settings.work_slice, settings.work_rest)
         self._dummy_hash = _dummy_hash(users)
         self._tasks: set[asyncio.Task] = set()
         self._pepper = os.urandom(16)
@@ -146,6 +148,7 @@ class Tpl2Server:
             await self._server.wait_closed()
             self._server = None
         self._unsubscribe()
+        self.scheduler.close()
         if self._hasher is not None:
             self._hasher.shutdown(wait=True)
             self._hasher = None

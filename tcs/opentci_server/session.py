@@ -31,11 +31,12 @@ here (``DATA ERROR <obj> FAILED n`` / keyword).
 
 Fairness and back-pressure (``[server]`` limits, README "Security")
 -------------------------------------------------------------------
-Parsed lines wait in one queue per connection. :meth:`Session._pump` handles at most
-``commands_per_turn`` of them, then yields to the event loop (``call_soon``), so pipelined
-commands of one client take turns with every other client and with the loop's own work
-instead of running in one long burst. Reading from the socket pauses while more than
-:data:`QUEUE_HIGH` lines wait. Output: past ``max_output`` unsent bytes the transport calls
+Parsed lines wait in one queue per connection; the server's
+:class:`~tcs.opentci_server.scheduler.FairScheduler` handles them one at a time, least-served
+connection first, in short slices (``work_slice``, resting ``work_rest`` times as long after a
+full one), so pipelined commands of one client take turns with every other client and leave
+the interpreter to the control loop instead of running in one long burst. Reading from the
+socket pauses while more than :data:`QUEUE_HIGH` lines wait. Output: past ``max_output`` unsent bytes the transport calls
 ``pause_writing`` — the connection then neither handles commands nor reads until the client
 has read its replies; a client that stays paused ``output_stall_timeout`` seconds, or whose
 unsent output passes ``max_output_hard``, is dropped. Nothing a client does can grow the
@@ -105,7 +106,6 @@ class Session(asyncio.Protocol):
         self._closed = False
         self._paused = False              # the transport asked us to stop writing
         self._reading_paused = False
-        self._pump_handle: asyncio.Handle | None = None
         self._stall_timer: asyncio.TimerHandle | None = None
 
     # -- SERVER.CONNECTION.* ---------------------------------------------------------------------
@@ -152,9 +152,9 @@ class Session(asyncio.Protocol):
         self._closed = True
         self._arm_timer(0.0)
         self._queue.clear()
-        for handle in (self._pump_handle, self._stall_timer):
-            if handle is not None:
-                handle.cancel()
+        if self._stall_timer is not None:
+            self._stall_timer.cancel()
+        self.server.scheduler.forget(self)
         if self._auth_task is not None:
             self._auth_task.cancel()
         if self.abort_on_disconnect:
@@ -244,18 +244,24 @@ class Session(asyncio.Protocol):
         self._pump()
 
     def _pump(self) -> None:
-        """Handle up to ``commands_per_turn`` waiting lines, in order; the rest on a later turn
-        of the event loop. Waits while AUTH is being checked and while output is paused."""
-        self._pump_handle = None
-        budget = self.server.settings.commands_per_turn
-        while self._queue and budget > 0 and self._auth_task is None and not self._paused and not self._closed:
-            self._handle_safely(self._queue.popleft())
-            budget -= 1
+        """Hand waiting lines to the scheduler (they wait while AUTH is being checked and while
+        output is paused)."""
         if self._closed:
             self._queue.clear()
             return
-        if self._queue and self._auth_task is None and not self._paused and self._pump_handle is None:
-            self._pump_handle = asyncio.get_running_loop().call_soon(self._pump)
+        if self.runnable():
+            self.server.scheduler.ready(self)
+        self._flow_input()
+
+    def runnable(self) -> bool:
+        """Lines wait and may be handled now (for the scheduler)."""
+        return bool(self._queue) and self._auth_task is None and not self._paused and not self._closed
+
+    def run_one(self) -> None:
+        """Handle the next waiting line (called by the scheduler)."""
+        self._handle_safely(self._queue.popleft())
+        if self._closed:
+            self._queue.clear()
         self._flow_input()
 
     def _handle_safely(self, msg) -> None:
