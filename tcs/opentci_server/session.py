@@ -31,12 +31,13 @@ here (``DATA ERROR <obj> FAILED n`` / keyword).
 
 Fairness and back-pressure (``[server]`` limits, README "Security")
 -------------------------------------------------------------------
-Parsed lines wait in one queue per connection; the server's
+Received bytes wait in an inbox and are parsed a little at a time (:data:`PARSE_CHUNK`) as
+work of their own; parsed lines wait in one queue per connection; the server's
 :class:`~tcs.opentci_server.scheduler.FairScheduler` handles them one at a time, least-served
 connection first, in short slices (``work_slice``, resting ``work_rest`` times as long after a
 full one), so pipelined commands of one client take turns with every other client and leave
 the interpreter to the control loop instead of running in one long burst. Reading from the
-socket pauses while more than :data:`QUEUE_HIGH` lines wait. Output: past ``max_output`` unsent bytes the transport calls
+socket pauses while more than :data:`QUEUE_HIGH` lines or :data:`INBOX_HIGH` bytes wait. Output: past ``max_output`` unsent bytes the transport calls
 ``pause_writing`` — the connection then neither handles commands nor reads until the client
 has read its replies; a client that stays paused ``output_stall_timeout`` seconds, or whose
 unsent output passes ``max_output_hard``, is dropped. Nothing a client does can grow the
@@ -63,6 +64,8 @@ if TYPE_CHECKING:  # pragma: no cover
 log = logging.getLogger(__name__)
 
 QUEUE_HIGH, QUEUE_LOW = 512, 128  # parsed lines waiting: stop reading above, read again below
+INBOX_HIGH = 64 * 1024  # received bytes not parsed yet: stop reading above
+PARSE_CHUNK = 4096  # bytes parsed in one step of scheduled work
 NO_ACCESS = 99
 
 
@@ -106,6 +109,8 @@ class Session(asyncio.Protocol):
         self._closed = False
         self._paused = False              # the transport asked us to stop writing
         self._reading_paused = False
+        self._inbox = bytearray()  # received, not parsed yet
+        self._eof = False          # the client ended its input (parsed after the inbox)
         self._stall_timer: asyncio.TimerHandle | None = None
 
     # -- SERVER.CONNECTION.* ---------------------------------------------------------------------
@@ -142,11 +147,15 @@ class Session(asyncio.Protocol):
 
     def data_received(self, data: bytes) -> None:
         self._last_input = time.monotonic()
-        self._handle_all(self.proto.receive(data))
+        if self._closed:
+            return
+        self._inbox += data
+        self._pump()
 
     def eof_received(self) -> bool:
-        self._handle_all(self.proto.eof())
-        return False
+        self._eof = True
+        self._pump()
+        return True  # the transport stays open until the queued lines are answered
 
     def connection_lost(self, exc) -> None:
         self._closed = True
@@ -196,11 +205,11 @@ class Session(asyncio.Protocol):
         t = self.transport
         if t is None or self._closed or t.is_closing():
             return
-        if self._paused or len(self._queue) > QUEUE_HIGH:
+        if self._paused or len(self._queue) > QUEUE_HIGH or len(self._inbox) > INBOX_HIGH:
             if not self._reading_paused:
                 self._reading_paused = True
                 t.pause_reading()
-        elif self._reading_paused and len(self._queue) <= QUEUE_LOW:
+        elif self._reading_paused and len(self._queue) <= QUEUE_LOW and len(self._inbox) <= INBOX_HIGH:
             self._reading_paused = False
             t.resume_reading()
 
@@ -234,12 +243,6 @@ class Session(asyncio.Protocol):
             self.transport.close()
 
     # -- dispatch --------------------------------------------------------------------------------
-    def _handle_all(self, msgs) -> None:
-        if self._closed:
-            return
-        self._queue.extend(msgs)
-        self._pump()
-
     def _drain_queue(self) -> None:
         self._pump()
 
@@ -254,14 +257,26 @@ class Session(asyncio.Protocol):
         self._flow_input()
 
     def runnable(self) -> bool:
-        """Lines wait and may be handled now (for the scheduler)."""
-        return bool(self._queue) and self._auth_task is None and not self._paused and not self._closed
+        """Input waits and may be handled now (for the scheduler)."""
+        return ((bool(self._queue) or bool(self._inbox) or self._eof) and self._auth_task is None
+                and not self._paused and not self._closed)
 
     def run_one(self) -> None:
-        """Handle the next waiting line (called by the scheduler)."""
-        self._handle_safely(self._queue.popleft())
+        """Handle the next waiting line, parsing a little more input first when none is parsed
+        (called by the scheduler)."""
+        if not self._queue:
+            if self._inbox:
+                chunk = bytes(self._inbox[:PARSE_CHUNK])
+                del self._inbox[:PARSE_CHUNK]
+                self._queue.extend(self.proto.receive(chunk))
+            elif self._eof:
+                self._eof = False
+                self._queue.extend(self.proto.eof())
+        if self._queue:
+            self._handle_safely(self._queue.popleft())
         if self._closed:
             self._queue.clear()
+            self._inbox.clear()
         self._flow_input()
 
     def _handle_safely(self, msg) -> None:

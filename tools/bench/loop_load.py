@@ -348,6 +348,8 @@ if __name__ == "__main__":
     ap.add_argument("--rate", type=float, default=5.0, help="GETs per second per poller")
     ap.add_argument("--realtime-priority", type=int, default=0,
                     help="can.realtime_priority for the control loop (0: normal scheduling)")
+    ap.add_argument("--switch-interval", type=float, default=0.0,
+                    help="sys.setswitchinterval for this process, s (0: Python's default, 5 ms)")
     ap.add_argument("--serve-load", type=int, metavar="PORT", help=argparse.SUPPRESS)
     ap.add_argument("--profile", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -358,5 +360,8 @@ if __name__ == "__main__":
         unknown = [p for p in chosen if p not in PROFILES]
         if unknown:
             raise SystemExit(f"unknown profiles {unknown}; known: {list(PROFILES)}")
+        if args.switch_interval:
+            sys.setswitchinterval(args.switch_interval)
+        print(f"interpreter switch interval: {sys.getswitchinterval() * 1e3:g} ms", flush=True)
         result = asyncio.run(main(chosen, args.clients, args.seconds, args.rate, args.realtime_priority))
         print(json.dumps(result))
