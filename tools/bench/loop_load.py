@@ -251,10 +251,10 @@ def mark(source):
 
 
 async def main(profiles: list[str], clients: int, seconds: float, rate: float,
-               realtime_priority: int = 0) -> dict:
+               realtime_priority: int = 0, server: dict | None = None) -> dict:
     from axes_common import Client, power_and_reference, start_service
 
-    service, port, state = await start_service(can={"realtime_priority": realtime_priority})
+    service, port, state = await start_service(can={"realtime_priority": realtime_priority}, **(server or {}))
     freeze_heap()  # as tcs-server does once it serves
     child = None
     results: dict = {}
@@ -350,6 +350,8 @@ if __name__ == "__main__":
                     help="can.realtime_priority for the control loop (0: normal scheduling)")
     ap.add_argument("--switch-interval", type=float, default=0.0,
                     help="sys.setswitchinterval for this process, s (0: Python's default, 5 ms)")
+    ap.add_argument("--work-rest", type=float, help="[server] work_rest (default: the file's)")
+    ap.add_argument("--work-slice", type=float, help="[server] work_slice, s (default: the file's)")
     ap.add_argument("--serve-load", type=int, metavar="PORT", help=argparse.SUPPRESS)
     ap.add_argument("--profile", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -363,5 +365,6 @@ if __name__ == "__main__":
         if args.switch_interval:
             sys.setswitchinterval(args.switch_interval)
         print(f"interpreter switch interval: {sys.getswitchinterval() * 1e3:g} ms", flush=True)
-        result = asyncio.run(main(chosen, args.clients, args.seconds, args.rate, args.realtime_priority))
+        overrides = {k: v for k, v in (("work_rest", args.work_rest), ("work_slice", args.work_slice)) if v is not None}
+        result = asyncio.run(main(chosen, args.clients, args.seconds, args.rate, args.realtime_priority, overrides))
         print(json.dumps(result))
