@@ -372,3 +372,25 @@ async def test_a_client_that_does_not_read_is_paused_then_dropped():
             await x.close()
     finally:
         await server.stop()
+
+
+async def test_a_burst_of_logins_from_one_host_shares_one_password_check(make_server):
+    """Pollers reconnecting at once (after a restart) with the same credentials wait for one
+    password check together instead of queueing one check each (old code: 40 in a row)."""
+    users = (UserSection("poller", hash_password("pw", iterations=1_000_000), 9, 9),)
+    server = await make_server(users=users, auth_lockout_failures=1000)
+    clients = [await RawClient.connect(server.port, login=None) for _ in range(40)]
+    for c in clients:
+        await c.send('AUTH PLAIN "poller" "pw"')
+    for _ in range(int(WAIT_S / 0.01)):
+        waiting = [s for s in server.sessions.values() if s._auth_task is not None]
+        if len(waiting) == 40 or any(s.authenticated for s in server.sessions.values()):
+            break
+        await asyncio.sleep(0.01)
+    assert len(server._inflight) == 1
+    for c in clients:
+        assert await c.readline(timeout=WAIT_S) == "AUTH OK 9 9"
+        await c.close()
+
+
+WAIT_S = 30.0

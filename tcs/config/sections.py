@@ -28,7 +28,7 @@ class ServerSection:
                                  "level-0 users (anyone else who lands there is dropped at login)")
     max_per_address: int = setting(300, min=1, max=10000, doc="connections from one client address")
     max_pending_per_address: int = setting(
-        16, min=1, max=10000, doc="connections from one address not logged in yet")
+        64, min=1, max=10000, doc="connections from one address not logged in yet")
     login_timeout: float = setting(10.0, min=0.5, max=3600.0,
                                    doc="seconds a connection may stay without logging in")
     idle_timeout: float = setting(0.0, min=0.0, max=1e7,

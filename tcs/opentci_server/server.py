@@ -81,6 +81,7 @@ class Tpl2Server:
         self._tasks: set[asyncio.Task] = set()
         self._pepper = os.urandom(16)
         self._verified: dict[str, bytes] = {}
+        self._inflight: dict[tuple[str, bytes], asyncio.Future] = {}
         self._hasher: ThreadPoolExecutor | None = None  # password hashing, off the loop
         self._unsubscribe = events.subscribe(self._on_event)
 
@@ -196,8 +197,13 @@ class Tpl2Server:
             return user
         if self._hasher is None:
             self._hasher = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tcs-auth")
-        ok = await asyncio.get_running_loop().run_in_executor(self._hasher, verify_password, password,
-                                                              user.password)
+        job = self._inflight.get((name, key))  # many clients logging in at once share one check
+        if job is None:
+            job = asyncio.get_running_loop().run_in_executor(self._hasher, verify_password, password,
+                                                             user.password)
+            self._inflight[(name, key)] = job
+            job.add_done_callback(lambda _f, k=(name, key): self._inflight.pop(k, None))
+        ok = await asyncio.shield(job)
         if ok:
             self._verified[name] = key
             return user
