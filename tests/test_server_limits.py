@@ -278,8 +278,6 @@ async def test_start_warns_loudly_beyond_loopback(make_server, caplog):
 
 
 def test_tls_settings_go_together():
-    from tcs.config.schema import build  # noqa: F401  (the section check is what is tested)
-
     assert ServerSection(tls_cert="x").check()
     assert not dataclasses.replace(ServerSection(), tls_cert="x", tls_key="y").check()
 
