@@ -428,6 +428,39 @@ async def test_rain_closes_and_refuses_opening_until_released(live, c):
     await move(c, "DOME[1]", 0)
 
 
+async def test_a_weather_close_resumes_after_the_plc_was_away(live, c):
+    """Rain closes the cover; its PLC drops out mid-close. At reconnect the driver writes stop
+    to every axis (so no aborted move resumes): the interlock then closes the cover again."""
+    import dataclasses
+
+    await ready(c, "COVER")
+    await move(c, "COVER", 90)
+    t = sim(live, "telescope")
+    fast = {name: t.axes[name].params for name in ("cover1", "cover2")}
+
+    def set_speed(speed):
+        for name, params in fast.items():
+            t.axes[name].params = dataclasses.replace(params, speed=speed) if speed else params
+
+    await live.call(set_speed, 10.0)  # a slow close leaves time to cut the PLC during it
+    try:
+        await live.call(sim(live, "dome").force, "rain", True)
+        await c.event(r"EVENT WARN COVER:1021 closing: rain detected")
+        await c.wait("COVER.MOTION_STATE", lambda v: int(v) & MOVING)
+        await live.call(t.power_off)
+        await c.event(r"EVENT ERROR COVER:4 PLC telescope")
+        half_open = await live.call(t.read_point, "cover1_position")
+        assert half_open > 5.0
+        await live.call(t.power_on)
+        await c.event(r"EVENT WARN COVER:1021 closing: rain \(again")
+        await c.wait("COVER.REALPOS", lambda v: v <= 0.1)
+    finally:
+        await live.call(set_speed, None)
+        await live.call(t.power_on)
+        await live.call(sim(live, "dome").release, "rain")
+    await c.event(r"EVENT INFO COVER:1020 weather good")
+
+
 async def test_wind_above_the_limit_refuses_opening_without_closing(live, c):
     await ready(c, "DOME[1]")
     await move(c, "DOME[1]", 20)

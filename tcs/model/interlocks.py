@@ -166,6 +166,26 @@ class WeatherInterlock:
                 module.raise_condition(CLOSE_CONDITION, WARNING, error.message)
                 module.emit(WARN, WEATHER_CLOSE, error.message)
 
+    def reconnected(self, module) -> None:
+        """``module``'s PLC is back; its driver wrote stop to every axis at connect. If the
+        weather closed the guarded parts and still wants them closed, close ``module`` again."""
+        if module not in self.guarded or not self.active:
+            return
+        close = [c for c in self._closed_for if (c == "rain" and self.section.close_on_rain)
+                 or (c == "wind" and self.section.close_on_wind)]
+        if not close:
+            return
+        reason = "; ".join(close) + " (again, after the PLC came back)"
+        error = TcsError(f"{module.module_name}: closing: {reason}", WEATHER_CLOSE)
+        try:
+            moved = module.safety_close(error)
+        except Exception:
+            log.exception("%s: closing for the weather failed", module.module_name)
+            return
+        if moved:
+            module.raise_condition(CLOSE_CONDITION, WARNING, f"closing: {reason}")
+            module.emit(WARN, WEATHER_CLOSE, f"closing: {reason}")
+
     # -- asked by the modules ------------------------------------------------------------------
     def check_move(self, module, goal: float) -> None:
         """Refuse ``goal`` (PLC frame) for ``module`` when it opens while the interlock is active.

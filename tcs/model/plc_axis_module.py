@@ -498,6 +498,8 @@ class PlcAxisModule(PlcModule):
             self._settle_demand = False
             self._cancel_timer()
             self.closing = False
+        elif self.interlock is not None:
+            self.interlock.reconnected(self)  # the driver wrote stop at connect: close again if due
         self._update_power()
 
     def _on_poll(self, snap: PlcSnapshot) -> None:
