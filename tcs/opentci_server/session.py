@@ -39,9 +39,10 @@ full one), so pipelined commands of one client take turns with every other clien
 the interpreter to the control loop instead of running in one long burst. Reading from the
 socket pauses while more than :data:`QUEUE_HIGH` lines or :data:`INBOX_HIGH` bytes wait.
 Output: past ``max_output`` unsent bytes the transport calls ``pause_writing`` — the
-connection then neither handles commands nor reads until the client has read its replies; a client that stays paused ``output_stall_timeout`` seconds, or whose
-unsent output passes ``max_output_hard``, is dropped. Nothing a client does can grow the
-server's memory or its share of the loop without bound.
+connection then neither handles commands nor reads until the client has read its replies;
+a client that stays paused ``output_stall_timeout`` seconds, or whose unsent output passes
+``max_output_hard``, is dropped. Nothing a client does can grow the server's memory or its
+share of the loop without bound.
 """
 
 from __future__ import annotations
