@@ -200,6 +200,9 @@ async def test_unknown_names_fail_as_slowly_as_wrong_passwords(make_server):
 
 
 def make_certificate(tmp_path):
+    """A self-signed certificate for 127.0.0.1, made here (``cryptography``: a dependency of
+    the test environment, skipped without it)."""
+    pytest.importorskip("cryptography")
     from cryptography import x509
     from cryptography.hazmat.primitives import hashes, serialization
     from cryptography.hazmat.primitives.asymmetric import ec
