@@ -445,16 +445,34 @@ async def test_status_list_format_counters_and_clear(make_rig):
     clock.t += 10
     rig.dome.raise_condition("oil_low", WARNING, "pressure: 1,2 bar")
     clock.t += 5
+    # the same condition with another cause keeps the older cause as an entry of its own
     assert await c.get("CABINET.STATUS.LIST") == (
-        '"5:oil_low:4:1:1:1:DOME:pressure; 1;2 bar,15:drive_fault:2:2:2:1:AZ:following error again"')
+        '"5:oil_low:4:1:1:1:DOME:pressure; 1;2 bar,15:drive_fault:2:1:1:1:AZ:following error again,'
+        '25:drive_fault:2:1:1:0:AZ:following error"')
+    rig.az.clear_condition("drive_fault")
+    rig.az.raise_condition("drive_fault", ERROR, "following error")  # the same cause again: counted
     rig.az.clear_condition("drive_fault")
     await c.command(1, "SET CABINET.ERROR_STATE=0")  # acknowledge: Count back to 0
     assert await c.get("CABINET.STATUS.LIST") == (
-        '"5:oil_low:4:1:0:1:DOME:pressure; 1;2 bar,15:drive_fault:2:2:0:0:AZ:following error again"')
+        '"0:drive_fault:2:2:0:0:AZ:following error,5:oil_low:4:1:0:1:DOME:pressure; 1;2 bar,'
+        '15:drive_fault:2:1:0:0:AZ:following error again"')
     assert (await c.command(2, "SET CABINET.STATUS.CLEAR=1"))[1] == "2 DATA ERROR CABINET.STATUS.CLEAR RANGE"
     assert (await c.command(3, "SET CABINET.STATUS.CLEAR=-1"))[1] == "3 DATA OK CABINET.STATUS.CLEAR"
     assert await c.get("CABINET.STATUS.LIST") == '""'
     assert await c.get("CABINET.STATUS.CLEAR") == "DENIED"  # write-only (RLEVEL -1)
+
+
+async def test_clearing_the_status_list_needs_configuration_level(make_rig):
+    rig, admin = await make_rig()
+    rig.dome.raise_condition("oil_low", WARNING, "pressure low")
+    operator = await RawClient.connect(rig.server.port, login=None)
+    await operator.send('AUTH PLAIN "admin" "admin" 3 3')  # operator level: moves, no configuration
+    assert await operator.readline() == "AUTH OK 3 3"
+    assert await operator.command(1, "SET CABINET.STATUS.CLEAR=-1") == [
+        "1 COMMAND OK", "1 DATA ERROR CABINET.STATUS.CLEAR DENIED", "1 COMMAND COMPLETE"]
+    assert "oil_low" in await operator.get("CABINET.STATUS.LIST")
+    assert (await admin.command(2, "SET CABINET.STATUS.CLEAR=-1"))[1] == "2 DATA OK CABINET.STATUS.CLEAR"
+    await operator.close()
 
 
 async def test_status_list_survives_a_restart(make_rig):
@@ -480,6 +498,22 @@ async def test_status_list_survives_a_restart(make_rig):
     assert await c2.get("CABINET.STATUS.LIST") == (
         '"0:nocon:2:2:2:1:ZD:no heartbeat,100:late:16:1:1:0:FOCUS:late setpoint,'
         '101:fan_failed:4:1:1:0:CABINET"')
+
+
+def test_orphan_temporary_files_of_a_killed_write_are_removed(tmp_path):
+    """A kill -9 between the temporary file and the rename leaves ``.state.json.<random>``:
+    the store removes such files when it opens, and nothing else."""
+    store = StateStore(tmp_path)
+    store.update(a=1)
+    orphan = tmp_path / ".state.json.k3_xq9ab"   # the name tempfile.mkstemp gives in _write
+    orphan.write_text('{"a": 2')
+    keep = [tmp_path / "state.json.corrupt-1700000000", tmp_path / ".other.json.k3_xq9ab",
+            tmp_path / "notes.txt"]
+    for path in keep:
+        path.write_text("x")
+    assert StateStore(tmp_path).get("a") == 1
+    assert not orphan.exists()
+    assert all(path.exists() for path in keep)
 
 
 # ----------------------------------------------------------------------------------- LOG[]

@@ -364,6 +364,26 @@ async def test_plc_lost_and_back(live, c, how):
     await move(c, "DOME[1]", 0)
 
 
+async def test_stop_that_cannot_reach_the_plc_fails(live, c):
+    """STOP of a module whose PLC is unreachable is not answered DATA OK: it fails with the
+    link's number and an event (the driver writes stop when the link returns); CABINET.STOP
+    stops everything else and fails the same way."""
+    await ready(c, "DOME[0]")
+    s = sim(live, "dome")
+    await live.call(s.power_off)
+    try:
+        await c.event(r"EVENT ERROR DOME\[0\]:4 PLC dome")
+        lines = await c.set("DOME[0].STOP=1")
+        assert failed(lines, "DOME[0].STOP") == 4, lines
+        assert any("EVENT ERROR DOME[0]:4 STOP not delivered" in line for line in lines), lines
+        assert failed(await c.set("CABINET.STOP=1"), "CABINET.STOP") == 4
+        assert done_ok(await c.set("COVER.STOP=1"), "COVER.STOP")  # its PLC is there
+    finally:
+        await live.call(s.power_on)
+    await c.event(r"EVENT INFO DOME\[0\]:15 PLC dome reachable again")
+    assert done_ok(await c.set("DOME[0].STOP=1"), "DOME[0].STOP")
+
+
 # ------------------------------------------------------------------------------ weather
 
 
@@ -390,6 +410,9 @@ async def test_rain_closes_and_refuses_opening_until_released(live, c):
         assert int(await c.num(f"{m}.ERROR_STATE")) & WARNING_BIT
     assert await c.value("DOME[0].ERROR_STATE") == "0"  # the rotation is not guarded
     assert await c.value("SENSOR[3].VALUE") == "1.0"
+    entries = [e.split(":") for e in (await c.value("CABINET.STATUS.LIST")).strip('"').split(",")]
+    closes = {e[6] for e in entries if e[1] == "weather close" and e[5] == "1" and "rain detected" in e[7]}
+    assert {"DOME[1]", "COVER"} <= closes, entries  # the close itself is on record
 
     lines = await c.set("DOME[1].TARGETPOS=50")
     assert failed(lines, "DOME[1].TARGETPOS") == 1020, lines
@@ -403,6 +426,39 @@ async def test_rain_closes_and_refuses_opening_until_released(live, c):
     await ready(c, "DOME[1]", "COVER")
     await move(c, "DOME[1]", 30)
     await move(c, "DOME[1]", 0)
+
+
+async def test_a_weather_close_resumes_after_the_plc_was_away(live, c):
+    """Rain closes the cover; its PLC drops out mid-close. At reconnect the driver writes stop
+    to every axis (so no aborted move resumes): the interlock then closes the cover again."""
+    import dataclasses
+
+    await ready(c, "COVER")
+    await move(c, "COVER", 90)
+    t = sim(live, "telescope")
+    fast = {name: t.axes[name].params for name in ("cover1", "cover2")}
+
+    def set_speed(speed):
+        for name, params in fast.items():
+            t.axes[name].params = dataclasses.replace(params, speed=speed) if speed else params
+
+    await live.call(set_speed, 10.0)  # a slow close leaves time to cut the PLC during it
+    try:
+        await live.call(sim(live, "dome").force, "rain", True)
+        await c.event(r"EVENT WARN COVER:1021 closing: rain detected")
+        await c.wait("COVER.MOTION_STATE", lambda v: int(v) & MOVING)
+        await live.call(t.power_off)
+        await c.event(r"EVENT ERROR COVER:4 PLC telescope")
+        half_open = await live.call(t.read_point, "cover1_position")
+        assert half_open > 5.0
+        await live.call(t.power_on)
+        await c.event(r"EVENT WARN COVER:1021 closing: rain \(again")
+        await c.wait("COVER.REALPOS", lambda v: v <= 0.1)
+    finally:
+        await live.call(set_speed, None)
+        await live.call(t.power_on)
+        await live.call(sim(live, "dome").release, "rain")
+    await c.event(r"EVENT INFO COVER:1020 weather good")
 
 
 async def test_wind_above_the_limit_refuses_opening_without_closing(live, c):

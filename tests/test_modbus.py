@@ -220,6 +220,55 @@ async def test_stalled_motor_is_reported_and_reset(dome, clock):
 # ------------------------------------------------------------------ losing the PLC
 
 
+async def test_a_move_aborted_while_the_plc_was_away_does_not_resume(dome, clock):
+    """The link drops during a move; when it returns, the driver writes stop to every axis of
+    the PLC before anything else, so the PLC does not finish the old move by itself."""
+    sim, driver, _ = dome
+    az = PlcAxis(driver, "az")
+    after = await az.move(350.0)          # from 180: +170 deg, tens of seconds
+    clock.advance(5.0)
+    mid = az.state(await fresh(driver, after))
+    assert mid.moving
+    await sim.power_off()
+    while driver.connected:
+        await asyncio.sleep(0.01)
+    await sim.power_on()
+    await driver.wait_connected(WAIT)     # the stop is written before connected is reported
+    clock.advance(300.0)                  # long enough to have arrived, had it gone on
+    state = az.state(await fresh(driver))
+    assert not state.moving and not state.at_target
+    assert state.position < 300.0
+    for axis in ("slit", "flap", "seal"):  # at rest: a stop leaves them where they are
+        assert not PlcAxis(driver, axis).state().moving
+
+
+async def test_the_driver_counts_the_watchdog_and_the_simulated_plc_stops_without_it(plcs, clock):
+    section = plcs["dome"]
+    section = dataclasses.replace(section, sim=dataclasses.replace(section.sim, watchdog_timeout=0.3))
+    sim = SimPlc("dome", section, clock=clock, port=0)
+    async with sim:
+        async with PlcDriver("dome", fast(section, port=sim.port)) as driver:
+            await driver.wait_connected(WAIT)
+            az = PlcAxis(driver, "az")
+            after = await az.move(350.0)
+            clock.advance(5.0)
+            first = await fresh(driver, after)
+            assert az.state(first).moving
+            later = await fresh(driver, first.cycle)
+            assert later["tcs_watchdog"] != first["tcs_watchdog"]
+            await asyncio.sleep(0.6)     # the TCS is alive: the watchdog keeps changing
+            assert sim.watchdog_trips == 0
+        # the TCS is gone (driver stopped): the PLC program stops the dome on its own
+        for _ in range(int(WAIT / 0.02)):
+            if sim.watchdog_trips:
+                break
+            await asyncio.sleep(0.02)
+        assert sim.watchdog_trips == 1
+        clock.advance(300.0)
+        assert sim.read_point("az_position") < 300.0
+        assert not sim.read_point("az_status") & 1  # not moving
+
+
 async def test_plc_that_stops_answering_is_lost_and_recovers(dome):
     sim, driver, events = dome
     sim.set_responding(False)
@@ -307,9 +356,11 @@ async def test_telescope_plc_covers_and_settings(plcs, clock):
         clock.advance(30.0)
         opened = await cover.wait_settled(after, timeout=WAIT)
         assert opened.open and opened.at_target and not opened.closed
-        after = await driver.write_many({"mirror_fans": 2, "tcs_watchdog": 41})
+        after = await driver.write_many({"mirror_fans": 2})
         snap = await fresh(driver, after)
-        assert snap["mirror_fans"] == 2 and snap["tcs_watchdog"] == 41
+        assert snap["mirror_fans"] == 2
+        later = await fresh(driver, snap.cycle)  # the driver counts the watchdog at every poll
+        assert later["tcs_watchdog"] != snap["tcs_watchdog"]
         assert snap["temp_cabinet"] == pytest.approx(sim.read_point("temp_cabinet"))
         assert snap["oil_pressure"] == pytest.approx(25.0)
 

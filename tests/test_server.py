@@ -208,7 +208,7 @@ async def test_server_module_and_connection_settings(service):
 
 
 async def test_too_many_connections(tmp_path):
-    svc, port = await start_service(tmp_path / "state", max_connections=2)
+    svc, port = await start_service(tmp_path / "state", max_connections=2, admin_reserve=0)
     try:
         a = await RawClient.connect(port)
         b = await RawClient.connect(port)

@@ -295,6 +295,9 @@ class PlcSimSection:
     sensors: dict[str, SimSensorSection] = setting(factory=dict)
     switches: dict[str, SimSwitchSection] = setting(factory=dict)
     seed: int = setting(1, doc="seed of the sensors' slow variations")
+    watchdog_timeout: float = setting(
+        2.0, min=0.0, max=3600.0, doc="seconds (wall clock) without a change of the PLC's watchdog point "
+        "after which the simulated PLC program stops every axis, once the point was written (0 = never)")
 
 
 @dataclass(frozen=True)
@@ -320,6 +323,8 @@ class PlcSection:
     max_read_bits: int = setting(2000, min=1, max=2000, doc="coils/inputs per read request")
     description: str = setting("", doc="free text")
     points: dict[str, PlcPoint] = setting(factory=dict, doc="the register map")
+    watchdog: str = setting("tcs_watchdog", doc="holding point the driver increments at every poll, so the "
+                            "PLC program can stop its axes when the TCS is gone (no such point: none)")
     sim: PlcSimSection | None = setting(None, doc="simulator parameters (ignored by the driver)")
 
     @cached_property
@@ -344,6 +349,11 @@ class PlcSection:
                 if all(f"{axis}_{s}" in self.points for s in ("command", "position", "status")):
                     names.append(axis)
         return names
+
+    def axis_names(self) -> list[str]:
+        """Every axis of the map that follows the axis convention (``X_command``, ``X_target`` …)."""
+        return [name[:-len("_command")] for name in self.map
+                if name.endswith("_command") and not self.axis_problems(name[:-len("_command")])]
 
     def axis_problems(self, axis: str) -> list[tuple[str, str]]:
         """What is missing or wrong for ``axis`` to follow the axis convention ([] if fine)."""

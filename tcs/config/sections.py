@@ -23,11 +23,39 @@ class ServerSection:
     implicit_auth: bool = setting(False, doc="log every connection in without AUTH (RTS2, NTM clients)")
     implicit_user: str = setting("", doc="user whose levels implicit authentication grants")
     greeting: str = setting("OpenTCI telescope", doc="free text of the greeting's MESSAGE")
-    max_connections: int = setting(64, min=1, max=10000, doc="connections served at once")
+    max_connections: int = setting(512, min=1, max=10000, doc="connections served at once")
+    admin_reserve: int = setting(4, min=0, max=100, doc="connections beyond max_connections kept for "
+                                 "level-0 users (anyone else who lands there is dropped at login)")
+    max_per_address: int = setting(300, min=1, max=10000, doc="connections from one client address")
+    max_pending_per_address: int = setting(
+        64, min=1, max=10000, doc="connections from one address not logged in yet")
+    login_timeout: float = setting(10.0, min=0.5, max=3600.0,
+                                   doc="seconds a connection may stay without logging in")
+    idle_timeout: float = setting(0.0, min=0.0, max=1e7,
+                                  doc="seconds without a command before a connection is closed (0 = never)")
     max_in_flight: int = setting(64, min=1, max=100000, doc="commands in flight per connection (TOOMANY past it)")
     max_line_length: int = setting(65536, min=256, max=16 * 1024 * 1024, doc="longest accepted line in bytes")
     auth_fail_delay: float = setting(1.0, min=0.0, max=60.0, doc="seconds before answering AUTH FAILED")
     auth_max_failures: int = setting(3, min=1, max=100, doc="failed logins before the connection is dropped")
+    auth_lockout_failures: int = setting(
+        10, min=1, max=100000, doc="failed logins from one address within auth_lockout_time that lock it out")
+    auth_lockout_time: float = setting(
+        300.0, min=0.0, max=86400.0, doc="seconds a locked-out address gets AUTH FAILED for every login; "
+        "also the window in which failures are counted")
+    tls_cert: str = setting("", doc="PEM certificate chain; with tls_key, TLS is served (see tls_port)")
+    tls_key: str = setting("", doc="PEM private key of tls_cert")
+    tls_port: int = setting(0, min=0, max=65535, doc="with TLS: 0 = the port itself speaks TLS only; "
+                            "else a second, TLS-only listener on this port beside the plain one")
+    max_output: int = setting(1024 * 1024, min=4096, max=1024 * 1024 * 1024,
+                              doc="bytes of unsent replies before a connection's input is paused")
+    max_output_hard: int = setting(8 * 1024 * 1024, min=4096, max=1024 * 1024 * 1024,
+                                   doc="bytes of unsent replies after which a connection is dropped")
+    output_stall_timeout: float = setting(
+        30.0, min=0.1, max=3600.0, doc="seconds a connection may stay paused with unread replies before it is dropped")
+    work_slice: float = setting(0.002, min=0.0001, max=1.0,
+                                doc="seconds of command work before the server yields to the event loop")
+    work_rest: float = setting(1.0, min=0.0, max=100.0, doc="after a full work slice under load, rest this "
+                               "many times as long (command work takes at most 1/(1+work_rest) of the loop)")
     abort_timeout: float = setting(5.0, min=0.1, max=600.0, doc="seconds ABORT waits before COMMAND TIMEOUT")
     max_objects: int = setting(20000, min=1, max=10_000_000,
                                doc="objects (array elements count one each) one GET or SET may address")
@@ -37,7 +65,13 @@ class ServerSection:
                                    doc="bytes of values one GET may answer; objects past it answer DIMENSION")
 
     def check(self):
-        return []
+        problems = []
+        if bool(self.tls_cert) != bool(self.tls_key):
+            problems.append(("tls_key" if self.tls_cert else "tls_cert",
+                             "tls_cert and tls_key go together"))
+        if self.max_output_hard < self.max_output:
+            problems.append(("max_output_hard", "must not be below max_output"))
+        return problems
 
 
 @dataclass(frozen=True)

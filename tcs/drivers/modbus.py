@@ -6,7 +6,10 @@ One :class:`PlcDriver` per ``[plcs.<name>]`` section runs one asyncio task on th
 event loop. The task owns the link (:class:`~tcs.drivers.modbus_client.ModbusLink`, the only
 code touching pymodbus) and does, in order:
 
-1. connect; poll once — the PLC counts as **connected** only after a complete poll cycle;
+1. connect; poll once — the PLC counts as **connected** only after a complete poll cycle —
+   then write *stop* to the command point of every axis of the map (``X_command`` = 2, see
+   :mod:`tcs.drivers.plc_axis`) before anything else: a move the TCS aborted while the PLC was
+   unreachable never resumes when the link returns (issue 14.3), and no queued write precedes it;
 2. loop: send queued writes first (each as soon as it is queued), then the poll cycle when it
    is due (every ``poll_interval``; a late cycle skips the slots it missed, counted in
    ``stats.missed``);
@@ -16,6 +19,9 @@ code touching pymodbus) and does, in order:
    with :class:`~tcs.errors.CommunicationError` carrying that number, wait (backoff from
    ``reconnect_min`` doubling to ``reconnect_max``) and start again at 1. Recovery needs no
    one's help.
+
+Every poll cycle first increments the ``watchdog`` point of the map (``tcs_watchdog``, a
+16-bit counter) when the map has it: a PLC program stops its axes when it stops changing.
 
 The poll reads the map in few requests: points of one kind are grouped into blocks that span
 at most ``max_gap`` unused addresses and ``max_read_registers`` / ``max_read_bits``.
@@ -45,7 +51,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
-from tcs.config.plc import BIT_KINDS, PlcSection, RegisterPoint, Value
+from tcs.config.plc import AXIS_STOP, BIT_KINDS, PlcSection, RegisterPoint, Value
 from tcs.drivers.modbus_client import ModbusExceptionResponse, ModbusLink
 from tcs.errors import (AccessDenied, CommunicationError, ErrorNumber, HardwareError, RangeRefused,
                         TcsError, UnknownObject)
@@ -192,6 +198,10 @@ class PlcDriver:
         self._stopping = False
         self._conn_listeners: list[Callable[[PlcConnectionEvent], None]] = []
         self._poll_listeners: list[Callable[[PlcSnapshot], None]] = []
+        wd = self.points.get(section.watchdog)
+        self._watchdog = wd if wd is not None and wd.writable and wd.kind == "holding" else None
+        self._watchdog_count = 0
+        self._holds = [self.points[f"{axis}_command"] for axis in section.axis_names()]
 
     # ---------------------------------------------------------------- lifecycle
 
@@ -420,6 +430,7 @@ class PlcDriver:
             try:
                 await self._link.connect()
                 await self._poll()
+                await self._hold_axes()
                 self.stats.connects += 1
                 self._set_state(True, None, "connected")
                 delay = s.reconnect_min
@@ -486,9 +497,27 @@ class PlcDriver:
         if self._wake is not None and not self._wake.done():
             self._wake.set_result(None)
 
+    async def _hold_axes(self) -> None:
+        """Write stop to every axis of the map (each connect, before the PLC counts as connected)."""
+        for p in self._holds:
+            try:
+                await self._link.write(p.kind, p.address, list(p.encode(AXIS_STOP)))
+            except ModbusExceptionResponse as exc:
+                log.warning("PLC %s: stop of %s at connect refused: %s", self.name, p.name, exc)
+        if self._holds:
+            log.info("PLC %s: stop written to %s at connect", self.name, ", ".join(p.name for p in self._holds))
+
     async def _poll(self) -> None:
         loop = asyncio.get_running_loop()
         t0 = time.perf_counter()
+        wd = self._watchdog
+        if wd is not None:
+            self._watchdog_count = (self._watchdog_count + 1) % 0x8000
+            try:
+                await self._link.write(wd.kind, wd.address, list(wd.encode(self._watchdog_count)))
+            except ModbusExceptionResponse as exc:  # the PLC refuses it: poll on without
+                log.warning("PLC %s: watchdog %s refused (%s); not written any more", self.name, wd.name, exc)
+                self._watchdog = None
         values: dict[str, Value] = {}
         for block in self.blocks:
             t = time.perf_counter()

@@ -403,18 +403,26 @@ class Cabinet(ModuleHealth):
     def stop(self) -> None:
         """End POWER/REINIT sequences (10 targetchange), then stop every axis and module."""
         self._cancel_jobs(TcsError("stopped by CABINET.STOP", ErrorNumber.TARGETCHANGE))
-        self.stop_motion()
+        undelivered = self.stop_motion()
+        if undelivered is not None:  # CABINET.STOP answers FAILED n: one part did not get it
+            raise undelivered
 
-    def stop_motion(self) -> None:
-        """Call ``stop()`` of every axis and module (all of them, whatever fails)."""
+    def stop_motion(self) -> TcsError | None:
+        """Call ``stop()`` of every axis and module (all of them, whatever fails); returns the
+        first stop that could not be delivered (a PLC unreachable: 4/3), else None."""
+        undelivered: TcsError | None = None
         for member in self.members():
             stop = getattr(member, "stop", None)
             if not callable(stop):
                 continue
             try:
                 stop()
+            except TcsError as exc:
+                log.warning("STOP of %s failed: %s", _name(member), exc)
+                undelivered = undelivered or exc
             except Exception:
                 log.exception("STOP of %s failed", _name(member))
+        return undelivered
 
     # -- ERROR_STATE ------------------------------------------------------------------------------------
     @property

@@ -18,7 +18,9 @@ While active:
 
 When rain starts and ``close_on_rain`` is set (wind above the limit and ``close_on_wind``), the
 guarded modules close by themselves — whatever their POWER (the PLC's motors are the PLC's) —
-with ``EVENT WARN <module>:1021 closing: <reason>``; their pending SETs fail with 1021.
+with ``EVENT WARN <module>:1021 closing: <reason>``; their pending SETs fail with 1021. Each
+module closed so carries the condition ``weather close`` (WARNING, the reason as its text), so
+the close is in ``CABINET.STATUS.LIST``; it ends with the interlock's release.
 Unknown weather (sensor PLC lost) refuses opening but closes nothing: the TCS may not even
 reach the dome then, and a PLC usually closes on its own rain input.
 
@@ -46,6 +48,7 @@ log = logging.getLogger(__name__)
 WEATHER_INTERLOCK = 1020
 WEATHER_CLOSE = 1021
 CONDITION = "weather interlock"
+CLOSE_CONDITION = "weather close"
 
 
 class WeatherInterlock:
@@ -148,6 +151,7 @@ class WeatherInterlock:
         log.info("weather interlock released")
         for module in self.guarded:
             module.clear_condition(CONDITION)
+            module.clear_condition(CLOSE_CONDITION)
             module.emit(INFO, WEATHER_INTERLOCK, text)
 
     def _close(self, reason: str) -> None:
@@ -159,7 +163,28 @@ class WeatherInterlock:
                 log.exception("%s: closing for the weather failed", module.module_name)
                 continue
             if moved:
+                module.raise_condition(CLOSE_CONDITION, WARNING, error.message)
                 module.emit(WARN, WEATHER_CLOSE, error.message)
+
+    def reconnected(self, module) -> None:
+        """``module``'s PLC is back; its driver wrote stop to every axis at connect. If the
+        weather closed the guarded parts and still wants them closed, close ``module`` again."""
+        if module not in self.guarded or not self.active:
+            return
+        close = [c for c in self._closed_for if (c == "rain" and self.section.close_on_rain)
+                 or (c == "wind" and self.section.close_on_wind)]
+        if not close:
+            return
+        reason = "; ".join(close) + " (again, after the PLC came back)"
+        error = TcsError(f"{module.module_name}: closing: {reason}", WEATHER_CLOSE)
+        try:
+            moved = module.safety_close(error)
+        except Exception:
+            log.exception("%s: closing for the weather failed", module.module_name)
+            return
+        if moved:
+            module.raise_condition(CLOSE_CONDITION, WARNING, f"closing: {reason}")
+            module.emit(WARN, WEATHER_CLOSE, f"closing: {reason}")
 
     # -- asked by the modules ------------------------------------------------------------------
     def check_move(self, module, goal: float) -> None:

@@ -34,7 +34,11 @@ Semantics, where a PLC axis differs from a drive:
     ``REINIT`` only confirms that with ``EVENT INFO <module>:19``.
 ``STOP``
     Writes the stop command; pending TARGETPOS/OFFSET fail with 10, a running trajectory ends
-    (its RUN completes). ``TARGETPOS`` then reads where the axis came to rest.
+    (its RUN completes). ``TARGETPOS`` then reads where the axis came to rest. While the PLC
+    is unreachable the stop cannot be delivered: pending SETs still end, and STOP fails with the
+    link's number (``FAILED 4``/``3``) and an ``EVENT ERROR``; the driver writes stop to every
+    axis of the PLC as soon as the link returns, before anything else, so the aborted move never
+    resumes.
 ``OFFSET``
     Only where allowed (the dome rotation, DOME[0]); elsewhere refused (INVALID). As for a
     drive: added to every positioning request, long SET until on target.
@@ -67,7 +71,7 @@ from typing import Callable
 from tcs.axes.limits import limit_text
 from tcs.drivers.modbus import PlcConnectionEvent, PlcSnapshot
 from tcs.drivers.plc_axis import AxisState
-from tcs.errors import ErrorNumber, HardwareError, RangeRefused, RequestRefused, TcsError
+from tcs.errors import CommunicationError, ErrorNumber, HardwareError, RangeRefused, RequestRefused, TcsError
 from tcs.model.events import ERROR, INFO, current_cause
 from tcs.model.health import ERROR as ERROR_BIT
 from tcs.model.plc_axis_group import AxisGroup, PlcAxisSettings
@@ -305,8 +309,19 @@ class PlcAxisModule(PlcModule):
         self.stop()
 
     def stop(self) -> None:
-        """Stop the axis (returns at once; CABINET.STOP calls it too)."""
+        """Stop the axis (returns at once; CABINET.STOP calls it too).
+
+        Raises
+        ------
+        CommunicationError
+            The PLC is unreachable: the stop was not delivered (it is written on reconnect).
+        """
         self._halt(TcsError(f"{self.module_name}: stopped", ErrorNumber.TARGETCHANGE))
+        if not self.plc_connected:
+            error = self.link_error() or CommunicationError(self.group.device, "not connected", ErrorNumber.NOCON)
+            text = "STOP not delivered: the PLC is unreachable; stop is written when the link returns"
+            self.emit(ERROR, error.number, text)
+            raise CommunicationError(self.group.device, text, error.number)
 
     def set_run(self, value: int):
         """``TRAJECTORY.RUN`` (dome rotation): 1 long until the path ended or was aborted; 0
@@ -487,6 +502,8 @@ class PlcAxisModule(PlcModule):
             self._settle_demand = False
             self._cancel_timer()
             self.closing = False
+        elif self.interlock is not None:
+            self.interlock.reconnected(self)  # the driver wrote stop at connect: close again if due
         self._update_power()
 
     def _on_poll(self, snap: PlcSnapshot) -> None:

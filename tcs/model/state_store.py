@@ -5,7 +5,9 @@ Writes are atomic: the new document goes to a temporary file in the same directo
 flushed and fsync'ed, then renamed over the old one, so a kill at any moment leaves either
 the old or the new file, never a broken one. A file that cannot be parsed at start is moved
 aside (``name.json.corrupt-<time>``) and reported in the log; the service starts with defaults
-rather than refusing to run.
+rather than refusing to run. A kill at the wrong moment can leave the temporary file
+(``.name.json.<random>``) behind: the store deletes such orphans when it opens (one process
+owns a state directory: a second ``tcs-server`` is refused).
 
 Owners (LOCAL, CABINET.STATUS, …) call :meth:`StateStore.get` at start and
 :meth:`StateStore.update` when a value changes; nothing else touches the files.
@@ -16,6 +18,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import tempfile
 import threading
 import time
@@ -31,7 +34,23 @@ class StateStore:
     def __init__(self, directory: Path, name: str = "state"):
         self.path = Path(directory) / f"{name}.json"
         self._lock = threading.Lock()
+        self._remove_orphans()
         self._data: dict[str, Any] = self._load()
+
+    def _remove_orphans(self) -> None:
+        """Delete temporary files a killed writer left (exactly the names :meth:`_write` makes)."""
+        pattern = re.compile(rf"\.{re.escape(self.path.name)}\.[A-Za-z0-9_]{{6,12}}")
+        try:
+            names = os.listdir(self.path.parent)
+        except OSError:
+            return
+        for name in names:
+            if pattern.fullmatch(name):
+                try:
+                    os.unlink(self.path.parent / name)
+                    log.info("removed %s, left by an interrupted write", self.path.parent / name)
+                except OSError as exc:
+                    log.warning("cannot remove the orphan %s: %s", name, exc)
 
     def _load(self) -> dict[str, Any]:
         try:

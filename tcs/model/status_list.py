@@ -2,7 +2,8 @@
 
 Every :class:`~tcs.model.health.ModuleHealth` reports its conditions to one
 :class:`StatusList` (it is the modules' ``status_sink``: ``sink(device, name, bits, active,
-text)``). Each (device, condition) pair is one entry that keeps
+text)``). Each (device, condition, comment) is one entry — a condition that comes back
+with another cause (text) gets an entry of its own, the older cause stays — that keeps
 
 * ``last`` — wall-clock time (UTC seconds) of the latest occurrence; the served ``Age`` is
   *now − last* in whole seconds, so ages stay right across restarts;
@@ -10,7 +11,9 @@ text)``). Each (device, condition) pair is one entry that keeps
 * ``total`` — occurrences since the entry was created (the last ``CLEAR``), persisted: the
   "since starting the telescope" of the spec read as "since the record began";
 * ``count`` — occurrences since the last acknowledge (``ERROR_STATE=0``, see :meth:`acknowledged`);
-* ``active`` — whether the condition is still present; ``comment`` — the latest text.
+* ``active`` — whether the condition is still present; ``comment`` — its cause (the text).
+
+A report that the condition went away ends every active entry of that (device, condition).
 
 An occurrence is a report with ``active=True`` (ModuleHealth reports a condition only when it
 becomes active, so a condition that stays active is counted once). Entries stay when the
@@ -104,7 +107,7 @@ class StatusList:
             try:
                 entry = StatusEntry(**raw)
                 entry.active = False
-                self._entries[(entry.device, entry.error)] = entry
+                self._entries[(entry.device, entry.error, entry.comment)] = entry
             except (TypeError, ValueError) as exc:
                 log.error("ignoring a saved status entry %r: %s", raw, exc)
 
@@ -127,16 +130,19 @@ class StatusList:
 
     def record(self, device: str, name: str, bits: int, active: bool, text: str = "") -> None:
         """A condition became active (an occurrence) or went away (the entry stays)."""
-        key = (str(device), str(name))
+        device, name = str(device), str(name)
         with self._lock:
-            entry = self._entries.get(key)
             if not active:
-                if entry is None or not entry.active:
+                ended = [e for (d, n, _), e in self._entries.items() if d == device and n == name and e.active]
+                if not ended:
                     return
-                entry.active = False
+                for entry in ended:
+                    entry.active = False
             else:
+                key = (device, name, str(text))
+                entry = self._entries.get(key)
                 if entry is None:
-                    entry = StatusEntry(key[0], key[1], int(bits), self._clock())
+                    entry = StatusEntry(device, name, int(bits), self._clock(), comment=str(text))
                     self._entries[key] = entry
                     self._trim()
                 entry.bits = int(bits)
@@ -144,8 +150,6 @@ class StatusList:
                 entry.total += 1
                 entry.count += 1
                 entry.active = True
-                if text:
-                    entry.comment = str(text)
             self._dirty = True
         self._persist()
 

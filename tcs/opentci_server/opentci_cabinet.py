@@ -9,7 +9,7 @@ documented in ``tcs/model/cabinet.py`` and ``tcs/model/status_list.py``; the COR
 from __future__ import annotations
 
 from tcs.opentci_server.opentci_common import common
-from tcs.opentci_server.tree import FLOAT, INT, NOBODY, STRING, module, module_array, var
+from tcs.opentci_server.tree import CONFIGURE, FLOAT, INT, NOBODY, STRING, module, module_array, var
 
 
 MANUAL_CONTROL = module(
@@ -59,8 +59,8 @@ STATUS = module(
     var("LIST", STRING, get=lambda c: c.status_list.text(),
         info="Age:Error:Status:TotalCount:Count:Active:Device[:comment],… newest first; kept "
              "until CLEAR=-1 and across restarts"),
-    var("CLEAR", INT, set="clear_status", min=-1, max=-1, rlevel=NOBODY,
-        info="write -1 to delete every LIST entry"),
+    var("CLEAR", INT, set="clear_status", min=-1, max=-1, rlevel=NOBODY, wlevel=CONFIGURE,
+        info="write -1 to delete every LIST entry (configuration level: the record is the operators')"),
     info="system status: error memory and log",
 )
 

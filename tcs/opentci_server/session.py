@@ -27,8 +27,22 @@ server shutting down       ``<id> COMMAND FAILED``
 =========================  =============================================================
 
 Errors raised by the domain (:class:`~tcs.errors.TcsError`) become reply text here and only
-here (``DATA ERROR <obj> FAILED n`` / keyword). Output is flow-controlled: a client that stops
-reading is paused, and dropped when its backlog passes a hard limit, so it cannot slow others.
+here (``DATA ERROR <obj> FAILED n`` / keyword).
+
+Fairness and back-pressure (``[server]`` limits, README "Security")
+-------------------------------------------------------------------
+Received bytes wait in an inbox and are parsed a little at a time (:data:`PARSE_CHUNK`) as
+work of their own; parsed lines wait in one queue per connection; the server's
+:class:`~tcs.opentci_server.scheduler.FairScheduler` handles them one at a time, least-served
+connection first, in short slices (``work_slice``, resting ``work_rest`` times as long after a
+full one), so pipelined commands of one client take turns with every other client and leave
+the interpreter to the control loop instead of running in one long burst. Reading from the
+socket pauses while more than :data:`QUEUE_HIGH` lines or :data:`INBOX_HIGH` bytes wait.
+Output: past ``max_output`` unsent bytes the transport calls ``pause_writing`` — the
+connection then neither handles commands nor reads until the client has read its replies;
+a client that stays paused ``output_stall_timeout`` seconds, or whose unsent output passes
+``max_output_hard``, is dropped. Nothing a client does can grow the server's memory or its
+share of the loop without bound.
 """
 
 from __future__ import annotations
@@ -43,6 +57,7 @@ from typing import TYPE_CHECKING
 from tcs.errors import TcsError
 from tcs.model.events import ERROR, LEVEL_BITS, Event, current_cause
 from tcs.opentci_server import messages as m
+from tcs.opentci_server.guard import host_of
 from tcs.opentci_server.protocol import Tpl2Connection
 from tcs.opentci_server.tree import module_of
 from tcs.opentci_server.values import ascii_text
@@ -52,7 +67,9 @@ if TYPE_CHECKING:  # pragma: no cover
 
 log = logging.getLogger(__name__)
 
-MAX_BACKLOG = 8 * 1024 * 1024  # bytes of unsent output before a client is dropped
+QUEUE_HIGH, QUEUE_LOW = 512, 128  # parsed lines waiting: stop reading above, read again below
+INBOX_HIGH = 64 * 1024  # received bytes not parsed yet: stop reading above
+PARSE_CHUNK = 4096  # bytes parsed in one step of scheduled work
 NO_ACCESS = 99
 _SERIALS = itertools.count(1)  # tells a command from a later one that reuses its id
 
@@ -79,6 +96,10 @@ class Session(asyncio.Protocol):
                                     max_line_length=cfg.max_line_length)
         self.transport: asyncio.Transport | None = None
         self.address = ""
+        self.host = ""
+        self.reserved = False  # admitted into the level-0 reserve (see guard.py)
+        self._timer: asyncio.TimerHandle | None = None  # login, then idle time-out
+        self._last_input = time.monotonic()
         self.username = ""
         self.rlevel = self.wlevel = NO_ACCESS
         self.authenticated = False
@@ -94,7 +115,11 @@ class Session(asyncio.Protocol):
         self._auth_task: asyncio.Task | None = None
         self._auth_failures = 0
         self._closed = False
-        self._paused = False
+        self._paused = False              # the transport asked us to stop writing
+        self._reading_paused = False
+        self._inbox = bytearray()  # received, not parsed yet
+        self._eof = False          # the client ended its input (parsed after the inbox)
+        self._stall_timer: asyncio.TimerHandle | None = None
 
     # -- SERVER.CONNECTION.* ---------------------------------------------------------------------
     @property
@@ -112,12 +137,16 @@ class Session(asyncio.Protocol):
         self.transport = transport
         peer = transport.get_extra_info("peername")
         self.address = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer or "")
+        self.host = peer[0] if isinstance(peer, tuple) else host_of(self.address)
         cfg = self.server.settings
-        if not self.server.admit(self):
-            self.send(m.Greeting("2.1", self.id, (), (), "too many connections"))
+        refusal = self.server.admit(self)
+        if refusal is not None:
+            self.send(m.Greeting("2.1", self.id, (), (), refusal))
             transport.close()
             self._closed = True
             return
+        self._arm_timer(cfg.login_timeout)
+        transport.set_write_buffer_limits(high=cfg.max_output)
         implicit = cfg.implicit_auth
         self.send(m.Greeting("2.1", self.id, () if implicit else ("PLAIN",), (), cfg.greeting))
         if implicit:
@@ -125,14 +154,24 @@ class Session(asyncio.Protocol):
             self._login(user.name, user.rlevel, user.wlevel)
 
     def data_received(self, data: bytes) -> None:
-        self._handle_all(self.proto.receive(data))
+        self._last_input = time.monotonic()
+        if self._closed:
+            return
+        self._inbox += data
+        self._pump()
 
     def eof_received(self) -> bool:
-        self._handle_all(self.proto.eof())
-        return False
+        self._eof = True
+        self._pump()
+        return True  # the transport stays open until the queued lines are answered
 
     def connection_lost(self, exc) -> None:
         self._closed = True
+        self._arm_timer(0.0)
+        self._queue.clear()
+        if self._stall_timer is not None:
+            self._stall_timer.cancel()
+        self.server.scheduler.forget(self)
         if self._auth_task is not None:
             self._auth_task.cancel()
         if self.abort_on_disconnect:
@@ -142,14 +181,45 @@ class Session(asyncio.Protocol):
         self.server.forget(self)
 
     def pause_writing(self) -> None:
+        """More than ``max_output`` unsent: stop handling and reading until the client reads."""
         self._paused = True
-        if self.transport is not None:
-            self.transport.pause_reading()
+        self._flow_input()
+        if self._stall_timer is None and not self._closed:
+            self._stall_timer = asyncio.get_running_loop().call_later(
+                self.server.settings.output_stall_timeout, self._stalled)
 
     def resume_writing(self) -> None:
         self._paused = False
-        if self.transport is not None and not self._closed:
-            self.transport.resume_reading()
+        if self._stall_timer is not None:
+            self._stall_timer.cancel()
+            self._stall_timer = None
+        if not self._closed:
+            self._pump()
+
+    def _stalled(self) -> None:
+        self._stall_timer = None
+        if self._paused and not self._closed:
+            self._drop(f"has not read its replies for {self.server.settings.output_stall_timeout:g} s")
+
+    def _drop(self, why: str) -> None:
+        log.warning("connection %d (%s) %s; dropping it", self.id, self.address, why)
+        self._closed = True
+        self._queue.clear()
+        if self.transport is not None:
+            self.transport.abort()
+
+    def _flow_input(self) -> None:
+        """Read from the client only while its backlog (waiting lines, unsent output) is small."""
+        t = self.transport
+        if t is None or self._closed or t.is_closing():
+            return
+        if self._paused or len(self._queue) > QUEUE_HIGH or len(self._inbox) > INBOX_HIGH:
+            if not self._reading_paused:
+                self._reading_paused = True
+                t.pause_reading()
+        elif self._reading_paused and len(self._queue) <= QUEUE_LOW and len(self._inbox) <= INBOX_HIGH:
+            self._reading_paused = False
+            t.resume_reading()
 
     # -- output ----------------------------------------------------------------------------------
     def send(self, msg) -> None:
@@ -160,10 +230,8 @@ class Session(asyncio.Protocol):
         if t is None or self._closed or t.is_closing():
             return
         t.write(data)
-        if self._paused and t.get_write_buffer_size() > MAX_BACKLOG:
-            log.warning("connection %d (%s) does not read its replies; dropping it", self.id, self.address)
-            self._closed = True
-            t.abort()
+        if t.get_write_buffer_size() > self.server.settings.max_output_hard:
+            self._drop(f"has more than {self.server.settings.max_output_hard} bytes of replies unread")
 
     def deliver_event(self, event: Event) -> None:
         """Send ``event`` if this connection is logged in and its mask lets it through."""
@@ -191,18 +259,41 @@ class Session(asyncio.Protocol):
             self.transport.close()
 
     # -- dispatch --------------------------------------------------------------------------------
-    def _handle_all(self, msgs) -> None:
-        for msg in msgs:
-            if self._closed:
-                return
-            if self._auth_task is not None or self._queue:
-                self._queue.append(msg)
-            else:
-                self._handle_safely(msg)
-
     def _drain_queue(self) -> None:
-        while self._queue and self._auth_task is None and not self._closed:
+        self._pump()
+
+    def _pump(self) -> None:
+        """Hand waiting lines to the scheduler (they wait while AUTH is being checked and while
+        output is paused)."""
+        if self._closed:
+            self._queue.clear()
+            return
+        if self.runnable():
+            self.server.scheduler.ready(self)
+        self._flow_input()
+
+    def runnable(self) -> bool:
+        """Input waits and may be handled now (for the scheduler)."""
+        return ((bool(self._queue) or bool(self._inbox) or self._eof) and self._auth_task is None
+                and not self._paused and not self._closed)
+
+    def run_one(self) -> None:
+        """Handle the next waiting line, parsing a little more input first when none is parsed
+        (called by the scheduler)."""
+        if not self._queue:
+            if self._inbox:
+                chunk = bytes(self._inbox[:PARSE_CHUNK])
+                del self._inbox[:PARSE_CHUNK]
+                self._queue.extend(self.proto.receive(chunk))
+            elif self._eof:
+                self._eof = False
+                self._queue.extend(self.proto.eof())
+        if self._queue:
             self._handle_safely(self._queue.popleft())
+        if self._closed:
+            self._queue.clear()
+            self._inbox.clear()
+        self._flow_input()
 
     def _handle_safely(self, msg) -> None:
         """A bug in handling one command must not cost the client its connection."""
@@ -278,19 +369,27 @@ class Session(asyncio.Protocol):
         self._auth_task = asyncio.get_running_loop().create_task(self._verify(msg))
 
     async def _verify(self, msg: m.Auth) -> None:
+        guard = self.server.guard
         try:
-            user = await self.server.authenticate(msg.user, msg.password)
+            locked = guard.locked_out(self.host)
+            user = None if locked else await self.server.authenticate(msg.user, msg.password)
             if user is None:
                 self._auth_failures += 1
                 log.warning("connection %d (%s): failed login as %r", self.id, self.address, msg.user)
+                if not locked and guard.failed(self.host):
+                    log.warning("%s: %d failed logins, locked out for %.0f s", self.host,
+                                self.server.settings.auth_lockout_failures,
+                                self.server.settings.auth_lockout_time)
+                    locked = True
                 await asyncio.sleep(self.server.settings.auth_fail_delay)
                 self.send(m.AuthFailed())
-                if self._auth_failures >= self.server.settings.auth_max_failures:
+                if locked or self._auth_failures >= self.server.settings.auth_max_failures:
                     log.warning("connection %d (%s): %d failed logins, dropping it",
                                 self.id, self.address, self._auth_failures)
                     self._closed = True
                     self.close()
                 return
+            guard.succeeded(self.host)
             rlevel = max(user.rlevel, msg.rlevel if msg.rlevel is not None else 0)
             wlevel = max(user.wlevel, msg.wlevel if msg.wlevel is not None else 0)
             self._login(user.name, rlevel, wlevel)
@@ -299,10 +398,44 @@ class Session(asyncio.Protocol):
             self._drain_queue()
 
     def _login(self, name: str, rlevel: int, wlevel: int) -> None:
+        if self.reserved and wlevel != 0:
+            log.warning("connection %d (%s) in the level-0 reserve logged in as %s (level %d): dropped",
+                        self.id, self.address, name, wlevel)
+            self.send(m.AuthFailed())
+            self._closed = True
+            self.close()
+            return
         self.username, self.rlevel, self.wlevel = name, rlevel, wlevel
+        self._arm_timer(self.server.settings.idle_timeout)
         self.authenticated = True
         self.send(m.AuthOk(rlevel, wlevel))
         log.info("connection %d (%s) logged in as %s (%d %d)", self.id, self.address, name, rlevel, wlevel)
+
+    # -- time-outs -----------------------------------------------------------------------------
+    def _arm_timer(self, seconds: float) -> None:
+        """(Re)start the one time-out of this connection: login before, idle after login."""
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        if seconds > 0 and not self._closed:
+            self._timer = asyncio.get_running_loop().call_later(seconds, self._time_out)
+
+    def _time_out(self) -> None:
+        self._timer = None
+        if self._closed:
+            return
+        cfg = self.server.settings
+        if not self.authenticated:
+            log.info("connection %d (%s): no login within %.1f s, closing it", self.id, self.address,
+                     cfg.login_timeout)
+        else:
+            quiet = time.monotonic() - self._last_input
+            if self.commands or quiet < cfg.idle_timeout:  # busy, or spoke since the timer began
+                self._arm_timer(max(0.05, cfg.idle_timeout - quiet))
+                return
+            log.info("connection %d (%s): idle for %.0f s, closing it", self.id, self.address, quiet)
+        self._closed = True
+        self.close()
 
     # -- GET -----------------------------------------------------------------------------------
     def _get(self, msg: m.Get) -> None:

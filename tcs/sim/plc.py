@@ -19,6 +19,13 @@ on every request, and those first bring every model to the clock's *now*. Physic
 therefore a function of the injectable ``clock`` — a test that advances a manual clock sees
 the dome arrive without waiting.
 
+Watchdog: like a real PLC program, the simulated PLC stops every axis when the map's
+``watchdog`` point (``tcs_watchdog``, a counter the TCS increments at every poll) has not
+changed for ``[plcs.<name>.sim] watchdog_timeout`` seconds, once it was written at all. That
+time is wall-clock time (``wall_clock``), not the physics clock: the watchdog watches the link
+to the TCS, which lives in real time, and tests that jump the physics clock forward must not
+trip it.
+
 Fault injection: ``set_responding(False)`` (the PLC stops answering), ``drop_connections()``,
 ``await power_off()`` / ``await power_on()`` (nothing listens, then the PLC is back on the
 same port), ``axis(X).inject_stall(...)`` (via :meth:`stall`), ``force(point, value)``
@@ -29,16 +36,20 @@ Only tests, benchmarks and the simulator process touch this; the TCS sees a Modb
 
 from __future__ import annotations
 
+import asyncio
+import logging
 import time
 from collections.abc import Callable
 from urllib.parse import urlparse
 
-from tcs.config.plc import PlcSection, RegisterPoint
+from tcs.config.plc import AXIS_STOP, PlcSection, RegisterPoint
 from tcs.sim import covers, enclosure
 from tcs.sim.modbus_server import ModbusServer
 from tcs.sim.plc_axis import GENERIC, AxisParams, SimPlcAxis
 from tcs.sim.switches import SimSwitch
 from tcs.sim.weather import SimSensor
+
+log = logging.getLogger(__name__)
 
 ILLEGAL_ADDRESS = 2
 PRESETS: dict[str, AxisParams] = {"generic": GENERIC, **enclosure.PRESETS, **covers.PRESETS}
@@ -61,10 +72,16 @@ class SimPlc:
     """
 
     def __init__(self, name: str, section: PlcSection, *, clock: Callable[[], float] = time.monotonic,
-                 host: str = "127.0.0.1", port: int | None = None):
+                 host: str = "127.0.0.1", port: int | None = None,
+                 wall_clock: Callable[[], float] = time.monotonic):
         self.name = name
         self.section = section
         self.clock = clock
+        self.wall_clock = wall_clock
+        self.watchdog_trips = 0
+        self._wd_value = None
+        self._wd_changed: float | None = None  # wall time of the watchdog's last change
+        self._wd_task: asyncio.Task | None = None
         self.points: dict[str, RegisterPoint] = dict(section.map)
         framer = "socket"
         default_port = section.port
@@ -119,9 +136,33 @@ class SimPlc:
     async def start(self) -> None:
         """Start serving (again, after :meth:`power_off`, on the same port)."""
         await self.server.start()
+        timeout = self.section.sim.watchdog_timeout if self.section.sim is not None else 0.0
+        if self._wd_task is None and timeout > 0 and self.section.watchdog in self.points and self.axes:
+            self._wd_task = asyncio.get_running_loop().create_task(self._watch(timeout),
+                                                                   name=f"sim plc {self.name} watchdog")
 
     async def stop(self) -> None:
+        task, self._wd_task = self._wd_task, None
+        if task is not None:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
         await self.server.stop()
+
+    async def _watch(self, timeout: float) -> None:
+        """The PLC program's watchdog: runs from start to stop, power cuts of the server aside."""
+        while True:
+            await asyncio.sleep(min(0.05, timeout / 4))
+            changed = self._wd_changed
+            if changed is not None and self.wall_clock() - changed > timeout:
+                self._wd_changed = None  # tripped: armed again by the next change
+                self.watchdog_trips += 1
+                now = self.clock()
+                self._refresh(now)
+                for name, axis in self.axes.items():
+                    axis.write(f"{name}_command", AXIS_STOP, now)
+                self._refresh(now)
+                log.warning("simulated PLC %s: watchdog %s silent for %.1f s: axes stopped",
+                            self.name, self.section.watchdog, timeout)
 
     async def __aenter__(self) -> SimPlc:
         await self.start()
@@ -217,6 +258,11 @@ class SimPlc:
                 return ILLEGAL_ADDRESS  # half of a 32-bit value, or a read-only point
         for p in touched:
             raw = values[p.address - address:p.end - address]
+            if p.name == self.section.watchdog:
+                value = p.decode(raw)
+                if value != self._wd_value:
+                    self._wd_value = value
+                    self._wd_changed = self.wall_clock()
             model = self._owner.get(p.name)
             if model is not None:
                 code = model.write(p.name, p.decode(raw), now)
