@@ -58,6 +58,7 @@ def test_server_drives_the_simulator_in_another_process(tmp_path):
     sim = subprocess.Popen([sys.executable, "-m", "tcs.cli.sim", "--config", str(hwfile)], env=env,
                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     server = None
+    others: list[subprocess.Popen] = []
     try:
         line = ""
         deadline = time.monotonic() + 60
@@ -92,6 +93,13 @@ def test_server_drives_the_simulator_in_another_process(tmp_path):
         start = float(command(f, s, 8, "GET AZ.REALPOS")[1].split(b"=")[1])
         target = start + 30.0
         s.sendall(f"9 SET AZ.TARGETPOS={target}\n".encode())
+        # Started by mistake during the slew, on the same bus: a second tcs-server with its own
+        # TPL2 port hears the first one's SYNC and exits before sending a frame; one on the
+        # same port exits before opening the bus at all. The slew goes on undisturbed.
+        for port in (free_port(), tpl2_port):
+            others.append(subprocess.Popen(
+                [sys.executable, "-m", "tcs.cli.server", "--config", str(hwfile), "--port",
+                 str(port)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
         fastest, replies, n = 0.0, [], 10
         deadline = time.monotonic() + 120
         while not (replies and replies[-1].startswith(b"9 COMMAND COMPLETE")):
@@ -111,12 +119,18 @@ def test_server_drives_the_simulator_in_another_process(tmp_path):
         assert fastest >= 0.99 * speed, (fastest, speed)
         real = float(command(f, s, 8, "GET AZ.REALPOS")[1].split(b"=")[1])
         assert abs(real - target) < 0.01
+        (_, err_bus), (_, err_port) = (other.communicate(timeout=60) for other in others)
+        assert [other.returncode for other in others] == [1, 1], (err_bus, err_port)
+        assert "refusing to start" in err_bus and "another master is active (SYNC" in err_bus, err_bus
+        assert "address already in use" in err_port.lower(), err_port
+        assert "booted" not in err_bus + err_port  # never got as far as the drives
+        assert command(f, s, 8, "GET AZ.ERROR_STATE")[1].endswith(b"=0")
         s.close()
         f.close()
         server.send_signal(signal.SIGTERM)
         assert server.wait(60) == 0
     finally:
-        for proc in (server, sim):
+        for proc in (*others, server, sim):
             if proc is not None:
                 if proc.poll() is None:
                     proc.send_signal(signal.SIGTERM)

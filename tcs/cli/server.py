@@ -4,6 +4,9 @@ No arguments: the simulated telescope of ``hwconfig/sim.toml`` on 127.0.0.1:6543
 ``--config FILE`` runs whatever the file describes; ``--host``/``--port`` override the file.
 Logs go to stderr as ``LEVEL name: message`` (journald adds the time). A bad hardware file is
 reported key by key and the exit status is 2. SIGINT and SIGTERM stop cleanly (status 0).
+Exit status 1, with one line saying why and before any frame is sent on the CAN bus: the TPL2
+port is taken, or another master (SYNC, or a heartbeat with our node id) is heard on a shared
+CAN bus (socketcan, socketcand) — e.g. the service is already running.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import signal
 import sys
 
 from tcs.config import DEFAULT_CONFIG, load_config
+from tcs.drivers.bus_check import AnotherMaster
 from tcs.errors import ConfigErrors
 
 
@@ -49,7 +53,8 @@ def main(argv=None) -> int:
 
 def run_until_signalled(prog: str, main_coro) -> int:
     """Run ``main_coro(stop_event)`` with SIGINT/SIGTERM setting the event; exit status 0, or 1
-    with a one-line message when the operating system refuses (port in use …)."""
+    with a one-line message when the operating system refuses (port in use …) or another
+    master already runs the CAN bus (:class:`~tcs.drivers.bus_check.AnotherMaster`)."""
 
     async def run() -> None:
         stop = asyncio.Event()
@@ -62,6 +67,9 @@ def run_until_signalled(prog: str, main_coro) -> int:
         asyncio.run(run())
     except OSError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
+        return 1
+    except AnotherMaster as exc:
+        print(f"{prog}: refusing to start: {exc.message}", file=sys.stderr)
         return 1
     return 0
 

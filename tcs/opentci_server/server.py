@@ -71,14 +71,23 @@ class Tpl2Server:
         return time.monotonic() - self._start_mono
 
     # -- lifecycle ---------------------------------------------------------------------------
-    async def start(self, host: str | None = None, port: int | None = None) -> int:
-        """Listen; returns the port actually bound (useful with port 0)."""
+    async def start(self, host: str | None = None, port: int | None = None, *,
+                    serve: bool = True) -> int:
+        """Listen; returns the port actually bound (useful with port 0).
+
+        ``serve=False`` only binds (the port is taken, connections wait in the backlog);
+        a later ``start()`` starts accepting them.
+        """
         loop = asyncio.get_running_loop()
-        self._server = await loop.create_server(
-            self._new_session, host or self.settings.host,
-            self.settings.port if port is None else port, reuse_address=True)
+        if self._server is None:
+            self._server = await loop.create_server(
+                self._new_session, host or self.settings.host,
+                self.settings.port if port is None else port, reuse_address=True,
+                start_serving=False)
         bound = self._server.sockets[0].getsockname()[1]
-        log.info("TPL2 server listening on %s:%d", host or self.settings.host, bound)
+        if serve:
+            await self._server.start_serving()
+            log.info("TPL2 server listening on %s:%d", host or self.settings.host, bound)
         return bound
 
     @property
