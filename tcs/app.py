@@ -42,8 +42,8 @@ class Service:
         self.telescope = Telescope(self.config)
         self.server = Tpl2Server(self.config.server, self.config.users, self.telescope.events,
                                  manufacturer=self.config.cabinet.manufacturer)
-        await self.server.start(self.host, self.port, serve=False)
         try:
+            await self.server.start(self.host, self.port, serve=False)
             await self.telescope.start()
         except BaseException:
             await self.server.stop()
