@@ -48,6 +48,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import can  # noqa: E402
 import canopen  # noqa: E402
 
+from tcs.app import freeze_heap, thaw_heap  # noqa: E402
 from tcs.config.can import CanSection, DriveSection, HomingSection, IdentitySection  # noqa: E402
 from tcs.drivers.can_system import CanDrives  # noqa: E402
 from tcs.drivers.drive import DriveState  # noqa: E402
@@ -180,6 +181,7 @@ def serve_sim(drives: int) -> int:
             SimDriveNetwork, {"interface": "virtual", "channel": channel},
             {i + 1: SimDriveParams(increments_per_unit=SCALE) for i in range(drives)})
         frames: dict[int, int] = {}
+        freeze_heap()  # as tcs-sim does once it is up
         print(f"PORT {port}", flush=True)
         try:
             while True:
@@ -197,6 +199,7 @@ def serve_sim(drives: int) -> int:
                     missed = sum(network[n].rpdo_missed for n in network)
                     print(json.dumps({"missed": missed, "frames": frames}), flush=True)
         finally:
+            thaw_heap()
             await asyncio.to_thread(network.stop)
             await server.stop()
             tap.shutdown()
@@ -241,6 +244,7 @@ def run(period: float, drives: int, seconds: float, bus: str = "virtual") -> dic
             if time.monotonic() > deadline:
                 raise SystemExit("drives did not enable: " + str({d.name: d.status().state for d in system.drives.values()}))
             time.sleep(0.01)
+        freeze_heap()  # as tcs-server does once it serves
         # Discard the set-up phase: counters and lateness from here on.
         sim.mark()
         missed0 = sim.missed()
@@ -264,6 +268,7 @@ def run(period: float, drives: int, seconds: float, bus: str = "virtual") -> dic
         callback = list(system.cycle.callback_time)
         thread_cpu = (state["thread_cpu"] - state["thread_cpu0"]) if state["thread_cpu"] else float("nan")
     finally:
+        thaw_heap()
         system.close()
         sim.stop()
 
