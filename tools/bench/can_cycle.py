@@ -22,8 +22,8 @@ Figures per period:
 ``--bus socketcand`` runs the simulated drives in a second process (this script with
 ``--serve-sim``: a :class:`~tcs.sim.socketcand_server.SocketcandServer` bridging their virtual
 bus, as ``tcs-sim`` does) and connects the TCS to it with python-can's socketcand client, as
-``tcs-server --config hwconfig/sim-remote.toml`` does; the bus-load tap and the missed-setpoint
-counters then live in that process. The CPU share is this process's only.
+``tcs-server --config hwconfig/sim-remote.toml`` does; the frames (counted by the server as
+they pass) and the missed-setpoint counters then live in that process. The CPU share is this process's only.
 
 Run: ``python3 tools/bench/can_cycle.py [--bus virtual|socketcand] [--drives 6] [--seconds 10]
 [--periods 0.01 0.004]``. The last line of output is one JSON object with every figure. Goal:
@@ -166,6 +166,28 @@ class RemoteSims:
         self.proc.stdout.close()
 
 
+class CountingServer(SocketcandServer):
+    """The socketcand server, counting every frame of the bus by length as it passes: the
+    drives' frames on their way out, the master's on their way in (no tap, no queue)."""
+
+    def __init__(self, channel: str):
+        super().__init__(channel)
+        self.frames: dict[int, int] = {}
+
+    def _count(self, msg: can.Message) -> None:
+        n = len(msg.data)
+        self.frames[n] = self.frames.get(n, 0) + 1
+
+    def _on_bus_frame(self, msg: can.Message) -> None:  # notifier thread
+        if not msg.is_error_frame:
+            self._count(msg)
+        super()._on_bus_frame(msg)
+
+    def from_client(self, client, msg: can.Message) -> None:
+        self._count(msg)
+        super().from_client(client, msg)
+
+
 def serve_sim(drives: int) -> int:
     """``--serve-sim``: simulated drives behind a socketcand server; commands on stdin.
 
@@ -174,13 +196,11 @@ def serve_sim(drives: int) -> int:
     """
     async def main() -> None:
         channel = f"bench-{uuid.uuid4().hex[:8]}"
-        server = SocketcandServer(channel)
+        server = CountingServer(channel)
         port = await server.start()
-        tap = can.Bus(interface="virtual", channel=channel)
         network = await asyncio.to_thread(
             SimDriveNetwork, {"interface": "virtual", "channel": channel},
             {i + 1: SimDriveParams(increments_per_unit=SCALE) for i in range(drives)})
-        frames: dict[int, int] = {}
         freeze_heap()  # as tcs-sim does once it is up
         print(f"PORT {port}", flush=True)
         try:
@@ -188,21 +208,16 @@ def serve_sim(drives: int) -> int:
                 line = (await asyncio.to_thread(sys.stdin.readline)).strip()
                 if not line:
                     break
-                msg = tap.recv(0)
-                while msg is not None:
-                    frames[len(msg.data)] = frames.get(len(msg.data), 0) + 1
-                    msg = tap.recv(0)
                 if line == "mark":
-                    frames = {}
+                    server.frames = {}
                     print("{}", flush=True)
                 elif line == "count":
                     missed = sum(network[n].rpdo_missed for n in network)
-                    print(json.dumps({"missed": missed, "frames": frames}), flush=True)
+                    print(json.dumps({"missed": missed, "frames": dict(server.frames)}), flush=True)
         finally:
             thaw_heap()
             await asyncio.to_thread(network.stop)
             await server.stop()
-            tap.shutdown()
 
     asyncio.run(main())
     return 0
