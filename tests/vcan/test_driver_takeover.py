@@ -29,6 +29,10 @@ def test_restart_during_a_move_quick_stops_before_reconfiguring(can_channel, opt
         sim = rig.sims["az"]
         with sim.lock:
             sim.store.set(0x605A, 0, option)
+            # a drive that does not watch SYNC (0x1006 = 0) and takes no action when the
+            # master's messages stop (0x6007 = 0): its profile move outlives the master
+            sim.store.set(0x1006, 0, 0)
+            sim.store.set(0x6007, 0, 0)
         rig.enable("az")
         rig.drive("az").move_to(90.0)
         rig.wait(lambda: sim.velocity >= 2.9, what="az at speed")
