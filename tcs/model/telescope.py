@@ -141,7 +141,7 @@ class Telescope:
         if busy:
             await self.run_blocking(can.close)
             raise AnotherMaster(can.bus.name, f"another master is active ({busy}): is "
-                                "tcs-server already running (systemctl status tcs)? Nothing "
+                                "tcs-server already running (systemctl status tcs-server)? Nothing "
                                 "was sent on the bus")
         self.can = can
 
