@@ -208,7 +208,7 @@ class Axis(ModuleHealth):
         self._want_power: bool | None = None
         self._power_since = 0.0
         self._homing = False
-        self._homing_started = False  # the drive showed this run in progress (not the last one's end)
+        self._homing_started = False  # the drive showed this run in progress (not the last end)
         self._homing_since = 0.0
         self._reference_cause = None  # the REINIT that started homing (events 19/20 name it)
         self._sp = Setpoint(0.0)

@@ -88,7 +88,8 @@ def stop_if_powered(sdo, section: DriveSection, clock=time.monotonic) -> str | N
     except HardwareError:
         return None  # it does not answer SDO: the boot's next step fails and names why
     if state is S.FAULT_REACTION_ACTIVE:
-        deadline = clock() + STOP_MARGIN + section.max_velocity / max(section.max_acceleration, 1e-9)
+        stopping = section.max_velocity / max(section.max_acceleration, 1e-9)
+        deadline = clock() + STOP_MARGIN + stopping
         while state is S.FAULT_REACTION_ACTIVE and clock() < deadline:
             time.sleep(POLL)
             state, sw = _read_state(sdo)

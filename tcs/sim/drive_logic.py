@@ -121,7 +121,8 @@ class DriveLogic:
         self.state = S.SWITCH_ON_DISABLED  # transitions 0 and 1 happen at boot
         self.zero = 0.0
         #: methods 35/37: the physical place that reads the home offset (an absolute encoder)
-        self.absolute_home = params.position if params.absolute_home is None else params.absolute_home
+        self.absolute_home = (params.position if params.absolute_home is None
+                              else params.absolute_home)
         self.controlword = 0
         self.mode = MODE_NONE
         self.mode_request = MODE_NONE

@@ -23,7 +23,8 @@ Figures per period:
 ``--serve-sim``: a :class:`~tcs.sim.socketcand_server.SocketcandServer` bridging their virtual
 bus, as ``tcs-sim`` does) and connects the TCS to it with python-can's socketcand client, as
 ``tcs-server --config hwconfig/sim-remote.toml`` does; the frames (counted by the server as
-they pass) and the missed-setpoint counters then live in that process. The CPU share is this process's only.
+they pass) and the missed-setpoint counters then live in that process, and the CPU share is
+this process's only. Both processes freeze their heap once up, as the services do.
 
 Run: ``python3 tools/bench/can_cycle.py [--bus virtual|socketcand] [--drives 6] [--seconds 10]
 [--periods 0.01 0.004]``. The last line of output is one JSON object with every figure. Goal:
