@@ -51,6 +51,11 @@ def test_server_drives_the_simulator_in_another_process(tmp_path):
         plc["port"] = free_port()
     if "gps" in doc:
         doc["gps"]["url"] = f"socket://127.0.0.1:{free_port()}"
+    # Drive heartbeats every 1 s (lost after 1.5 s): starting two more servers during the slew
+    # loads this 2-core machine, and the test is not about lost heartbeats.
+    for drive in doc["drives"].values():
+        drive["heartbeat_period"] = 1.0
+        drive["heartbeat_consumer_timeout"] = 5.0
     hwfile = tmp_path / "remote.toml"
     hwfile.write_text(tomlkit.dumps(doc))
     (tmp_path / "eds").symlink_to(PACKAGE_ROOT / "hwconfig" / "eds")
