@@ -108,9 +108,7 @@ class CycleSource:
         self.bus = bus
         self.period = float(period)
         self.kernel_sync = bus.kernel_periodic if kernel_sync is None else kernel_sync
-        if tpdo_deadline is None:
-            tpdo_deadline = 0.5 if self.kernel_sync else 0.8
-        self.tpdo_deadline = float(tpdo_deadline)
+        self._tpdo_deadline = None if tpdo_deadline is None else float(tpdo_deadline)
         self._clock = clock
         self._callbacks: list[Callable[[Cycle], None]] = []
         self._lock = threading.Lock()
@@ -130,6 +128,18 @@ class CycleSource:
         self.realtime_priority = int(realtime_priority)
         self.realtime = False  # the runner got its real-time priority
         self.max_lateness = 0.0  # worst lateness since start, s
+
+    @property
+    def tpdo_deadline(self) -> float:
+        """The TPDO wait as a fraction of the period (the default follows ``kernel_sync``,
+        which may still be changed before :meth:`start`)."""
+        if self._tpdo_deadline is not None:
+            return self._tpdo_deadline
+        return 0.5 if self.kernel_sync else 0.8
+
+    @tpdo_deadline.setter
+    def tpdo_deadline(self, value: float | None) -> None:
+        self._tpdo_deadline = None if value is None else float(value)
 
     # ---------------------------------------------------------------- set-up
     def add_callback(self, callback: Callable[[Cycle], None]) -> None:
