@@ -599,17 +599,17 @@ class Axis(ModuleHealth):
         if self._homing and not self._homing_started:
             if st.homing is Progress.RUNNING:
                 self._homing_started = True
-            elif now - self._homing_since <= HOMING_START_TIMEOUT:
-                self.referenced = 0.0
-                return
-            elif st.homing is not Progress.FAILED:  # (a FAILED now is the drive's refusal)
-                self._homing = False
-                self.referenced = 0.0
-                error = TcsError(f"{self.module_name}: homing did not start", ErrorNumber.TIMEOUT)
-                self._resolve("reference", error)
-                self.emit(ERROR, ErrorNumber.REFERENCE_BAD, error.message, self._reference_cause)
-                return
-        if self._homing:
+            elif now - self._homing_since > HOMING_START_TIMEOUT:
+                if st.homing is Progress.FAILED:  # the drive refused it: reported below
+                    self._homing_started = True
+                else:
+                    self._homing = False
+                    error = TcsError(f"{self.module_name}: homing did not start", ErrorNumber.TIMEOUT)
+                    self._resolve("reference", error)
+                    self.emit(ERROR, ErrorNumber.REFERENCE_BAD, error.message, self._reference_cause)
+        if self._homing and not self._homing_started:
+            self.referenced = 0.0
+        elif self._homing:
             if st.homing is Progress.DONE:
                 self._homing = False
                 self.referenced = 1.0
