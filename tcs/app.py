@@ -33,11 +33,21 @@ class Service:
         self.server: Tpl2Server | None = None
 
     async def start(self) -> int:
-        """Start everything; returns the TPL2 port."""
+        """Start everything; returns the TPL2 port.
+
+        Order: bind the TPL2 port (a port in use ends the start here, before the hardware is
+        touched), start the telescope (which refuses a CAN bus that already has a master
+        before sending anything on it), build the tree, then accept connections.
+        """
         self.telescope = Telescope(self.config)
-        await self.telescope.start()
         self.server = Tpl2Server(self.config.server, self.config.users, self.telescope.events,
                                  manufacturer=self.config.cabinet.manufacturer)
+        try:
+            await self.server.start(self.host, self.port, serve=False)
+            await self.telescope.start()
+        except BaseException:
+            await self.server.stop()
+            raise
         self.server.tree = build_tree(self.telescope, self.server)
         try:
             return await self.server.start(self.host, self.port)

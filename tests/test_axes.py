@@ -752,3 +752,51 @@ async def test_run_during_a_move(live):
         await c.wait("DEROTATOR[2].REALPOS", lambda v: abs(v - target) <= 0.001)
     finally:
         await c.close()
+
+
+@pytest.mark.parametrize("ax", ["AZ", "ZD"])
+async def test_reinit_of_a_referenced_axis_tells_the_truth(live, ax):
+    """REINIT=1 on a referenced axis that stands elsewhere than where it was referenced:
+    REFERENCED drops below 1 at once and climbs back, events 18 then 19 (never together
+    before the homing ran), a TARGETPOS meanwhile is refused, no fault, and the zero did not
+    move — the same physical place reads the same position within the encoder resolution.
+    AZ searches its home switch (method 19); ZD homes "where it stands" (method 37, an
+    absolute encoder), which must not shift its zero either."""
+    c = await connect(live["port"])
+    sim = live["svc"].telescope.sims[NODE[ax]]
+    resolution = 1 / 10000.0
+    try:
+        await ready(c, ax)
+        shift = sim.physical_position - await c.num(f"{ax}.REALPOS")
+        # AZ: 3 units above its home switch (a search of a few seconds); ZD: 0.5 away
+        target = (sim.params.home_switch + 3.0 - shift if ax == "AZ"
+                  else await c.num(f"{ax}.REALPOS") + 0.5)
+        await move(c, ax, target)
+        before = sim.physical_position - await c.num(f"{ax}.REALPOS")
+        assert abs(before - shift) <= 2 * resolution
+        c.forget()
+        assert (await c.set(f"{ax}.REINIT=1"))[-2:][0].endswith(f"DATA OK {ax}.REINIT")
+        values = [await c.num(f"{ax}.REFERENCED")]
+        assert values[0] < 1.0, "REFERENCED still 1.0 right after REINIT"
+        if ax == "AZ":  # a positioning request while homing runs is refused
+            lines = await c.set(f"{ax}.TARGETPOS={target + 1}")
+            assert re.fullmatch(rf"\d+ DATA ERROR {ax}.TARGETPOS FAILED 5", lines[-2]), lines
+        deadline = time.monotonic() + WAIT
+        while values[-1] < 1.0:
+            assert time.monotonic() < deadline, values
+            await asyncio.sleep(0.02)
+            values.append(await c.num(f"{ax}.REFERENCED"))
+        assert values == sorted(values), f"REFERENCED went back: {values}"
+        await c.wait(f"{ax}.MOTION_STATE", lambda v: not int(v) & MOVING)
+        assert await c.num(f"{ax}.ERROR_STATE") == 0
+        after = sim.physical_position - await c.num(f"{ax}.REALPOS")
+        assert abs(after - before) <= 1.5 * resolution, (before, after)
+        events = [line for line in c.lines if re.search(rf"EVENT \w+ {re.escape(ax)}:", line)]
+        numbers = [int(re.search(rf"{re.escape(ax)}:(\d+)", e).group(1)) for e in events]
+        assert [n for n in numbers if n in (18, 19)] == [18, 19], events
+        assert not [e for e in events if " EVENT ERROR " in e], events
+        # and it works: a move after re-referencing
+        await move(c, ax, target)
+        assert abs(sim.physical_position - shift - target) <= 2 * resolution
+    finally:
+        await c.close()

@@ -51,6 +51,11 @@ def test_server_drives_the_simulator_in_another_process(tmp_path):
         plc["port"] = free_port()
     if "gps" in doc:
         doc["gps"]["url"] = f"socket://127.0.0.1:{free_port()}"
+    # Drive heartbeats every 1 s (lost after 1.5 s): starting two more servers during the slew
+    # loads this 2-core machine, and the test is not about lost heartbeats.
+    for drive in doc["drives"].values():
+        drive["heartbeat_period"] = 1.0
+        drive["heartbeat_consumer_timeout"] = 5.0
     hwfile = tmp_path / "remote.toml"
     hwfile.write_text(tomlkit.dumps(doc))
     (tmp_path / "eds").symlink_to(PACKAGE_ROOT / "hwconfig" / "eds")
@@ -58,6 +63,7 @@ def test_server_drives_the_simulator_in_another_process(tmp_path):
     sim = subprocess.Popen([sys.executable, "-m", "tcs.cli.sim", "--config", str(hwfile)], env=env,
                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     server = None
+    others: list[subprocess.Popen] = []
     try:
         line = ""
         deadline = time.monotonic() + 60
@@ -73,22 +79,63 @@ def test_server_drives_the_simulator_in_another_process(tmp_path):
         s.sendall(b'AUTH PLAIN "admin" "admin"\n')
         assert f.readline() == b"AUTH OK 0 0\n"
         assert command(f, s, 1, "SET CABINET.POWER=1")[-2:] == [b"1 DATA OK CABINET.POWER", b"1 COMMAND COMPLETE"]
-        assert command(f, s, 2, "SET ZD.REINIT=1")[-1] == b"2 COMMAND COMPLETE"
-        for _ in range(200):
-            if command(f, s, 3, "GET ZD.REFERENCED")[1].endswith(b"=1.0"):
-                break
-            time.sleep(0.05)
+        for axis in ("ZD", "AZ"):
+            assert command(f, s, 2, f"SET {axis}.REINIT=1")[-1] == b"2 COMMAND COMPLETE"
+        for axis in ("ZD", "AZ"):
+            deadline = time.monotonic() + 60
+            while not command(f, s, 3, f"GET {axis}.REFERENCED")[1].endswith(b"=1.0"):
+                assert time.monotonic() < deadline, f"{axis} not referenced"
+                time.sleep(0.05)
         start = float(command(f, s, 4, "GET ZD.REALPOS")[1].split(b"=")[1])
         assert command(f, s, 5, f"SET ZD.TARGETPOS={start + 0.5}")[-2:] == [
             b"5 DATA OK ZD.TARGETPOS", b"5 COMMAND COMPLETE"]
         real = float(command(f, s, 6, "GET ZD.REALPOS")[1].split(b"=")[1])
         assert abs(real - (start + 0.5)) < 0.01
+
+        # AZ slews at its configured speed ([axes.az] max_velocity): over socketcand the TPDOs
+        # of every cycle arrive in time, so the drive follows without a following error.
+        speed = float(doc["axes"]["az"]["max_velocity"])
+        start = float(command(f, s, 8, "GET AZ.REALPOS")[1].split(b"=")[1])
+        target = start + 30.0
+        s.sendall(f"9 SET AZ.TARGETPOS={target}\n".encode())
+        # Started by mistake during the slew, on the same bus: a second tcs-server with its own
+        # TPL2 port hears the first one's SYNC and exits before sending a frame; one on the
+        # same port exits before opening the bus at all. The slew goes on undisturbed.
+        for port in (free_port(), tpl2_port):
+            others.append(subprocess.Popen(
+                [sys.executable, "-m", "tcs.cli.server", "--config", str(hwfile), "--port",
+                 str(port)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
+        fastest, replies, n = 0.0, [], 10
+        deadline = time.monotonic() + 120
+        while not (replies and replies[-1].startswith(b"9 COMMAND COMPLETE")):
+            assert time.monotonic() < deadline, replies
+            s.sendall(f"{n} GET AZ.CURRSPEED\n".encode())
+            while True:
+                line = f.readline().strip()
+                if line.startswith(b"9 "):
+                    replies.append(line)
+                elif line.startswith(f"{n} DATA INLINE".encode()):
+                    fastest = max(fastest, abs(float(line.split(b"=")[1])))
+                elif line.startswith(f"{n} COMMAND COMPLETE".encode()):
+                    break
+            n += 1
+            time.sleep(0.05)
+        assert b"9 DATA OK AZ.TARGETPOS" in replies, replies
+        assert fastest >= 0.99 * speed, (fastest, speed)
+        real = float(command(f, s, 8, "GET AZ.REALPOS")[1].split(b"=")[1])
+        assert abs(real - target) < 0.01
+        (_, err_bus), (_, err_port) = (other.communicate(timeout=60) for other in others)
+        assert [other.returncode for other in others] == [1, 1], (err_bus, err_port)
+        assert "refusing to start" in err_bus and "another master is active (SYNC" in err_bus, err_bus
+        assert "address already in use" in err_port.lower(), err_port
+        assert "booted" not in err_bus + err_port  # never got as far as the drives
+        assert command(f, s, 8, "GET AZ.ERROR_STATE")[1].endswith(b"=0")
         s.close()
         f.close()
         server.send_signal(signal.SIGTERM)
         assert server.wait(60) == 0
     finally:
-        for proc in (server, sim):
+        for proc in (*others, server, sim):
             if proc is not None:
                 if proc.poll() is None:
                     proc.send_signal(signal.SIGTERM)

@@ -57,6 +57,7 @@ HW_MIN, HW_MAX, HW_BLOCKING, SW_MIN, SW_MAX, SW_BLOCKING = 1, 2, 128, 256, 512, 
 
 MEASURED_MOVING_CYCLES = 3  # cycles above standstill before a measured motion sets MOVING
 POWER_TIMEOUT = 10.0  # s for a drive to reach Operation enabled / disabled
+HOMING_START_TIMEOUT = 2.0  # s for the drive to show the requested homing run in progress
 
 REFERENCE_ORDER = {"ZD": 0, "DEC": 0, "AZ": 1, "HA": 1}
 
@@ -209,6 +210,8 @@ class Axis(ModuleHealth):
         self._want_power: bool | None = None
         self._power_since = 0.0
         self._homing = False
+        self._homing_started = False  # the drive showed this run in progress (not the last end)
+        self._homing_since = 0.0
         self._reference_cause = None  # the REINIT that started homing (events 19/20 name it)
         self._sp = Setpoint(0.0)
         self._running = False  # follower in charge (also while it brakes after an abort)
@@ -259,8 +262,8 @@ class Axis(ModuleHealth):
         if powered and self.power_state != 1.0:
             raise TcsError(f"{self.module_name}: cannot {what}: power is off", ErrorNumber.INVMODE)
         if referenced and self.referenced < 1.0:
-            raise TcsError(f"{self.module_name}: cannot {what}: not referenced (REINIT first)",
-                           ErrorNumber.INVMODE)
+            why = "referencing in progress" if self._homing else "not referenced (REINIT first)"
+            raise TcsError(f"{self.module_name}: cannot {what}: {why}", ErrorNumber.INVMODE)
 
     def set_power(self, value: int):
         """``POWER`` (long-running)."""
@@ -337,6 +340,10 @@ class Axis(ModuleHealth):
         if self.referenced >= 1.0 and not force:
             future.set_result(None)
         else:
+            if self.motion_state & 1 and not self._homing:
+                raise TcsError(f"{self.module_name}: cannot reference while moving (STOP first)",
+                               ErrorNumber.INVMODE)
+            self.referenced = 0.0  # from now on, until the new run has ended (read at once)
             self._send("reference", force, future)
         if not wait:
             future.add_done_callback(lambda f: f.cancelled() or f.exception())
@@ -488,6 +495,8 @@ class Axis(ModuleHealth):
             if self._homing:
                 return
             self._homing = True
+            self._homing_started = False
+            self._homing_since = now
             self._reference_cause = cause
             self.referenced = 0.0
             self.drive.start_homing()
@@ -587,8 +596,22 @@ class Axis(ModuleHealth):
             self._powered = False  # dropped out (e.g. limit switch quick stop)
             self._stop_motion(TcsError(f"{self.module_name}: drive left operation enabled", ErrorNumber.LIMIT))
             self.emit(ERROR, ErrorNumber.POWERCHANGE, f"drive {st.state.value}")
-        # homing
-        if self._homing:
+        # homing: the status shows the drive's previous run (done, long ago) until the drive
+        # took this request; only an end seen after "in progress" is this run's
+        if self._homing and not self._homing_started:
+            if st.homing is Progress.RUNNING:
+                self._homing_started = True
+            elif now - self._homing_since > HOMING_START_TIMEOUT:
+                if st.homing is Progress.FAILED:  # the drive refused it: reported below
+                    self._homing_started = True
+                else:
+                    self._homing = False
+                    error = TcsError(f"{self.module_name}: homing did not start", ErrorNumber.TIMEOUT)
+                    self._resolve("reference", error)
+                    self.emit(ERROR, ErrorNumber.REFERENCE_BAD, error.message, self._reference_cause)
+        if self._homing and not self._homing_started:
+            self.referenced = 0.0
+        elif self._homing:
             if st.homing is Progress.DONE:
                 self._homing = False
                 self.referenced = 1.0

@@ -7,6 +7,9 @@ reported key by key and the exit status is 2 — also a valid file that cannot r
 ``[[users]]``, or a real telescope without ``[site]``. ``--check-config FILE`` does only that
 validation (and that the EDS files exist), touching no hardware: status 0 or 2. SIGINT and
 SIGTERM stop cleanly (status 0).
+Exit status 1, with one line saying why and before any frame is sent on the CAN bus: the TPL2
+port is taken, or another master (SYNC, or a heartbeat with our node id) is heard on a shared
+CAN bus (socketcan, socketcand) — e.g. the service is already running.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import sys
 
 from tcs import __version__
 from tcs.config import DEFAULT_CONFIG, HwConfig, load_config
+from tcs.drivers.bus_check import AnotherMaster
 from tcs.errors import ConfigError, ConfigErrors, TcsError
 
 
@@ -74,8 +78,9 @@ def main(argv=None) -> int:
 
 def run_until_signalled(prog: str, main_coro) -> int:
     """Run ``main_coro(stop_event)`` with SIGINT/SIGTERM setting the event; exit status 0, or 1
-    with a one-line message when the operating system refuses (port in use …) or the hardware
-    cannot be reached at start (the CAN bus: no traceback)."""
+    with a one-line message when the operating system refuses (port in use …), another
+    master already runs the CAN bus (:class:`~tcs.drivers.bus_check.AnotherMaster`), or the
+    hardware cannot be reached at start (the CAN bus: no traceback).
 
     async def run() -> None:
         stop = asyncio.Event()
@@ -88,6 +93,9 @@ def run_until_signalled(prog: str, main_coro) -> int:
         asyncio.run(run())
     except OSError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
+        return 1
+    except AnotherMaster as exc:
+        print(f"{prog}: refusing to start: {exc.message}", file=sys.stderr)
         return 1
     except TcsError as exc:
         print(f"{prog}: cannot start: {exc.message}", file=sys.stderr)

@@ -16,7 +16,8 @@ deadline) — it never touches the drives' cyclic side.
 
 The service must be stopped: two masters on one bus (two SYNC producers, two heartbeats with
 one node id, two state machines per drive) is never safe. On a ``socketcan``/``socketcand``
-bus :func:`other_master` listens briefly for a SYNC or for the TCS node's heartbeat from
+bus :func:`~tcs.drivers.bus_check.other_master` (shared with ``tcs-server``) listens briefly,
+before this process sends its heartbeat, for a SYNC or for the TCS node's heartbeat from
 somebody else and the session refuses to go on (exit 3) unless ``--force``. On the
 in-process ``virtual`` bus nobody else can be there, so it is not checked.
 
@@ -35,6 +36,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 
+from tcs.drivers.bus_check import listen_window, other_master  # noqa: F401 (re-exported)
 from tcs.drivers.can_system import CanDrives
 from tcs.drivers.drive import DriveState, DriveStatus, Mode
 from tcs.errors import CommunicationError, TcsError
@@ -81,34 +83,6 @@ def prepare_config(config, simulate: bool | None):
     return config, bool(simulate)
 
 
-def other_master(network, tcs_node_id: int, listen: float) -> str | None:
-    """Listen ``listen`` seconds for another master; its description, or None.
-
-    Another master shows itself by SYNC frames or by a heartbeat with the TCS's own node id
-    (this process's own frames are not received back on socketcan / socketcand).
-    """
-    seen: list[str] = []
-
-    def on_sync(cob_id, data, timestamp):
-        seen.append("SYNC frames (0x080)")
-
-    def on_heartbeat(cob_id, data, timestamp):
-        seen.append(f"a heartbeat of node {tcs_node_id} (0x{0x700 + tcs_node_id:03X}), the "
-                    "TCS's own node id")
-
-    hb = 0x700 + tcs_node_id
-    network.subscribe(SYNC_COB_ID, on_sync)
-    network.subscribe(hb, on_heartbeat)
-    try:
-        deadline = time.monotonic() + listen
-        while not seen and time.monotonic() < deadline:
-            time.sleep(0.01)
-    finally:
-        network.unsubscribe(SYNC_COB_ID, on_sync)
-        network.unsubscribe(hb, on_heartbeat)
-    return seen[0] if seen else None
-
-
 class DriveSession:
     """Simulators (optional), bus, drives and cycle for one subcommand; a context manager.
 
@@ -127,7 +101,7 @@ class DriveSession:
         self.simulate = simulate
         self.sections = dict(drives if drives is not None else config.drives)
         self.check_bus = check_bus
-        self.listen = listen if listen is not None else max(0.3, 2.5 * config.can.heartbeat_period)
+        self.listen = listen if listen is not None else listen_window(config.can.heartbeat_period)
         self.sims = None
         self.system: CanDrives | None = None
         self.booted: set[str] = set()
@@ -154,11 +128,12 @@ class DriveSession:
             self.sims = start_simulated_drives(self.config)
         self.system = CanDrives(self.config.can, self.sections, resolve=self.config.resolve,
                                 file=str(self.config.source))
+        listen = self.config.can.interface != "virtual"
         try:
-            self.system.open()
+            self.system.open(heartbeat=not listen)
         except CommunicationError as exc:
             raise CommissionError(f"{exc.message} (is the CAN interface up?)", ExitCode.HARDWARE) from exc
-        if self.config.can.interface != "virtual":
+        if listen:
             # Listening also lets the link settle: with --force the first frame heard proves
             # that this connection receives (a socketcand gateway delivers only after rawmode
             # settled; a probe sent at once would have its answers lost).
@@ -171,6 +146,7 @@ class DriveSession:
             if busy:
                 log.warning("%s: another master is active (%s); going on (--force)",
                             self.system.bus.name, busy)
+            self.system.bus.start_heartbeat()
 
     @property
     def network(self):

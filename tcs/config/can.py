@@ -158,9 +158,11 @@ class CanSection:
                           "integers are converted), e.g. tcp_tune = 'true' for socketcand")
     sync_period: float = setting(0.010, min=0.001, max=0.100,
                                  doc="SYNC period = control cycle = 0x1006/0x60C2 of the drives, s")
-    tpdo_deadline: float = setting(
-        0.5, min=0.1, max=0.8, doc="fraction of the SYNC period after which the cycle runs even "
-                                   "if some synchronous TPDOs have not arrived")
+    tpdo_deadline: float | None = setting(
+        None, min=0.1, max=0.9, doc="fraction of the SYNC period after which the cycle runs even "
+                                    "if some synchronous TPDOs have not arrived (default 0.5 "
+                                    "with kernel SYNC on socketcan, 0.8 when the cycle thread "
+                                    "sends SYNC itself)")
     heartbeat_period: float = setting(0.1, min=0.01, max=10.0,
                                       doc="period of the TCS's own heartbeat, s (whole ms)")
     node_id: int = setting(127, min=1, max=127, doc="NMT node id of the TCS (its heartbeat COB-ID is 0x700 + id)")
@@ -188,7 +190,9 @@ class CanSection:
         """Keyword arguments for ``can.Bus`` (interface, channel, and the interface's options)."""
         kwargs: dict = {"interface": self.interface, "channel": self.channel}
         if self.interface == "socketcand":
-            kwargs.update(host=self.host, port=self.port)
+            # tcp_tune: TCP_NODELAY + quick ACK on the client socket. Without it every small
+            # frame (SYNC, RPDO) waits for Nagle / delayed ACK and most cycles miss their TPDOs.
+            kwargs.update(host=self.host, port=self.port, tcp_tune=True)
         for key, text in self.options.items():
             low = text.strip().lower()
             if low in ("true", "false"):

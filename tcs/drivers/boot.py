@@ -11,6 +11,8 @@ Sequence:
 1. wait ``boot_timeout`` for a boot-up or heartbeat frame; after a quarter of it (at most
    0.25 s) without one, probe 0x1000 over SDO (a node booted earlier, heartbeat off), and if
    that fails too send NMT *reset communication* (it answers with boot-up);
+1b. a drive found powered (a master restart while it was enabled, maybe moving) is brought to a
+   controlled stop and disabled first (:mod:`tcs.drivers.takeover`);
 2. NMT *enter pre-operational* (PDO remapping is only allowed there);
 3. identity: 0x1000 must be a CiA-402 device; 0x1018 vendor / product / revision / serial
    must equal the hardware file — the fields it gives (a left-out revision accepts any
@@ -49,6 +51,7 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 from tcs.config.can import CanSection, DriveSection, interpolation_period
 from tcs.drivers.eds_check import raw_writes, usable_writes
 from tcs.drivers.pdo import PdoLayout, configuration_writes
+from tcs.drivers.takeover import stop_if_powered
 from tcs.errors import CommunicationError, ErrorNumber, HardwareError
 
 NMT_START, NMT_PRE_OPERATIONAL, NMT_RESET_COMMUNICATION = 0x01, 0x80, 0x82
@@ -331,6 +334,7 @@ def boot_node(network: canopen.Network, sdo: Sdo, hb: HeartbeatWatch, section: D
     device = sdo.device
     od = sdo.node.object_dictionary
     wait_for_node(network, sdo, hb, can.boot_timeout, device)
+    stop_if_powered(sdo, section)  # a drive still enabled (master restart): controlled stop first
     send_nmt(network, NMT_PRE_OPERATIONAL, node_id)
     check_identity(sdo, section)
     # Every write passes the EDS rule (tcs.drivers.eds_check): optional objects the drive

@@ -90,9 +90,10 @@ class CanDrives:
                    file=str(config.source), **kwargs)
 
     # ----------------------------------------------------------------- life cycle
-    def open(self) -> CanDrives:
-        """Open the bus (notifier, TCS heartbeat) and start the SDO worker (blocking)."""
-        self.bus.open()
+    def open(self, heartbeat: bool = True) -> CanDrives:
+        """Open the bus (notifier, TCS heartbeat unless ``heartbeat=False``) and start the SDO
+        worker (blocking)."""
+        self.bus.open(heartbeat)
         self.worker.start()
         return self
 

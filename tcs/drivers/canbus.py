@@ -111,8 +111,11 @@ class CanBus:
         """True when ``send_periodic`` is done by the kernel (socketcan broadcast manager)."""
         return self.section.interface == "socketcan"
 
-    def open(self) -> CanBus:
+    def open(self, heartbeat: bool = True) -> CanBus:
         """Open the interface, start the notifier and the TCS heartbeat (blocking).
+
+        ``heartbeat=False`` sends nothing yet (to listen for another master first, see
+        :mod:`tcs.drivers.bus_check`); :meth:`start_heartbeat` later.
 
         Raises
         ------
@@ -128,7 +131,8 @@ class CanBus:
         self.network = canopen.Network(self.bus)
         self.network.listeners.append(_HealthListener(self))
         self.network.connect()
-        self.start_heartbeat()
+        if heartbeat:
+            self.start_heartbeat()
         return self
 
     def close(self) -> None:

@@ -1,6 +1,7 @@
 """The cyclic phase: SYNC producer and the runner that calls the control loop once per SYNC.
 
-Timing of cycle *k* (period *T*, ``tpdo_deadline`` *d*, default 0.5)::
+Timing of cycle *k* (period *T*, ``tpdo_deadline`` *d*; default 0.5 with kernel SYNC, 0.8 when
+the runner sends SYNC itself)::
 
     t_k            SYNC k on the bus. Drives latch the RPDO received in cycle k-1, sample,
                    and answer with their synchronous TPDOs.
@@ -12,7 +13,13 @@ Timing of cycle *k* (period *T*, ``tpdo_deadline`` *d*, default 0.5)::
     t_k + T        SYNC k+1 applies it.
 
 So a callback sees the status of cycle k and its RPDO reaches the drives before SYNC k+1 as
-long as the callbacks finish within (1 - d)·T. Counters (:class:`CycleStats`):
+long as the callbacks finish within (1 - d)·T. When the runner sends SYNC itself, SYNC k+1
+leaves the same thread after the callbacks, on the same ordered stream as their RPDOs, so an
+RPDO can never miss its SYNC (a late callback delays the SYNC instead, counted in ``late``):
+there the TPDOs may take longer (d = 0.8), which a remote bus needs — over socketcand a TPDO
+crosses two processes, TCP and five thread hand-overs, a millisecond typically and several on
+a busy machine. With kernel SYNC the next SYNC leaves on time whatever the runner does, so
+d = 0.5 leaves half the period to the callbacks. Counters (:class:`CycleStats`):
 
 * ``late`` — callbacks that ended after the next SYNC was due (their RPDOs may miss it);
 * ``missed`` — SYNC slots skipped because the runner was still busy (no SYNC was sent then in
@@ -82,7 +89,8 @@ class CycleSource:
     period:
         SYNC period, s (``can.sync_period``).
     tpdo_deadline:
-        Fraction of the period after SYNC when the callbacks run even if TPDOs are missing.
+        Fraction of the period after SYNC when the callbacks run even if TPDOs are missing;
+        None: 0.5 with kernel SYNC, 0.8 when the runner sends SYNC (see the module docstring).
     kernel_sync:
         Use the kernel's ``send_periodic`` for SYNC; default: when the bus is socketcan.
     history:
@@ -94,13 +102,13 @@ class CycleSource:
         system refuses it the runner goes on normally; :attr:`realtime` tells which.
     """
 
-    def __init__(self, bus: CanBus, period: float, *, tpdo_deadline: float = 0.5,
+    def __init__(self, bus: CanBus, period: float, *, tpdo_deadline: float | None = None,
                  kernel_sync: bool | None = None, history: int = 100_000,
                  clock: Callable[[], float] = time.monotonic, realtime_priority: int = 0):
         self.bus = bus
         self.period = float(period)
-        self.tpdo_deadline = float(tpdo_deadline)
         self.kernel_sync = bus.kernel_periodic if kernel_sync is None else kernel_sync
+        self._tpdo_deadline = None if tpdo_deadline is None else float(tpdo_deadline)
         self._clock = clock
         self._callbacks: list[Callable[[Cycle], None]] = []
         self._lock = threading.Lock()
@@ -120,6 +128,18 @@ class CycleSource:
         self.realtime_priority = int(realtime_priority)
         self.realtime = False  # the runner got its real-time priority
         self.max_lateness = 0.0  # worst lateness since start, s
+
+    @property
+    def tpdo_deadline(self) -> float:
+        """The TPDO wait as a fraction of the period (the default follows ``kernel_sync``,
+        which may still be changed before :meth:`start`)."""
+        if self._tpdo_deadline is not None:
+            return self._tpdo_deadline
+        return 0.5 if self.kernel_sync else 0.8
+
+    @tpdo_deadline.setter
+    def tpdo_deadline(self, value: float | None) -> None:
+        self._tpdo_deadline = None if value is None else float(value)
 
     # ---------------------------------------------------------------- set-up
     def add_callback(self, callback: Callable[[Cycle], None]) -> None:

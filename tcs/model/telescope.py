@@ -7,9 +7,12 @@ loop) and, where the file has a ``[simulation]`` section, the simulated drives o
 :meth:`stop` on the server's event loop; attributes that are ``None`` (or empty lists) are
 modules the hardware file does not configure, and so do not exist in the tree.
 
-Start order: the PLC and GPS side (:class:`~tcs.model.peripherals.Peripherals`: their
-simulators on a virtual bus, drivers, then DOME[], COVER, SENSOR[], SWITCH[], GPS) → drive
-simulators (they are "the hardware") → bus → boot every drive in parallel (a drive that fails
+Start order: on a bus other processes share (socketcan, socketcand) the bus is opened first,
+silently, and the start is refused (:class:`~tcs.drivers.bus_check.AnotherMaster`, nothing sent
+on the bus, nothing started) when another master is heard on it → the PLC and GPS side
+(:class:`~tcs.model.peripherals.Peripherals`: their simulators on a virtual bus, drivers, then
+DOME[], COVER, SENSOR[], SWITCH[], GPS) → drive simulators (they are "the hardware") → bus
+(its TCS heartbeat) → boot every drive in parallel (a drive that fails
 to boot leaves its axis in ERROR_STATE, the others work) → axes → control loop and SYNC. Stop
 order is the reverse; axes are stopped and their drives disabled first.
 """
@@ -100,6 +103,7 @@ class Telescope:
         self.events.bind_loop()
         await self.cabinet.start()
         try:
+            await self._claim_bus()
             await self.peripherals.start()  # PLC/GPS simulators (virtual bus), drivers, modules
         except BaseException:
             await self.stop()
@@ -112,6 +116,35 @@ class Telescope:
                 await self.stop()
                 raise
 
+    async def _claim_bus(self) -> None:
+        """On a shared bus, listen for another master before this process sends anything.
+
+        Raises
+        ------
+        AnotherMaster
+            Somebody else sends SYNC or the TCS node's heartbeat; the bus is closed again.
+        """
+        config = self.config
+        if config.can is None or not config.drives or config.can.interface == "virtual":
+            return  # an in-process bus: nobody else can be on it
+        from tcs.drivers.bus_check import AnotherMaster, listen_window, other_master
+        from tcs.drivers.can_system import CanDrives
+
+        can = CanDrives.from_config(config)
+        await self.run_blocking(can.open, False)  # no heartbeat yet: not a frame is sent
+        try:
+            busy = await self.run_blocking(other_master, can.bus.network, config.can.node_id,
+                                           listen_window(config.can.heartbeat_period))
+        except BaseException:
+            await self.run_blocking(can.close)
+            raise
+        if busy:
+            await self.run_blocking(can.close)
+            raise AnotherMaster(can.bus.name, f"another master is active ({busy}): is "
+                                "tcs-server already running (systemctl status tcs-server)? Nothing "
+                                "was sent on the bus")
+        self.can = can
+
     async def _start_can(self) -> None:
         from tcs.axes.axis import Axis
         from tcs.axes.control_loop import ControlLoop
@@ -122,8 +155,11 @@ class Telescope:
             # simulated drives on an in-process bus live here; on any other bus they are
             # somebody else's (tcs-sim, a gateway), and only the bus settings differ
             self.sims = start_simulated_drives(config)
-        self.can = CanDrives.from_config(config)
-        await self.run_blocking(self.can.open)
+        if self.can is None:
+            self.can = CanDrives.from_config(config)
+            await self.run_blocking(self.can.open)
+        else:  # claimed by _claim_bus: the bus was quiet
+            self.can.bus.start_heartbeat()
         failures: dict[str, TcsError] = await self.run_blocking(self.can.boot)
         loop = asyncio.get_running_loop()
         for name, section in config.axes.items():

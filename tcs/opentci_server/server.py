@@ -91,11 +91,14 @@ class Tpl2Server:
         return time.monotonic() - self._start_mono
 
     # -- lifecycle ---------------------------------------------------------------------------
-    async def start(self, host: str | None = None, port: int | None = None) -> int:
+    async def start(self, host: str | None = None, port: int | None = None, *,
+                    serve: bool = True) -> int:
         """Listen; returns the port actually bound (useful with port 0).
 
-        With ``tls_cert``/``tls_key`` and ``tls_port`` 0 that port speaks TLS only; with a
-        ``tls_port`` a second, TLS-only listener is opened there as well (:attr:`tls_port`).
+        ``serve=False`` only binds (the port is taken, connections wait in the backlog); a
+        later ``start()`` starts accepting them. With ``tls_cert``/``tls_key`` and ``tls_port``
+        0 that port speaks TLS only; with a ``tls_port`` a second, TLS-only listener is opened
+        there as well (:attr:`tls_port`) once serving.
         """
         loop = asyncio.get_running_loop()
         cfg = self.settings
@@ -103,12 +106,17 @@ class Tpl2Server:
         tls = tls_context(cfg)
         handshake = min(60.0, cfg.login_timeout)
         only_tls = tls is not None and not cfg.tls_port
-        self._server = await loop.create_server(
-            self._new_session, host, cfg.port if port is None else port, reuse_address=True,
-            ssl=tls if only_tls else None, ssl_handshake_timeout=handshake if only_tls else None)
+        if self._server is None:
+            self._server = await loop.create_server(
+                self._new_session, host, cfg.port if port is None else port, reuse_address=True,
+                ssl=tls if only_tls else None, ssl_handshake_timeout=handshake if only_tls else None,
+                start_serving=False)
         bound = self._server.sockets[0].getsockname()[1]
+        if not serve:
+            return bound
+        await self._server.start_serving()
         log.info("TPL2 server listening on %s:%d%s", host, bound, " (TLS only)" if only_tls else "")
-        if tls is not None and cfg.tls_port:
+        if tls is not None and cfg.tls_port and self._tls_server is None:
             self._tls_server = await loop.create_server(
                 self._new_session, host, cfg.tls_port, reuse_address=True, ssl=tls,
                 ssl_handshake_timeout=handshake)

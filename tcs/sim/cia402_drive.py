@@ -159,7 +159,8 @@ class SimDrive:
         params = self.params
         if old is not None:  # the motor does not jump when the firmware restarts
             old.update(self.clock())
-            params = SimDriveParams(**{**vars(self.params), "position": old.axis.x})
+            params = SimDriveParams(**{**vars(self.params), "position": old.axis.x,
+                                       "absolute_home": old.absolute_home})
         self.logic = DriveLogic(self.store, params, self.clock(), self._on_logic_emcy)
 
     # -- life cycle --------------------------------------------------------------------------

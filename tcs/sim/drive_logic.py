@@ -120,6 +120,9 @@ class DriveLogic:
                          max_acceleration=params.max_acceleration)
         self.state = S.SWITCH_ON_DISABLED  # transitions 0 and 1 happen at boot
         self.zero = 0.0
+        #: methods 35/37: the physical place that reads the home offset (an absolute encoder)
+        self.absolute_home = (params.position if params.absolute_home is None
+                              else params.absolute_home)
         self.controlword = 0
         self.mode = MODE_NONE
         self.mode_request = MODE_NONE
@@ -435,7 +438,7 @@ class DriveLogic:
             self.homing = hm.Homing(self.axis, self.sw, 35, 0, 0, 0)
             self.homing.state = "error"
             return
-        self.homing = hm.Homing(self.axis, self.sw, method, fast, slow, acc)
+        self.homing = hm.Homing(self.axis, self.sw, method, fast, slow, acc, self.absolute_home)
         self.alarm_reason = "homing"
         self._after_homing_step()
 

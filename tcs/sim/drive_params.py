@@ -27,6 +27,10 @@ class SimDriveParams:
     negative_limit_switch, positive_limit_switch:
         Positions of the hardware limit switches: the negative one is active for positions
         ``<=`` it, the positive one for ``>=``; None = not fitted.
+    absolute_home:
+        Homing methods 35/37 ("current position is home": an absolute encoder): the physical
+        place that reads the home offset after homing, wherever the axis stands when it is
+        homed — re-homing never moves the zero. None: the position at power-up.
     home_switch:
         Position of the home switch's edge; active for positions ``>=`` it (a "positive"
         home switch, for homing methods 3/4/19/20), or ``<=`` it when
@@ -57,6 +61,7 @@ class SimDriveParams:
     home_switch: float | None = None
     home_switch_active_below: bool = False
     index_pulse_spacing: float = 1.0
+    absolute_home: float | None = None
     identity: tuple[int, int, int, int] = (0xABC, 0x00402001, 0x00010000, 1)
     boot_delay: float = 0.0
     eds: str | None = None

@@ -28,8 +28,14 @@ method search                                                         home point
 21     negative home switch: ↓ fast until on (if off); ↑ slow         home switch goes off ↑
 33     ↓ slow                                                         next index pulse ↓
 34     ↑ slow                                                         next index pulse ↑
-35, 37 none                                                           the current position
+35, 37 none                                                           the absolute encoder's
+                                                                      home place (see below)
 ====== ============================================================== =========================
+
+Methods 35/37 stand for an absolute encoder: "current position is home" sets the position
+from the encoder, which knows where it is. The home point is therefore a *place* (the
+``home`` given to :class:`Homing`, by default where the axis stood at power-up), not wherever
+the axis happens to stand: homing again elsewhere gives the same zero, as on a real axis.
 
 Running into a limit switch that the method does not search for is a homing error (statusword
 bit 13): the axis brakes and stays there; the drive does not fault. A method whose switch does
@@ -137,15 +143,16 @@ class Homing:
     (``error_moving`` while braking after an error), ``interrupted``.
     """
 
-    def __init__(self, axis: Axis, sw: Switches, method: int, fast: float, slow: float, acc: float):
+    def __init__(self, axis: Axis, sw: Switches, method: int, fast: float, slow: float, acc: float,
+                 home: float | None = None):
         self.axis, self.sw = axis, sw
         self.fast, self.slow = abs(fast), abs(slow)
         self.acc = abs(acc)
         self.phases = plan(method, sw, axis.x)
         self.home_position: float | None = None
         self.state = "running"
-        if not self.phases:
-            self.home_position = axis.x
+        if not self.phases:  # 35/37: the absolute encoder's home place (default: here)
+            self.home_position = axis.x if home is None else home
             self.state = "done"
         elif self.fast <= 0 or self.slow <= 0 or self.acc <= 0:
             self._fail()

@@ -19,6 +19,11 @@ python-can's client reads the ``< ok >`` of rawmode with a single ``recv``, so f
 flow a short moment after it. Malformed or unsupported lines are logged, counted and ignored
 (python-can's client cannot parse an ``< error … >`` reply that is not an error frame); the
 connection goes on. Threads: one python-can notifier thread hands bus frames to the event loop.
+
+Latency matters: a master's cycle waits for the drives' TPDOs, which cross this bridge. The
+sockets have TCP_NODELAY (no Nagle delay on small frames), and the frames the notifier thread
+collects while the event loop is busy go out in one write per client (one wake-up of the loop
+and one segment for the burst of TPDOs that follows a SYNC, not one per frame).
 """
 
 from __future__ import annotations
@@ -26,6 +31,8 @@ from __future__ import annotations
 import asyncio
 import logging
 import re
+import socket
+import threading
 import time
 
 import can
@@ -68,6 +75,12 @@ class _Client(asyncio.Protocol):
 
     def connection_made(self, transport) -> None:
         self.transport = transport
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            try:
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            except OSError:
+                pass
         transport.write(b"< hi >")
 
     def data_received(self, data: bytes) -> None:
@@ -129,6 +142,8 @@ class SocketcandServer:
         self._server: asyncio.base_events.Server | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self.frames_in = self.frames_out = self.refused = 0
+        self._pending: list[can.Message] = []  # bus frames waiting for the loop (notifier thread)
+        self._pending_lock = threading.Lock()
 
     async def start(self) -> int:
         """Open the bridge and listen; returns the bound port."""
@@ -147,18 +162,31 @@ class SocketcandServer:
 
     def _on_bus_frame(self, msg: can.Message) -> None:  # notifier thread
         loop = self._loop
-        if loop is not None and not msg.is_error_frame:
-            try:
-                loop.call_soon_threadsafe(self._to_clients, msg, None)
-            except RuntimeError:
-                pass
+        if loop is None or msg.is_error_frame:
+            return
+        with self._pending_lock:
+            self._pending.append(msg)
+            if len(self._pending) > 1:
+                return  # a flush is already scheduled: it takes this frame too
+        try:
+            loop.call_soon_threadsafe(self._flush)
+        except RuntimeError:
+            pass
+
+    def _flush(self) -> None:
+        with self._pending_lock:
+            frames, self._pending = self._pending, []
+        if frames:
+            self._write(b"".join(format_frame(m) for m in frames), len(frames), None)
 
     def _to_clients(self, msg: can.Message, sender: _Client | None) -> None:
-        line = format_frame(msg)
+        self._write(format_frame(msg), 1, sender)
+
+    def _write(self, lines: bytes, count: int, sender: _Client | None) -> None:
         for client in list(self.clients):
             if client is not sender and client.raw and client.transport is not None:
-                client.transport.write(line)
-                self.frames_out += 1
+                client.transport.write(lines)
+                self.frames_out += count
 
     def from_client(self, client: _Client, msg: can.Message) -> None:
         self.frames_in += 1

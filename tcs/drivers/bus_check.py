@@ -1,0 +1,66 @@
+"""Is another master on the bus? Listen before sending anything.
+
+Two masters on one CAN bus — two SYNC producers, two heartbeats with one node id, two
+CiA-402 state machines per drive — is never safe: the second one's boot puts every drive back
+to pre-operational under the first one's feet. So whoever is about to become the master
+(``tcs-server`` at start, ``tcs-commission``) opens the bus *without* producing its heartbeat,
+calls :func:`other_master` and sends its first frame only when the bus was quiet.
+
+Another master shows itself by SYNC frames (0x080) or by a heartbeat with the TCS's own node
+id (0x700 + ``[can] node_id``). A process never receives its own frames back on socketcan,
+socketcand or python-can's virtual bus, so what is heard is somebody else. Listening for
+2–3 heartbeat periods is enough: a running master sends SYNC every cycle and its heartbeat
+every period. Runs in the caller's thread (blocking, at start); the notifier thread only
+appends to a list.
+"""
+
+from __future__ import annotations
+
+import time
+
+from tcs.errors import CommunicationError, ErrorNumber
+
+SYNC_COB_ID = 0x080
+HEARTBEAT_BASE = 0x700
+
+
+class AnotherMaster(CommunicationError):
+    """The bus already has a master: this process must not send a single frame on it."""
+
+    default_number = ErrorNumber.CONFAIL
+
+
+def listen_window(heartbeat_period: float) -> float:
+    """How long to listen: 2.5 heartbeat periods, at least 0.3 s."""
+    return max(0.3, 2.5 * heartbeat_period)
+
+
+def other_master(network, tcs_node_id: int, listen: float) -> str | None:
+    """Listen ``listen`` seconds on a connected canopen ``network`` for another master.
+
+    Returns
+    -------
+    str or None
+        What was heard ("SYNC frames (0x080)" or the heartbeat with our node id), or None
+        when the bus was quiet; returns as soon as something is heard.
+    """
+    seen: list[str] = []
+
+    def on_sync(cob_id, data, timestamp):
+        seen.append("SYNC frames (0x080)")
+
+    def on_heartbeat(cob_id, data, timestamp):
+        seen.append(f"a heartbeat of node {tcs_node_id} (0x{HEARTBEAT_BASE + tcs_node_id:03X}), "
+                    "the TCS's own node id")
+
+    hb = HEARTBEAT_BASE + tcs_node_id
+    network.subscribe(SYNC_COB_ID, on_sync)
+    network.subscribe(hb, on_heartbeat)
+    try:
+        deadline = time.monotonic() + listen
+        while not seen and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        network.unsubscribe(SYNC_COB_ID, on_sync)
+        network.unsubscribe(hb, on_heartbeat)
+    return seen[0] if seen else None
