@@ -71,6 +71,8 @@ SDO_ABORTS = {
 
 #: Objects whose absence (abort 0x06020000 / 0x06090011) is no error: optional in CiA 301/402.
 OPTIONAL = {0x1006, 0x607F}
+#: The drive's own reactions to a lost master (written when the drive has them).
+OPTIONAL |= {0x6007, 0x605A, 0x605C, 0x605E}
 
 NAMES = {
     0x1000: "device type", 0x1006: "SYNC period", 0x1016: "consumer heartbeat time",
@@ -82,6 +84,8 @@ NAMES = {
     0x6081: "profile velocity", 0x6083: "profile acceleration", 0x6084: "profile deceleration",
     0x6085: "quick-stop deceleration", 0x6098: "homing method", 0x6099: "homing speeds",
     0x609A: "homing acceleration", 0x60C2: "interpolation time period",
+    0x6007: "abort connection option", 0x605A: "quick stop option",
+    0x605C: "disable operation option", 0x605E: "fault reaction option",
 }
 
 
@@ -258,6 +262,10 @@ def configuration(section: DriveSection, can: CanSection, device: str) -> list[t
         (0x6099, 2, "<I", _u32(home.speed_zero * k, "homing speed (zero)", device)),
         (0x609A, 0, "<I", _u32(home.acceleration * k, "homing acceleration", device)),
         (0x607C, 0, "<i", round(home.offset * k)),
+        (0x6007, 0, "<h", section.abort_connection_option),
+        (0x605A, 0, "<h", section.quick_stop_option),
+        (0x605C, 0, "<h", section.disable_operation_option),
+        (0x605E, 0, "<h", section.fault_reaction_option),
     ]
 
 

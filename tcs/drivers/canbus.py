@@ -5,10 +5,14 @@
 :class:`~canopen.Network` on it (used for SDO, NMT and EDS — not for PDOs, see
 :mod:`tcs.drivers.pdo`), and runs
 
-* the TCS's own **heartbeat producer** (COB-ID 0x700 + ``can.node_id``, state 5) with
-  ``send_periodic``: the kernel broadcast manager on socketcan, a python-can thread elsewhere.
-  Every drive watches it (0x1016) and faults when it stops; :meth:`stop_heartbeat` exists for
-  that test and for a deliberate safe stop;
+* the TCS's own **heartbeat producer** (COB-ID 0x700 + ``can.node_id``, state 5). Every
+  drive watches it (0x1016) and faults when it stops. Until the cyclic phase it is a
+  ``send_periodic`` task (boot, commissioning tools); once the control cycle runs
+  (:meth:`heartbeat_from_cycle`) the cycle thread itself sends it, through :meth:`beat`, after
+  each cycle's work is done — so a stalled control loop, a hung or stopped (SIGSTOP) process
+  stops the heartbeat and every drive reacts within its consumer time, which a kernel or
+  thread timer independent of the loop would hide. :meth:`stop_heartbeat` stops it in
+  either mode (tests, a deliberate safe stop);
 * a **bus-health listener** in the notifier: error frames (controller warning / passive,
   bus-off, restarted) and receive failures are counted and kept as :class:`BusHealth`; the
   latest problem is a :class:`~tcs.errors.CommunicationError`; callbacks registered with
@@ -100,6 +104,10 @@ class CanBus:
         self.bus: can.BusABC | None = None
         self.network: canopen.Network | None = None
         self._heartbeat_task = None
+        self._heartbeat_wanted = False
+        self._cycle_beats = False   # the cycle sends the heartbeat (beat())
+        self._last_beat = float("-inf")
+        self._heartbeat_msg = None
         self._lock = threading.Lock()
         self._health = BusHealth()
         self._callbacks: list[Callable[[TcsError], None]] = []
@@ -153,14 +161,14 @@ class CanBus:
     # ---------------------------------------------------------------- heartbeat
     def start_heartbeat(self) -> None:
         """Produce the TCS heartbeat (state operational) every ``heartbeat_period``."""
-        if self._heartbeat_task is not None or self.bus is None:
+        self._heartbeat_wanted = True
+        if self._cycle_beats or self._heartbeat_task is not None or self.bus is None:
             return
         msg = can.Message(arbitration_id=HEARTBEAT_BASE + self.section.node_id,
                           data=[NMT_OPERATIONAL], is_extended_id=False)
         self._heartbeat_task = self.bus.send_periodic(msg, self.section.heartbeat_period)
 
-    def stop_heartbeat(self) -> None:
-        """Stop the TCS heartbeat: every drive faults after its consumer time (0x1016)."""
+    def _stop_task(self) -> None:
         task, self._heartbeat_task = self._heartbeat_task, None
         if task is not None:
             task.stop()
@@ -168,9 +176,36 @@ class CanBus:
             if thread is not None and thread is not threading.current_thread():
                 thread.join(timeout=2.0)
 
+    def stop_heartbeat(self) -> None:
+        """Stop the TCS heartbeat: every drive faults after its consumer time (0x1016)."""
+        self._heartbeat_wanted = False
+        self._stop_task()
+
+    def heartbeat_from_cycle(self) -> None:
+        """The control cycle starts: from now on it produces the heartbeat with :meth:`beat`."""
+        self._stop_task()
+        self._cycle_beats = True
+
+    def heartbeat_to_periodic(self) -> None:
+        """The control cycle stopped on purpose: back to the periodic task (if wanted)."""
+        self._cycle_beats = False
+        if self._heartbeat_wanted:
+            self.start_heartbeat()
+
+    def beat(self, now: float) -> None:
+        """Send the heartbeat if one is due (cycle thread, after the cycle's work)."""
+        if not (self._cycle_beats and self._heartbeat_wanted) or \
+                now - self._last_beat < 0.95 * self.section.heartbeat_period:
+            return
+        self._last_beat = now
+        try:
+            self.send(HEARTBEAT_BASE + self.section.node_id, bytes([NMT_OPERATIONAL]))
+        except TcsError:
+            pass  # recorded in the health
+
     @property
     def heartbeat_running(self) -> bool:
-        return self._heartbeat_task is not None
+        return self._heartbeat_task is not None or (self._cycle_beats and self._heartbeat_wanted)
 
     # ---------------------------------------------------------------- sending
     def send(self, cob_id: int, data: bytes) -> None:

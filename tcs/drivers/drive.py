@@ -89,6 +89,7 @@ class DriveStatus:
     heartbeat_age: float = float("inf")
     booted: bool = False
     age: float = float("inf")
+    reboots: int = 0  # boot-ups of the node seen after its first boot (position may be lost)
 
     @property
     def enabled(self) -> bool:

@@ -26,6 +26,11 @@ CANopen behaviour (CiA-301):
 * SYNC: synchronous RPDOs received since the last SYNC are applied, the drive logic is
   stepped (CSP target latched), then synchronous TPDOs are sent. An RPDO shorter than its
   mapping is dropped with EMCY 0x8210.
+* The master watched (CiA-402 0x6007, "abort connection"): with a SYNC period in 0x1006, a
+  drive enabled in operational that sees no SYNC for :data:`SYNC_LOSS_PERIODS` periods (at
+  least :data:`SYNC_LOSS_MIN` s) reacts per 0x6007 with code 0x8250 (see
+  :meth:`tcs.sim.drive_logic.DriveLogic.connection_lost`); so it does when NMT stop /
+  pre-operational takes it out of operational while enabled. Missing RPDOs: see drive_logic.
 * EMCY (0x1014, default 0x80 + id): ``[code lo, code hi, error register, 0, 0, 0, 0, 0]``.
 
 Fault injection (for tests): :meth:`inject_fault` ("overcurrent" 0x2310, "following_error"
@@ -77,6 +82,10 @@ FAULT_CODES: dict[str, int] = {
     "heartbeat": EMCY_HEARTBEAT,
     "rpdo_timeout": EMCY_RPDO_TIMEOUT,
 }
+
+#: SYNC silence (in 0x1006 periods, and at least SYNC_LOSS_MIN s) that counts as a lost master.
+SYNC_LOSS_PERIODS = 10
+SYNC_LOSS_MIN = 0.3
 
 # NMT states as the heartbeat reports them.
 INITIALISING, STOPPED, OPERATIONAL, PRE_OPERATIONAL = 0x00, 0x04, 0x05, 0x7F
@@ -136,6 +145,7 @@ class SimDrive:
         self.sync_count = 0
         self.emcy_sent: list[int] = []
         self._rpdo_since_sync = False
+        self._last_sync: float | None = None  # real time of the last SYNC while operational
         self._subscribed: dict[int, str] = {}
         self._sync_cob = 0x080
         self._timers: list[TimerHandle] = []
@@ -364,6 +374,10 @@ class SimDrive:
         if len(data) < 2 or data[1] not in (0, self.node_id) or self.nmt_state == INITIALISING:
             return
         command = data[0]
+        if command in (0x02, 0x80) and self.nmt_state == OPERATIONAL:
+            self.logic.update(self.clock())
+            self.logic.connection_lost(None)  # leaving operational while enabled: 0x6007
+        self._last_sync = None
         if command == 0x01:
             self.nmt_state = OPERATIONAL
         elif command == 0x02:
@@ -413,6 +427,7 @@ class SimDrive:
         self.logic.update(self.clock())
         if self.nmt_state != OPERATIONAL:
             return
+        self._last_sync = time.monotonic()
         self.pdo.apply_sync_rpdos()
         fresh, self._rpdo_since_sync = self._rpdo_since_sync, False
         self.logic.on_sync(fresh)
@@ -441,5 +456,20 @@ class SimDrive:
                     self.nmt_state = PRE_OPERATIONAL
                     self._update_comm()
         if self.nmt_state == OPERATIONAL:
+            self._watch_sync(now)
             for cob, payload in self.pdo.poll_events(now):
                 self._send(cob, payload)
+
+    def _watch_sync(self, now: float) -> None:
+        """SYNC stopped while enabled (0x1006 > 0): the master is gone, react per 0x6007."""
+        last = self._last_sync
+        try:
+            period = self.store.get(0x1006, 0) / 1e6
+        except KeyError:
+            return
+        if last is None or period <= 0:
+            return
+        if now - last > max(SYNC_LOSS_PERIODS * period, SYNC_LOSS_MIN):
+            self._last_sync = None  # re-armed by the next SYNC
+            log.info("simulated drive %d: SYNC lost", self.node_id)
+            self.logic.connection_lost(EMCY_RPDO_TIMEOUT)
