@@ -407,11 +407,11 @@ class Cia402Drive:
                 return DriveState.OFFLINE, self._emcy, True
             return DriveState.OFFLINE, CommunicationError(
                 self.device, f"{why}: it must be booted again"), True
+        if self._stale_fault is not None:  # its state is unknown: the last one is history
+            return DriveState.OFFLINE, self._emcy or self._stale_fault, True
         sw = self._raw.get(0x6041, 0)
         state = sm.decode_state(sw) or DriveState.NOT_READY
         fault = self._bus_fault
-        if fault is None and self._stale_fault is not None:
-            fault = self._emcy or self._stale_fault  # the drive said why it went silent
         if state in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
             fault = self._emcy or fault
             code = self._raw.get(0x603F, 0)

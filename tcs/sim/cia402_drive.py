@@ -36,7 +36,7 @@ CANopen behaviour (CiA-301):
 Fault injection (for tests): :meth:`inject_fault` ("overcurrent" 0x2310, "following_error"
 0x8611, "encoder" 0x7305, "position_limit" 0x8612, "heartbeat" 0x8130, "rpdo_timeout"
 0x8250, or any int code), :meth:`set_responding` (False = a dead node: sends nothing,
-answers nothing) and :meth:`set_refuse_sdo` (every SDO request aborted with 0x08000020).
+answers nothing), :meth:`hold_heartbeat` (late heartbeats), :meth:`mute_tpdos` and :meth:`set_refuse_sdo` (every SDO request aborted with 0x08000020).
 """
 
 from __future__ import annotations
@@ -151,6 +151,8 @@ class SimDrive:
         self._timers: list[TimerHandle] = []
         self._heartbeat_timer: TimerHandle | None = None
         self._heartbeat_period = 0
+        self._heartbeat_hold = 0.0
+        self._tpdos_muted = False
         self._consumers: dict[int, float] = {}       # node -> timeout (s)
         self._consumer_seen: dict[int, float] = {}   # node -> last heartbeat (real time)
         self._started = False
@@ -228,6 +230,16 @@ class SimDrive:
         with self.lock:
             self.responding = bool(responding)
             self._consumer_seen.clear()
+
+    def mute_tpdos(self, muted: bool) -> None:
+        """True: send no TPDO (the node otherwise works: heartbeat, SDO, RPDOs)."""
+        with self.lock:
+            self._tpdos_muted = bool(muted)
+
+    def hold_heartbeat(self, seconds: float) -> None:
+        """Send no heartbeat for ``seconds`` (a late heartbeat; the node keeps working)."""
+        with self.lock:
+            self._heartbeat_hold = time.monotonic() + seconds
 
     def set_refuse_sdo(self, refuse: bool) -> None:
         """True: abort every SDO request with 0x08000020 ("cannot be stored/transferred")."""
@@ -432,11 +444,12 @@ class SimDrive:
         fresh, self._rpdo_since_sync = self._rpdo_since_sync, False
         self.logic.on_sync(fresh)
         for cob, payload in self.pdo.on_sync(time.monotonic()):
-            self._send(cob, payload)
+            if not self._tpdos_muted:
+                self._send(cob, payload)
 
     # -- timers ------------------------------------------------------------------------------
     def _heartbeat(self) -> None:
-        if self.nmt_state != INITIALISING:
+        if self.nmt_state != INITIALISING and time.monotonic() >= self._heartbeat_hold:
             self._send(0x700 + self.node_id, bytes([self.nmt_state]))
 
     def _poll(self) -> None:
