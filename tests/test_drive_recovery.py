@@ -106,3 +106,45 @@ async def test_tcs_heartbeat_loss_recovers_without_restart(tmp_path):
     finally:
         await c.close()
         await svc.stop()
+
+
+async def test_bus_off_stops_the_axes_then_they_recover(tmp_path):
+    """Bus-off (an error frame on the virtual bus): every drive axis fails its motion, shows
+    ERROR_STATE with an event and a CABINET.STATUS.LIST entry, its drive is quick-stopped
+    (never cut at speed); when the controller is back (error frame "restarted") the axes work
+    again after ERROR_STATE=0 and POWER=1."""
+    from tcs.drivers.canbus import CAN_ERR_BUSOFF, CAN_ERR_RESTARTED
+
+    svc = Service(fast_config(tmp_path))
+    port = await svc.start()
+    c = await Client.connect(port)
+    sim = svc.telescope.sims[2]
+    try:
+        await ready(c, "ZD")
+        start = await c.num("ZD.REALPOS")
+        cmd = await c.start(f"ZD.TARGETPOS={-start if abs(start) > 20 else 60}")
+        await c.wait("ZD.REALPOS", lambda v: abs(v - start) > 2)
+        before = len(sim.logic.transitions)
+        with can.Bus(interface="virtual", channel=svc.config.can.channel) as bus:
+            bus.send(can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True,
+                                 is_extended_id=False, data=bytes(8)))
+            lines = await c.until(cmd, WAIT)
+            assert "FAILED" in lines[-2], lines
+            await c.event(r"^\d+ EVENT ERROR ZD:\d+ .*bus-off")
+            assert int(await c.num("ZD.ERROR_STATE")) & 2
+            assert int(await c.num("AZ.ERROR_STATE")) & 2
+            assert "bus-off" in await c.value("CABINET.STATUS.LIST")
+            await c.wait("ZD.POWER_STATE", lambda v: v == 0.0)
+            deadline = time.monotonic() + WAIT
+            while sim.state != "SWITCH ON DISABLED":
+                assert time.monotonic() < deadline
+                await asyncio.sleep(0.02)
+            taken = sim.logic.transitions[before:]
+            assert taken[0] == 11 and 9 not in taken, taken
+            bus.send(can.Message(arbitration_id=CAN_ERR_RESTARTED, is_error_frame=True,
+                                 is_extended_id=False, data=bytes(8)))
+        await acknowledge(c, "ZD")
+        await power_on_and_move(c, "ZD", 2.0)
+    finally:
+        await c.close()
+        await svc.stop()
