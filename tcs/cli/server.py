@@ -31,6 +31,8 @@ def setup_logging(level: str) -> None:
     logging.basicConfig(stream=sys.stderr, level=getattr(logging, level),
                         format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("can.interfaces.socketcand").setLevel(logging.ERROR)
+    from tcs.log_repeat import install
+    install()  # a repeated line: once, then a count every 10 s (a dead bus floods otherwise)
 
 
 def main(argv=None) -> int:

@@ -28,6 +28,8 @@ Faults handled here, while the service runs (no restart):
 * **Bus faults** — bus-off and error passive (error frames, :class:`~tcs.drivers.canbus.BusHealth`)
   are a fault of every drive on the bus (:meth:`Cia402Drive.set_bus_fault`: its axis makes a
   controlled stop and shows the error); "restarted" / "error active" clear it.
+* **Bus reconnect** — when :class:`CanBus` reopened a broken link (the socketcand peer died
+  and came back, an interface went down and up) every drive is booted again as above.
 * **Clean stop** — :meth:`release` (after the axes are off) switches off every disabled
   drive's heartbeat consumer (0x1016:1 = 0) and puts it pre-operational, so stopping the
   service leaves no 0x8130 faults; a crash leaves the consumers armed and the drives react.
@@ -93,6 +95,7 @@ class CanDrives:
             self.drives[name] = Cia402Drive(self.bus, name, section, can, eds=eds,
                                             worker=self.worker, clock=clock)
         self.bus.add_error_callback(self._on_bus_error)
+        self.bus.add_reconnect_callback(self._on_reconnect)
         self._supervisor: threading.Thread | None = None
         self._supervising = threading.Event()
         self._retry: dict[str, tuple[float, float]] = {}  # name -> (next attempt, back-off)
@@ -204,6 +207,12 @@ class CanDrives:
             return  # warnings, single error frames: counted, not acted on
         for drive in self.drives.values():
             drive.set_bus_fault(fault)
+
+    def _on_reconnect(self) -> None:
+        """The bus was reopened: every drive is booted again (as after a power blip)."""
+        for drive in self.drives.values():
+            drive.request_reboot()
+        self._retry.clear()
 
     def release(self) -> None:
         """Clean stop (blocking; after the axes are off): every booted drive that is not

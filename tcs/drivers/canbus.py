@@ -19,6 +19,14 @@
   :meth:`add_error_callback` hear each one. Nothing is swallowed: a failed ``send`` raises to
   its caller and is recorded here too.
 
+**Reconnect.** A bus whose link broke (sends fail: the socketcand peer went away, the
+interface is down) is reopened by a thread of its own (``tcs-can-reconnect``) with back-off
+(0.2 s doubling to 5 s): the python-can bus and the notifier are replaced under the same
+canopen ``Network``, so every subscription stays; callbacks of :meth:`add_reconnect_callback`
+then run (the drives are booted again, as after a power blip). Kernel SYNC
+(``send_periodic`` on socketcan) is not moved to the new socket: on socketcan the socket
+survives an interface down/up and no reopen happens unless sends keep failing.
+
 The SYNC producer is not here but in :class:`tcs.drivers.cycle.CycleSource`, which must know
 when each SYNC went out. All receive callbacks run in the one notifier thread and never block.
 """
@@ -111,7 +119,13 @@ class CanBus:
         self._lock = threading.Lock()
         self._health = BusHealth()
         self._callbacks: list[Callable[[TcsError], None]] = []
+        self._reconnect_callbacks: list[Callable[[], None]] = []
         self._last_receive_error = 0.0
+        self._broken = threading.Event()   # the link broke: reopen
+        self._closing = threading.Event()
+        self._reconnector: threading.Thread | None = None
+        self._failures_in_row = 0
+        self.reconnects = 0
 
     # ---------------------------------------------------------------- life cycle
     @property
@@ -137,10 +151,76 @@ class CanBus:
         self.network.listeners.append(_HealthListener(self))
         self.network.connect()
         self.start_heartbeat()
+        self._closing.clear()
+        self._broken.clear()
+        self._reconnector = threading.Thread(target=self._reconnect_loop, name="tcs-can-reconnect",
+                                             daemon=True)
+        self._reconnector.start()
         return self
+
+    # ---------------------------------------------------------------- reconnect
+    def add_reconnect_callback(self, callback: Callable[[], None]) -> None:
+        """``callback()`` after the bus was reopened (in the reconnect thread)."""
+        self._reconnect_callbacks.append(callback)
+
+    def _reconnect_loop(self) -> None:
+        backoff = 0.2
+        while not self._closing.is_set():
+            if not self._broken.wait(0.5):
+                continue
+            if self._closing.is_set():
+                return
+            try:
+                self._reopen()
+            except Exception as exc:  # the peer is not back yet
+                log.warning("%s: reopening failed (%s); next try in %g s", self.name, exc, backoff)
+                if self._closing.wait(backoff):
+                    return
+                backoff = min(2 * backoff, 5.0)
+                continue
+            backoff = 0.2
+            self._broken.clear()
+            self._failures_in_row = 0
+            self.reconnects += 1
+            self._record(CommunicationError(self.name, "bus reopened", ErrorNumber.CONFAIL), "ok")
+            for callback in list(self._reconnect_callbacks):
+                try:
+                    callback()
+                except Exception:
+                    log.exception("bus reconnect callback failed")
+
+    def _reopen(self) -> None:
+        """Replace the python-can bus and the notifier (same Network, same subscriptions)."""
+        network = self.network
+        if network is None:
+            return
+        old_bus, old_notifier = self.bus, network.notifier
+        if old_notifier is not None:
+            try:
+                old_notifier.stop(0.5)
+            except Exception:
+                pass
+        periodic = self._heartbeat_task is not None
+        self._heartbeat_task = None  # (bound to the old bus)
+        if old_bus is not None:
+            try:
+                old_bus.shutdown()
+            except Exception:
+                pass
+        new = can.Bus(**self.section.bus_kwargs())
+        network.bus = new
+        network.notifier = can.Notifier(new, network.listeners, network.NOTIFIER_CYCLE)
+        self.bus = new
+        if periodic:
+            self.start_heartbeat()
 
     def close(self) -> None:
         """Stop the heartbeat and the notifier, shut the bus down (idempotent)."""
+        self._closing.set()
+        self._broken.set()
+        thread, self._reconnector = self._reconnector, None
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout=5.0)
         self.stop_heartbeat()
         network, self.network = self.network, None
         if network is not None:
@@ -219,8 +299,15 @@ class CanBus:
         except (can.CanError, OSError) as exc:
             error = CommunicationError(self.name, f"send of 0x{cob_id:03X} failed: {exc}",
                                        ErrorNumber.CONFAIL)
-            self._record(error, send_failures=1)
+            self._failures_in_row += 1
+            broken = self._failures_in_row >= 20 or isinstance(
+                exc, (BrokenPipeError, ConnectionError)) or isinstance(exc.__context__, (
+                    BrokenPipeError, ConnectionError))
+            self._record(error, "failed" if broken else None, send_failures=1)
+            if broken:
+                self._broken.set()
             raise error from exc
+        self._failures_in_row = 0
 
     # ---------------------------------------------------------------- health
     def health(self) -> BusHealth:
@@ -279,6 +366,7 @@ class CanBus:
         notifier = self.network.notifier if self.network is not None else None
         if notifier is not None:
             notifier.exception = None
+        self._broken.set()  # reopen it (tcs-can-reconnect)
         now = time.monotonic()
         if now - self._last_receive_error < 0.5:
             time.sleep(0.1)

@@ -161,6 +161,7 @@ class Cia402Drive:
         self.steps = 0
         self._boot_count = 0
         self._lost_position = False
+        self._reboot_wanted = False
         self.reboots = 0  # boot-ups seen after a successful boot (power blip, reset)
 
     # ================================================================= boot (blocking)
@@ -213,6 +214,7 @@ class Cia402Drive:
             self._emcy = DriveFault(self.device, result.error_code)
         self._bootups_at_boot = self._hb.bootups
         self._boot_count += 1
+        self._reboot_wanted = False
         self.reboots += self._lost_position
         self._lost_position = False
         self._booted = True
@@ -332,12 +334,23 @@ class Cia402Drive:
         thread; a fault makes this drive's axis stop (controlled) like a drive fault."""
         self._bus_fault = error
 
+    def request_reboot(self) -> None:
+        """The link to the node was lost and is back (bus reopened): boot it again once it is
+        not wanted enabled; its position may have been lost meanwhile (REFERENCED)."""
+        self._reboot_wanted = True
+        if self._boot_count > 0:
+            self._lost_position = True
+
     def needs_reboot(self) -> bool:
         """True when the node must be booted again: it sent a boot-up since it was booted
         (power blip, reset) or its heartbeat shows pre-operational / stopped (it lost the TCS
         heartbeat) — and the driver no longer wants it enabled. Any thread."""
         hb = self._hb
-        if self._want is Want.ENABLED or hb.time is None:
+        if self._want is Want.ENABLED:
+            return False
+        if self._reboot_wanted:
+            return True
+        if hb.time is None:
             return False
         if not self._booted:  # failed boot: retry (with back-off) while the node shows life
             return self._boot_error is not None and (
