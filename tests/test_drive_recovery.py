@@ -70,6 +70,7 @@ async def test_power_cycled_drive_recovers_without_restart(tmp_path):
         await acknowledge(c, "ZD")
         assert await c.num("ZD.ERROR_STATE") == 0
         assert await c.num("ZD.REFERENCED") == 0.0  # its position was lost with the reboot
+        assert await c.num("CABINET.REFERENCED") < 1.0
         await power_on_and_move(c, "ZD", 5.0)
         assert abs(await c.num("ZD.REALPOS") - 5.0) <= 0.0005
         assert svc.telescope.can.recoveries >= 1
@@ -145,6 +146,34 @@ async def test_bus_off_stops_the_axes_then_they_recover(tmp_path):
                                  is_extended_id=False, data=bytes(8)))
         await acknowledge(c, "ZD")
         await power_on_and_move(c, "ZD", 2.0)
+    finally:
+        await c.close()
+        await svc.stop()
+
+
+async def test_values_without_fresh_data_fail(tmp_path):
+    """While ZD's drive sends no TPDOs its measured values answer FAILED 4 instead of a frozen
+    position; they are live again when the data is."""
+    svc = Service(fast_config(tmp_path))
+    port = await svc.start()
+    c = await Client.connect(port)
+    sim = svc.telescope.sims[2]
+    try:
+        await ready(c, "ZD")
+        float(await c.value("ZD.REALPOS"))
+        sim.mute_tpdos(True)
+        deadline = time.monotonic() + WAIT
+        while True:
+            lines = await c.command(77, "GET ZD.REALPOS;ZD.CURRPOS;ZD.CURRSPEED;AZ.REALPOS")
+            if "FAILED" in lines[1]:
+                break
+            assert time.monotonic() < deadline, lines
+            await asyncio.sleep(0.05)
+        assert lines[1:4] == ["77 DATA INLINE ZD.REALPOS=FAILED 4", "77 DATA INLINE ZD.CURRPOS=FAILED 4",
+                              "77 DATA INLINE ZD.CURRSPEED=FAILED 4"], lines
+        assert lines[4].startswith("77 DATA INLINE AZ.REALPOS=") and "FAILED" not in lines[4], lines
+        sim.mute_tpdos(False)
+        await c.wait("ZD.REALPOS", lambda v: isinstance(v, float))
     finally:
         await c.close()
         await svc.stop()

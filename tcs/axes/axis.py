@@ -44,7 +44,7 @@ from tcs.axes.profile import AxisDynamics, Setpoint
 from tcs.axes.trajectory import TrajectoryQueue
 from tcs.config.axes import DISCRETE_MODULES, TRAJECTORY_MODULES, AxisSection
 from tcs.drivers.drive import Drive, DriveState, DriveStatus, Mode, Progress
-from tcs.errors import ErrorNumber, RangeRefused, RequestRefused, TcsError
+from tcs.errors import CommunicationError, ErrorNumber, RangeRefused, RequestRefused, TcsError
 from tcs.model.events import ERROR, INFO, current_cause
 from tcs.model.health import ERROR as ERROR_BIT, WARNING, ModuleHealth
 
@@ -203,6 +203,7 @@ class Axis(ModuleHealth):
         self.target_position = 0.0
         self.offset = 0.0
         self.last_status: DriveStatus | None = None
+        self.stale: TcsError | None = None  # set while the drive gives no fresh data (FAILED 4)
         # -- loop-thread state --
         self._powered = False
         self._want_power: bool | None = None
@@ -685,6 +686,11 @@ class Axis(ModuleHealth):
         (the path where the setpoint is heading would add velocity × 2 cycles to it)."""
         prev_motion, prev_limit = self.motion_state, self.limit_state
         sp = self._sp
+        if st.state is DriveState.OFFLINE:
+            why = st.fault.message if st.fault is not None else "drive offline"
+            self.stale = CommunicationError(self.module_name, f"no fresh data ({why})")
+        else:
+            self.stale = None
         if self.discrete:
             self.real_position = self._discrete_position(st.position)
         else:
