@@ -191,3 +191,30 @@ def test_stalled_loop_makes_every_drive_quick_stop_by_itself(can_channel):
         assert {(1, 0x8250), (2, 0x8250), (1, 0x8130), (2, 0x8130)} <= emcy, emcy
         beats = [t for t, cob, _ in frames if cob == 0x700 + rig.can.node_id]
         assert max(b - a for a, b in zip(beats, beats[1:])) >= 1.0  # silent while stalled
+
+
+def _without(eds: str, *indices: str) -> str:
+    """The EDS text without the objects ``indices`` (sections and list entries)."""
+    import re
+
+    for index in indices:
+        start = eds.index(f"[{index}]\n")
+        end = eds.index("\n\n", start) + 2
+        eds = eds[:start] + eds[end:]
+        eds = re.sub(rf"\n\d+=0x{index}\n", "\n", eds)
+    listed = re.findall(r"^\d+=0x[0-9A-F]{4}$", eds.split("[OptionalObjects]")[1].split("[")[0], re.M)
+    return re.sub(r"(\[OptionalObjects\]\nSupportedObjects=)\d+", rf"\g<1>{len(listed)}", eds)
+
+
+def test_boot_writes_the_reactions_to_a_lost_master_where_the_drive_has_them(can_channel, tmp_path):
+    from tcs.sim.cia402_drive import DEFAULT_EDS
+
+    lean = tmp_path / "lean.eds"
+    lean.write_text(_without(DEFAULT_EDS.read_text(), "6007", "605C"))
+    axes = {"az": AxisSpec(1), "alt": AxisSpec(2, sim_eds=lean)}
+    with Rig(can_channel, axes) as rig:
+        assert rig.boot_and_start() == {}  # objects a drive lacks are skipped
+        az, alt = rig.sims["az"], rig.sims["alt"]
+        assert [az.read_object(i) for i in (0x6007, 0x605A, 0x605C, 0x605E)] == [3, 2, 1, 2]
+        assert [alt.read_object(i) for i in (0x605A, 0x605E)] == [2, 2]
+        rig.enable("az", "alt")
