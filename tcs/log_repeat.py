@@ -2,8 +2,9 @@
 
 A dead bus or a lost peer makes the same warning come from every cycle (a failed send of
 SYNC, of each RPDO …): thousands of lines a second that bury everything else in the journal.
-:class:`RepeatFilter` is a :class:`logging.Filter` for the service's handlers: a line is
-passed the first time; the same line again (same logger and level, numbers ignored, so "no
+:class:`RepeatFilter` is a :class:`logging.Filter` for the service's handlers: a warning or
+error line (INFO and DEBUG always pass: the journal of events stays complete) is passed the
+first time; the same line again (same logger and level, numbers ignored, so "no
 heartbeat for 0.52 s" and "… 0.61 s" are one kind) within ``interval`` seconds is counted and
 dropped; the first one after the interval is passed with "(N more like it in the last T s)".
 
@@ -26,8 +27,9 @@ class RepeatFilter(logging.Filter):
     """Pass a kind of line once per ``interval`` s, with the count of those dropped."""
 
     def __init__(self, interval: float = 10.0, clock: Callable[[], float] = time.monotonic,
-                 max_kinds: int = 2000):
+                 max_kinds: int = 2000, level: int = logging.WARNING):
         super().__init__()
+        self.level = level
         self.interval = float(interval)
         self._clock = clock
         self._max = max_kinds
@@ -35,6 +37,8 @@ class RepeatFilter(logging.Filter):
         self._lock = threading.Lock()
 
     def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno < self.level:
+            return True
         try:
             text = record.getMessage()
         except Exception:  # a bad format string: let the handler report it

@@ -99,14 +99,18 @@ def test_repeated_log_lines_are_counted_not_repeated():
     logger = logging.getLogger("test.repeat")
     logger.addHandler(handler)
     logger.propagate = False
+    logger.setLevel(logging.DEBUG)
     try:
         for i in range(1000):
             now[0] = i * 0.01
             logger.warning("send of 0x%03X failed after %.2f s", 0x80, i * 0.01)
         logger.warning("something else")
+        logger.info("an info line")
+        logger.info("an info line")  # (INFO is never limited)
         now[0] = 12.0
         logger.warning("send of 0x%03X failed after %.2f s", 0x80, 12.0)
     finally:
         logger.removeHandler(handler)
-    assert records == ["send of 0x080 failed after 0.00 s", "something else",
+    assert records == ["send of 0x080 failed after 0.00 s", "something else", "an info line",
+                       "an info line",
                        "send of 0x080 failed after 12.00 s (999 more like it in the last 12 s)"]
