@@ -177,3 +177,34 @@ async def test_values_without_fresh_data_fail(tmp_path):
     finally:
         await c.close()
         await svc.stop()
+
+
+async def test_fault_of_one_mount_axis_stops_the_other_under_control(tmp_path):
+    """ZD faults (over-current) while AZ slews: AZ is given up too — its TARGETPOS fails, it
+    is powered off — with a quick stop of its drive, never disable voltage at speed."""
+    svc = Service(fast_config(tmp_path))
+    port = await svc.start()
+    c = await Client.connect(port)
+    az_sim, zd_sim = svc.telescope.sims[1], svc.telescope.sims[2]
+    try:
+        await ready(c, "AZ", "ZD")
+        start = await c.num("AZ.REALPOS")
+        cmd = await c.start(f"AZ.TARGETPOS={start - 200 if start > 0 else start + 200}")
+        deadline = time.monotonic() + WAIT
+        while abs(az_sim.velocity) < 50:  # well under way (max 200/s)
+            assert time.monotonic() < deadline
+            await asyncio.sleep(0.01)
+        before = len(az_sim.logic.transitions)
+        zd_sim.inject_fault("overcurrent")
+        lines = await c.until(cmd, WAIT)
+        assert "DATA ERROR AZ.TARGETPOS FAILED 2" in lines[-2], lines
+        await c.event(r"^\d+ EVENT ERROR AZ:21 .*ZD faulted")
+        await c.wait("AZ.POWER_STATE", lambda v: v == 0.0)
+        taken = az_sim.logic.transitions[before:]
+        assert taken and taken[0] == 11 and 9 not in taken, taken
+        assert int(await c.num("ZD.ERROR_STATE")) & 2
+        lines = await c.set("AZ.POWER=1")  # AZ itself has no fault
+        assert done_ok(lines, "AZ.POWER"), lines
+    finally:
+        await c.close()
+        await svc.stop()

@@ -372,6 +372,16 @@ class Axis(ModuleHealth):
         future, self._ack_future = self._ack_future, None
         return future
 
+    @property
+    def fault(self) -> TcsError | None:
+        """The drive fault that stopped this axis and is not yet acknowledged, if any."""
+        return self._fault
+
+    def give_up(self, error: TcsError) -> None:
+        """Another axis of the mount faulted (control loop): stop this one — the drive makes a
+        controlled stop — and power it off; an explicit POWER=1 brings it back."""
+        self._send("give up", error)
+
     def on_acknowledge(self) -> None:
         """ERROR_STATE=0: forget a drive fault once the drive is reset (never re-enables)."""
         future = None
@@ -502,6 +512,13 @@ class Axis(ModuleHealth):
             self.offset = value
         elif kind == "stop":
             self._stop_motion(TcsError(f"{self.module_name}: stopped", ErrorNumber.TARGETCHANGE))
+        elif kind == "give up":
+            self._stop_motion(value)
+            if self._powered or self._want_power:
+                self.emit(ERROR, ErrorNumber.POWERCHANGE, value.message)
+                self._resolve("power", value)
+                self._want_power, self._power_since = False, now
+                self.drive.disable()  # (quick stop first while it moves: the driver's rule)
         elif kind == "speed":
             self.planner.set_speed(value)
             if self.follower is not None:
