@@ -166,7 +166,7 @@ class CanSection:
                                     "up (a late heartbeat within this is jitter, not a loss); the axis "
                                     "is then quick-stopped")
     tpdo_stale_cycles: int = setting(
-        10, min=2, max=10000, doc="consecutive SYNC cycles without a drive's synchronous TPDOs before "
+        30, min=2, max=10000, doc="consecutive SYNC cycles without a drive's synchronous TPDOs before "
                                   "its data counts as stale: an error of its axis (quick stop)")
 
     def check(self):

@@ -33,7 +33,7 @@ Safety rules kept here
   A drive given up for silence (OFFLINE) gets quick stop for ``stop_timeout``, then disable.
 * Timing tolerates jitter: the drive's heartbeat is lost only after ``can.heartbeat_tolerance``
   periods of silence (default 5), its data is stale only after ``can.tpdo_stale_cycles``
-  cycles in a row without its synchronous TPDOs (default 10). A genuine loss therefore stops
+  cycles in a row without its synchronous TPDOs (default 30). A genuine loss therefore stops
   the axis within tolerance × period (detection) + ``stop_timeout``.
 * Setpoints and move targets are clamped to the software limits of the hardware file.
 

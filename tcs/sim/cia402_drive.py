@@ -85,7 +85,7 @@ FAULT_CODES: dict[str, int] = {
 
 #: SYNC silence (in 0x1006 periods, and at least SYNC_LOSS_MIN s) that counts as a lost master.
 SYNC_LOSS_PERIODS = 10
-SYNC_LOSS_MIN = 0.3
+SYNC_LOSS_MIN = 0.5
 
 # NMT states as the heartbeat reports them.
 INITIALISING, STOPPED, OPERATIONAL, PRE_OPERATIONAL = 0x00, 0x04, 0x05, 0x7F
