@@ -21,7 +21,8 @@ Faults handled here, while the service runs (no restart):
 * **Recovery in place** — a supervisor thread (``tcs-recovery``, started with :meth:`start`)
   looks at every drive ten times a second; a drive that sent a boot-up (power blip, reset) or
   shows pre-operational / stopped (it lost the TCS heartbeat) and is no longer wanted enabled
-  (:meth:`Cia402Drive.needs_reboot`) is booted again in that thread — never in the cycle —
+  (:meth:`Cia402Drive.needs_reboot`) is booted again in a worker thread (``tcs-reboot``, up
+  to four drives at once) — never in the cycle —
   with its TPDOs out of the cycle's barrier meanwhile. A failed attempt is retried with
   back-off (1 s doubling to 30 s). The axis stays off; the operator's ``ERROR_STATE=0`` and
   ``POWER=1`` bring it back.
@@ -99,6 +100,8 @@ class CanDrives:
         self._supervisor: threading.Thread | None = None
         self._supervising = threading.Event()
         self._retry: dict[str, tuple[float, float]] = {}  # name -> (next attempt, back-off)
+        self._recovering: set[str] = set()
+        self._pool: ThreadPoolExecutor | None = None
         self.recoveries = 0
 
     @classmethod
@@ -151,6 +154,7 @@ class CanDrives:
         self.cycle.start()
         if self._supervisor is None:
             self._supervising.set()
+            self._pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="tcs-reboot")
             self._supervisor = threading.Thread(target=self._supervise, name="tcs-recovery",
                                                 daemon=True)
             self._supervisor.start()
@@ -165,6 +169,9 @@ class CanDrives:
         thread, self._supervisor = self._supervisor, None
         if thread is not None and thread is not threading.current_thread():
             thread.join(timeout=10.0)
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=True)  # (a boot under way ends within its boot_timeout)
 
     # ----------------------------------------------------------------- recovery, bus faults
     def _supervise(self) -> None:
@@ -173,17 +180,24 @@ class CanDrives:
                 if not self._supervising.is_set():
                     return
                 try:
-                    if drive.needs_reboot():
-                        self._recover(name, drive)
+                    if name not in self._recovering and drive.needs_reboot() and \
+                            time.monotonic() >= self._retry.get(name, (0.0, 0.5))[0]:
+                        self._recovering.add(name)  # one boot thread per drive, several at once
+                        self._pool.submit(self._recover, name, drive)
                 except Exception:  # the supervisor must outlive any one drive's trouble
                     log.exception("%s: recovery failed", drive.device)
             time.sleep(0.1)
 
     def _recover(self, name: str, drive: Cia402Drive) -> None:
-        now = time.monotonic()
-        next_try, backoff = self._retry.get(name, (0.0, 0.5))
-        if now < next_try:
-            return
+        try:
+            self._reboot(name, drive)
+        except Exception:
+            log.exception("%s: recovery failed", drive.device)
+        finally:
+            self._recovering.discard(name)
+
+    def _reboot(self, name: str, drive: Cia402Drive) -> None:
+        backoff = self._retry.get(name, (0.0, 0.5))[1]
         log.warning("%s rebooted or lost the TCS heartbeat: booting it again", drive.device)
         self.cycle.forget_tpdos(drive.sync_tpdo_ids)
         try:
