@@ -459,6 +459,8 @@ class SimDrive:
         if not self.responding:
             return
         now = time.monotonic()
+        if self.nmt_state == OPERATIONAL:
+            self._watch_sync(now)  # (the shorter time-out first, should a poll come late)
         for node, last in list(self._consumer_seen.items()):
             timeout = self._consumers.get(node)
             if timeout is not None and now - last > timeout:
@@ -469,7 +471,6 @@ class SimDrive:
                     self.nmt_state = PRE_OPERATIONAL
                     self._update_comm()
         if self.nmt_state == OPERATIONAL:
-            self._watch_sync(now)
             for cob, payload in self.pdo.poll_events(now):
                 self._send(cob, payload)
 
