@@ -198,7 +198,8 @@ class CanDrives:
 
     def _reboot(self, name: str, drive: Cia402Drive) -> None:
         backoff = self._retry.get(name, (0.0, 0.5))[1]
-        log.warning("%s rebooted or lost the TCS heartbeat: booting it again", drive.device)
+        log.warning("%s must be booted again (it rebooted, lost the TCS heartbeat, or the bus "
+                    "was reopened): booting it", drive.device)
         self.cycle.forget_tpdos(drive.sync_tpdo_ids)
         try:
             drive.boot()
