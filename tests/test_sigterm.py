@@ -96,3 +96,62 @@ def test_sigterm_while_slewing(tmp_path):
         if proc.poll() is None:
             proc.kill()
         proc.communicate()
+
+
+def test_clean_stop_leaves_no_drive_faults(tmp_path):
+    """``tcs-sim`` (the drives outlive the server) + ``tcs-server``: SIGTERM with every axis
+    powered stops and disables them, then switches the drives' heartbeat consumers off, so
+    after a pause longer than their consumer time the next start shows no drive errors."""
+    import tomlkit
+
+    from tcs.config.hwconfig import PACKAGE_ROOT
+    from test_cli_server import free_port
+
+    doc = tomlkit.parse((PACKAGE_ROOT / "hwconfig" / "sim-remote.toml").read_text())
+    port = free_port()
+    doc["can"]["port"] = free_port()
+    for plc in doc.get("plcs", {}).values():
+        plc["port"] = free_port()
+    if "gps" in doc:
+        doc["gps"]["url"] = f"socket://127.0.0.1:{free_port()}"
+    hwfile = tmp_path / "remote.toml"
+    hwfile.write_text(tomlkit.dumps(doc))
+    (tmp_path / "eds").symlink_to(PACKAGE_ROOT / "hwconfig" / "eds")
+    env = dict(os.environ, XDG_STATE_HOME=str(tmp_path / "state"))
+    sim = subprocess.Popen([sys.executable, "-m", "tcs.cli.sim", "--config", str(hwfile)], env=env,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+    def server() -> subprocess.Popen:
+        return subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--config", str(hwfile),
+                                 "--port", str(port)], env=env, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, text=True)
+
+    procs = [sim]
+    try:
+        line = ""
+        deadline = time.monotonic() + 60
+        while "ready" not in line and time.monotonic() < deadline and sim.poll() is None:
+            line = sim.stderr.readline()
+        assert "tcs-sim: ready" in line, line
+        procs.append(server())
+        c = Client(port)
+        c.send("1 SET CABINET.POWER=1")
+        assert c.until(1)[-1] == b"1 COMMAND COMPLETE"
+        assert c.get("CABINET.ERROR_STATE") == b"0"
+        c.close()
+        procs[-1].send_signal(signal.SIGTERM)
+        assert procs[-1].wait(60) == 0
+        time.sleep(1.5)  # longer than the drives' heartbeat consumer time (1 s)
+        procs.append(server())
+        c = Client(port)
+        errors = {axis: c.get(f"{axis}.ERROR_STATE")
+                  for axis in ("AZ", "ZD", "DEROTATOR[2]", "DEROTATOR[3]", "FOCUS", "FILTER[2]", "MIRROR")}
+        assert set(errors.values()) == {b"0"}, errors
+        c.close()
+        procs[-1].send_signal(signal.SIGTERM)
+        assert procs[-1].wait(60) == 0
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+            proc.communicate()

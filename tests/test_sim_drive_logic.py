@@ -195,3 +195,37 @@ def test_csp_interpolates_linearly_over_the_period():
     d.advance(0.005)
     assert d.read(0x6062) == 100
     assert math.isclose(d.logic.axis.demand()[1], 0.0)
+
+
+@pytest.mark.parametrize("option, state, transitions, emcy", [
+    (0, 0x27, [], []),                       # no reaction: still enabled
+    (1, 0x08, [13], [0x8250]),               # fault (reaction per 0x605E)
+    (2, 0x40, [9], [0x8250]),                # disable voltage
+    (3, 0x40, [11, 12], [0x8250]),           # quick stop, then 0x605A = 2 disables at rest
+])
+def test_lost_master_reaction_follows_0x6007(option, state, transitions, emcy):
+    d = Drive()
+    d.write(0x6007, 0, option)
+    d.write(0x60FF, 0, 20000)
+    d.enable(3)
+    d.advance(2.0)
+    before = len(d.logic.transitions)
+    d.logic.connection_lost(0x8250)
+    d.advance(10.0)
+    assert d.read(0x6041) & (0x4F if state != 0x27 else 0x6F) == state
+    assert d.logic.transitions[before:before + len(transitions)] == transitions
+    assert d.emcy == emcy
+
+
+@pytest.mark.parametrize("option, moving", [(0, False), (1, True)])
+def test_disable_operation_follows_0x605C(option, moving):
+    d = Drive(max_velocity=5.0, max_acceleration=5.0)  # brake: 2/s stops in 0.4 s; profile
+    d.write(0x60FF, 0, 20000)                          # deceleration (2.5/s²) takes 0.8 s
+    d.enable(3)
+    d.advance(10.0)
+    d.write(0x605C, 0, option)
+    d.write(0x6040, 0, 0x07)                  # disable operation (5)
+    d.advance(0.5)
+    assert (d.read(0x606C) > 0) is moving
+    d.advance(10.0)
+    assert d.read(0x606C) == 0

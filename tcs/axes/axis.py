@@ -44,7 +44,7 @@ from tcs.axes.profile import AxisDynamics, Setpoint
 from tcs.axes.trajectory import TrajectoryQueue
 from tcs.config.axes import DISCRETE_MODULES, TRAJECTORY_MODULES, AxisSection
 from tcs.drivers.drive import Drive, DriveState, DriveStatus, Mode, Progress
-from tcs.errors import ErrorNumber, RangeRefused, RequestRefused, TcsError
+from tcs.errors import CommunicationError, ErrorNumber, RangeRefused, RequestRefused, TcsError
 from tcs.model.events import ERROR, INFO, current_cause
 from tcs.model.health import ERROR as ERROR_BIT, WARNING, ModuleHealth
 
@@ -58,6 +58,7 @@ HW_MIN, HW_MAX, HW_BLOCKING, SW_MIN, SW_MAX, SW_BLOCKING = 1, 2, 128, 256, 512, 
 MEASURED_MOVING_CYCLES = 3  # cycles above standstill before a measured motion sets MOVING
 POWER_TIMEOUT = 10.0  # s for a drive to reach Operation enabled / disabled
 HOMING_START_TIMEOUT = 2.0  # s for the drive to show the requested homing run in progress
+ACK_TIMEOUT = 3.0  # s for the drive's fault reset after ERROR_STATE=0
 
 REFERENCE_ORDER = {"ZD": 0, "DEC": 0, "AZ": 1, "HA": 1}
 
@@ -205,6 +206,7 @@ class Axis(ModuleHealth):
         self.target_position = 0.0
         self.offset = 0.0
         self.last_status: DriveStatus | None = None
+        self.stale: TcsError | None = None  # set while the drive gives no fresh data (FAILED 4)
         # -- loop-thread state --
         self._powered = False
         self._want_power: bool | None = None
@@ -218,6 +220,9 @@ class Axis(ModuleHealth):
         self._run_cause = None  # the RUN=1 whose trajectory events (29-32) are sent
         self._fault: TcsError | None = None
         self._ack_pending = False  # ERROR_STATE=0 asked for a fault reset
+        self._ack_since = 0.0
+        self._ack_future = None
+        self._drive_reboots = 0
         self._discrete_target: int | None = None
         self._pending: dict[str, tuple[asyncio.Future, Any]] = {}
         self._completions: list[tuple[asyncio.Future, TcsError | None]] = []
@@ -273,6 +278,9 @@ class Axis(ModuleHealth):
         if on and not self.main_power():
             raise TcsError(f"{self.module_name}: main power (CABINET.POWER) is off", ErrorNumber.INVMODE)
         if on and self._fault is not None:
+            if self._ack_pending:
+                raise TcsError(f"{self.module_name}: {self._fault.message}; the fault reset of "
+                               f"ERROR_STATE=0 has not completed", self._fault.number)
             raise TcsError(f"{self.module_name}: {self._fault.message}; acknowledge with "
                            f"ERROR_STATE=0 first", self._fault.number)
         future = self._future()
@@ -364,9 +372,37 @@ class Axis(ModuleHealth):
         self._send("run", True if shift is None else (True, float(shift)), future)
         return future
 
+    def acknowledge_errors(self, value: int):
+        """``ERROR_STATE=0``: as every module, plus the drive: with a drive fault it is
+        long-running — it completes when the drive's fault reset is done (POWER=1 may follow at
+        once) and fails when the reset cannot be done (the drive offline, the reset refused)."""
+        self._ack_future = None
+        super().acknowledge_errors(value)
+        future, self._ack_future = self._ack_future, None
+        return future
+
+    @property
+    def fault(self) -> TcsError | None:
+        """The drive fault that stopped this axis and is not yet acknowledged, if any."""
+        return self._fault
+
+    def give_up(self, error: TcsError) -> None:
+        """Another axis of the mount faulted (control loop): stop this one — the drive makes a
+        controlled stop — and power it off; an explicit POWER=1 brings it back."""
+        self._send("give up", error)
+
     def on_acknowledge(self) -> None:
         """ERROR_STATE=0: forget a drive fault once the drive is reset (never re-enables)."""
-        self._send("acknowledge")
+        future = None
+        if self._fault is not None:
+            try:
+                future = self._future()
+            except RuntimeError:  # no event loop (tests driving the axis by hand)
+                future = None
+            if future is not None:  # (CABINET.ERROR_STATE=0 does not wait for it)
+                future.add_done_callback(lambda f: f.cancelled() or f.exception())
+        self._ack_future = future
+        self._send("acknowledge", None, future)
 
     def drive_status(self) -> DriveStatus | None:
         return self.last_status
@@ -485,6 +521,13 @@ class Axis(ModuleHealth):
             self.offset = value
         elif kind == "stop":
             self._stop_motion(TcsError(f"{self.module_name}: stopped", ErrorNumber.TARGETCHANGE))
+        elif kind == "give up":
+            self._stop_motion(value)
+            if self._powered or self._want_power:
+                self.emit(ERROR, ErrorNumber.POWERCHANGE, value.message)
+                self._resolve("power", value)
+                self._want_power, self._power_since = False, now
+                self.drive.disable()  # (quick stop first while it moves: the driver's rule)
         elif kind == "speed":
             self.planner.set_speed(value)
             if self.follower is not None:
@@ -523,16 +566,25 @@ class Axis(ModuleHealth):
             if dropped:
                 self.emit(INFO, POINTS_DROPPED, f"{dropped} trajectory points in the past dropped", cause)
         elif kind == "acknowledge":
-            if self._fault is not None:
-                if st.fault is None:  # gone already (e.g. a heartbeat that came back)
-                    self._forget_fault()
-                else:  # reset it; _watch_drive forgets it once the drive left Fault
-                    self._ack_pending = True
-                    self.drive.fault_reset()
+            if self._fault is None:
+                self._complete(future)
+            elif st.state is DriveState.OFFLINE:
+                why = st.fault.message if st.fault else "the drive is offline (being booted again)"
+                self._complete(future, TcsError(f"{self.module_name}: cannot reset: {why}",
+                                                (st.fault or self._fault).number))
+            elif st.fault is None:  # gone already (a heartbeat that came back, a rebooted drive)
+                self._forget_fault()
+                self._complete(future)
+            else:  # reset it; _watch_drive forgets it once the drive left Fault
+                self._ack_pending = True
+                self._ack_since = now
+                self._hold("acknowledge", future, cause)
+                self.drive.fault_reset()
 
     def _forget_fault(self) -> None:
         self._fault = None
         self._ack_pending = False
+        self._resolve("acknowledge")
         if self.conditions().get("drive fault", (0, False))[1]:
             self.clear_condition("drive fault")
 
@@ -562,6 +614,16 @@ class Axis(ModuleHealth):
                 self._resolve(key, fault)
             self._homing = False
             self.drive.disable()
+        if self._ack_pending and now - self._ack_since > ACK_TIMEOUT:
+            self._ack_pending = False
+            self._resolve("acknowledge", st.request_error or TcsError(
+                f"{self.module_name}: the drive's fault reset did not complete within "
+                f"{ACK_TIMEOUT:g} s (state {st.state.value})", ErrorNumber.TIMEOUT))
+        if st.reboots != self._drive_reboots:
+            self._drive_reboots = st.reboots
+            if self.referenced > 0.0 and not self._homing:  # relative encoders: position lost
+                self.referenced = 0.0
+                self.emit(ERROR, ErrorNumber.REFERENCE_BAD, "drive rebooted: reference lost")
         if self._fault is not None and st.fault is None and st.state is DriveState.SWITCH_ON_DISABLED:
             # the drive was reset: the condition's cause is gone; after an acknowledge the
             # axis may be powered again (it is never re-enabled by itself)
@@ -670,6 +732,11 @@ class Axis(ModuleHealth):
         (the path where the setpoint is heading would add velocity × 2 cycles to it)."""
         prev_motion, prev_limit = self.motion_state, self.limit_state
         sp = self._sp
+        if st.state is DriveState.OFFLINE:
+            why = st.fault.message if st.fault is not None else "drive offline"
+            self.stale = CommunicationError(self.module_name, f"no fresh data ({why})")
+        else:
+            self.stale = None
         if self.discrete:
             self.real_position = self._discrete_position(st.position)
         else:

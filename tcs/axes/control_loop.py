@@ -13,6 +13,10 @@ demand equals the setpoint at SYNC k+1 + one period. Computing the setpoint for 
 instead would make every trajectory lag by one period (36″ at 1°/s). The delay is
 ``reach_delay`` (default: one SYNC period).
 
+A fault of one axis of the mount (AZ/ZD, HA/DEC) gives the others up too when they move:
+they are stopped and powered off (:meth:`tcs.axes.axis.Axis.give_up`; the driver brings
+each drive to a controlled stop before it disables it).
+
 Health is reported, not assumed: the loop counts its own exceptions (an axis whose step raises
 is logged, counted and stopped; the other axes go on) and the cycle source counts late and
 missed cycles; :meth:`healthy` is what the systemd watchdog is fed from.
@@ -25,8 +29,11 @@ import time
 from typing import Callable, Sequence
 
 from tcs.drivers.cycle import Cycle, CycleSource
+from tcs.errors import ErrorNumber, TcsError
 
 log = logging.getLogger(__name__)
+
+MOUNT_MODULES = frozenset({"AZ", "ZD", "HA", "DEC"})
 
 
 class ControlLoop:
@@ -44,6 +51,9 @@ class ControlLoop:
         self.cycles = 0
         self.last_cycle = 0.0
         self.max_step = 0.0
+        self.mount = [a for a in self.axes if getattr(getattr(a, "section", None), "module", None)
+                      in MOUNT_MODULES and getattr(a.section, "index", None) is None]
+        self._mount_faulted: set = set()
         source.add_callback(self.step)
 
     def step(self, cycle: Cycle) -> None:
@@ -62,10 +72,22 @@ class ControlLoop:
                     axis.drive.step()
                 except Exception:
                     pass
+        if self.mount:
+            self._couple_mount()
         self.cycles += 1
         end = self.clock()
         self.last_cycle = end
         self.max_step = max(self.max_step, end - now)
+
+    def _couple_mount(self) -> None:
+        faulted = {a for a in self.mount if getattr(a, "fault", None) is not None}
+        for axis in faulted - self._mount_faulted:
+            for other in self.mount:
+                if other not in faulted and other.power_state == 1.0 and other.motion_state & 1:
+                    other.give_up(TcsError(f"{other.module_name}: stopped and powered off: "
+                                           f"{axis.module_name} faulted ({axis.fault.message})",
+                                           ErrorNumber.LIBFAIL))
+        self._mount_faulted = faulted
 
     def stats(self) -> dict:
         """Counters for CABINET.CORE and the benchmarks."""

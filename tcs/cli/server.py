@@ -57,6 +57,8 @@ def setup_logging(level: str) -> None:
     logging.basicConfig(stream=sys.stderr, level=getattr(logging, level),
                         format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("can.interfaces.socketcand").setLevel(logging.ERROR)
+    from tcs.log_repeat import install
+    install()  # a repeated line: once, then a count every 10 s (a dead bus floods otherwise)
 
 
 def main(argv=None) -> int:
@@ -80,7 +82,7 @@ def run_until_signalled(prog: str, main_coro) -> int:
     """Run ``main_coro(stop_event)`` with SIGINT/SIGTERM setting the event; exit status 0, or 1
     with a one-line message when the operating system refuses (port in use …), another
     master already runs the CAN bus (:class:`~tcs.drivers.bus_check.AnotherMaster`), or the
-    hardware cannot be reached at start (the CAN bus: no traceback).
+    hardware cannot be reached at start (the CAN bus: no traceback)."""
 
     async def run() -> None:
         stop = asyncio.Event()

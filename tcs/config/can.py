@@ -173,6 +173,13 @@ class CanSection:
         0, min=0, max=99, doc="SCHED_FIFO priority of the control-loop thread (1..99; 0 = normal "
                               "scheduling). Needs CAP_SYS_NICE or LimitRTPRIO (the systemd unit "
                               "grants it); refused by the system, the loop runs normally and says so")
+    heartbeat_tolerance: float = setting(
+        5.0, min=1.5, max=50.0, doc="drive heartbeat periods of silence before the TCS gives a drive "
+                                    "up (a late heartbeat within this is jitter, not a loss); the axis "
+                                    "is then quick-stopped")
+    tpdo_stale_cycles: int = setting(
+        30, min=2, max=10000, doc="consecutive SYNC cycles without a drive's synchronous TPDOs before "
+                                  "its data counts as stale: an error of its axis (quick stop)")
 
     def check(self):
         problems = []
@@ -281,6 +288,17 @@ class DriveSection:
     sdo_timeout: float | None = setting(None, min=0.05, max=10.0,
                                         doc="s per SDO response (default can.sdo_timeout)")
     sdo_retries: int = setting(1, min=0, max=10, doc="SDO retries after a time-out")
+    abort_connection_option: int = setting(
+        3, min=0, max=3, doc="0x6007 reaction of the drive to a lost connection (SYNC/RPDOs/NMT): "
+                             "0 none, 1 fault, 2 disable voltage, 3 quick stop (optional object)")
+    quick_stop_option: int = setting(
+        2, min=0, max=8, doc="0x605A quick stop option: 1/2 ramp (profile/quick-stop deceleration) "
+                             "then switch on disabled, 5/6 ramp and stay (optional object)")
+    disable_operation_option: int = setting(
+        1, min=0, max=1, doc="0x605C disable operation option: 1 ramp down first (optional object)")
+    fault_reaction_option: int = setting(
+        2, min=0, max=2, doc="0x605E fault reaction: 1 ramp with the profile, 2 with the quick-stop "
+                             "deceleration, 0 disable at once (optional object)")
 
     def check(self):
         problems = []

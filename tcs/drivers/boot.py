@@ -103,7 +103,13 @@ LOST = {
     0x609A: "homing acceleration stays as commissioned",
     0x607C: "no home offset (set the vendor's object with [drives.<name>.sdo])",
     0x603F: "the error code comes from EMCY only (read by SDO on a fault)",
+    0x6007: "the drive reacts to a lost connection (SYNC/RPDOs) as commissioned",
+    0x605A: "quick stop behaves as commissioned",
+    0x605C: "disable operation behaves as commissioned",
+    0x605E: "the fault reaction is the drive's commissioned one",
 }
+#: The drive's own reactions to a lost master (written when the drive has them).
+OPTIONAL |= {0x6007, 0x605A, 0x605C, 0x605E}
 
 NAMES = {
     0x1000: "device type", 0x1006: "SYNC period", 0x1016: "consumer heartbeat time",
@@ -115,6 +121,8 @@ NAMES = {
     0x6081: "profile velocity", 0x6083: "profile acceleration", 0x6084: "profile deceleration",
     0x6085: "quick-stop deceleration", 0x6098: "homing method", 0x6099: "homing speeds",
     0x609A: "homing acceleration", 0x60C2: "interpolation time period",
+    0x6007: "abort connection option", 0x605A: "quick stop option",
+    0x605C: "disable operation option", 0x605E: "fault reaction option",
 }
 
 
@@ -292,6 +300,10 @@ def configuration(section: DriveSection, can: CanSection, device: str) -> list[t
         (0x6099, 2, "<I", _u32(home.speed_zero * kv, "homing speed (zero)", device)),
         (0x609A, 0, "<I", _u32(home.acceleration * ka, "homing acceleration", device)),
         (0x607C, 0, "<i", round(home.offset * k)),
+        (0x6007, 0, "<h", section.abort_connection_option),
+        (0x605A, 0, "<h", section.quick_stop_option),
+        (0x605C, 0, "<h", section.disable_operation_option),
+        (0x605E, 0, "<h", section.fault_reaction_option),
     ]
 
 

@@ -16,6 +16,25 @@ the drives boot in parallel, one thread each, so a node that never answers costs
 its boot error as ``status().fault``; ``boot([name])`` retries it (not while the cycle is
 stepping that drive in a mode switch — boot is a set-up action).
 
+Faults handled here, while the service runs (no restart):
+
+* **Recovery in place** — a supervisor thread (``tcs-recovery``, started with :meth:`start`)
+  looks at every drive ten times a second; a drive that sent a boot-up (power blip, reset) or
+  shows pre-operational / stopped (it lost the TCS heartbeat) and is no longer wanted enabled
+  (:meth:`Cia402Drive.needs_reboot`) is booted again in a worker thread (``tcs-reboot``, up
+  to four drives at once) — never in the cycle —
+  with its TPDOs out of the cycle's barrier meanwhile. A failed attempt is retried with
+  back-off (1 s doubling to 30 s). The axis stays off; the operator's ``ERROR_STATE=0`` and
+  ``POWER=1`` bring it back.
+* **Bus faults** — bus-off and error passive (error frames, :class:`~tcs.drivers.canbus.BusHealth`)
+  are a fault of every drive on the bus (:meth:`Cia402Drive.set_bus_fault`: its axis makes a
+  controlled stop and shows the error); "restarted" / "error active" clear it.
+* **Bus reconnect** — when :class:`CanBus` reopened a broken link (the socketcand peer died
+  and came back, an interface went down and up) every drive is booted again as above.
+* **Clean stop** — :meth:`release` (after the axes are off) switches off every disabled
+  drive's heartbeat consumer (0x1016:1 = 0) and puts it pre-operational, so stopping the
+  service leaves no 0x8130 faults; a crash leaves the consumers armed and the drives react.
+
 ``step_all`` is a ready-made callback that steps every booted drive; the axis layer registers
 its own callback instead, reading status, setting setpoints, and calling ``step()`` of its
 drives.
@@ -24,12 +43,14 @@ drives.
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from tcs.config.can import CanSection, DriveSection
+from tcs.drivers.boot import NMT_PRE_OPERATIONAL, send_nmt
 from tcs.drivers.canbus import CanBus
 from tcs.drivers.cia402_drive import Cia402Drive
 from tcs.drivers.cycle import Cycle, CycleSource
@@ -80,6 +101,14 @@ class CanDrives:
                 raise ConfigError(file, f"drives.{name}.eds", f"EDS file {eds} not found")
             self.drives[name] = Cia402Drive(self.bus, name, section, can, eds=eds,
                                             worker=self.worker, clock=clock)
+        self.bus.add_error_callback(self._on_bus_error)
+        self.bus.add_reconnect_callback(self._on_reconnect)
+        self._supervisor: threading.Thread | None = None
+        self._supervising = threading.Event()
+        self._retry: dict[str, tuple[float, float]] = {}  # name -> (next attempt, back-off)
+        self._recovering: set[str] = set()
+        self._pool: ThreadPoolExecutor | None = None
+        self.recoveries = 0
 
     @classmethod
     def from_config(cls, config, **kwargs) -> CanDrives:
@@ -128,15 +157,108 @@ class CanDrives:
         return failures
 
     def start(self) -> None:
-        """Start SYNC and the cycle thread."""
+        """Start SYNC and the cycle thread, and the recovery supervisor."""
         self.cycle.start()
+        if self._supervisor is None:
+            self._supervising.set()
+            self._pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="tcs-reboot")
+            self._supervisor = threading.Thread(target=self._supervise, name="tcs-recovery",
+                                                daemon=True)
+            self._supervisor.start()
 
     def stop(self) -> None:
         """Stop SYNC and the cycle thread (enabled drives will fault on missing setpoints)."""
+        self._stop_supervisor()
         self.cycle.stop()
+
+    def _stop_supervisor(self) -> None:
+        self._supervising.clear()
+        thread, self._supervisor = self._supervisor, None
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout=10.0)
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=True)  # (a boot under way ends within its boot_timeout)
+
+    # ----------------------------------------------------------------- recovery, bus faults
+    def _supervise(self) -> None:
+        while self._supervising.is_set():
+            for name, drive in self.drives.items():
+                if not self._supervising.is_set():
+                    return
+                try:
+                    if name not in self._recovering and drive.needs_reboot() and \
+                            time.monotonic() >= self._retry.get(name, (0.0, 0.5))[0]:
+                        self._recovering.add(name)  # one boot thread per drive, several at once
+                        self._pool.submit(self._recover, name, drive)
+                except Exception:  # the supervisor must outlive any one drive's trouble
+                    log.exception("%s: recovery failed", drive.device)
+            time.sleep(0.1)
+
+    def _recover(self, name: str, drive: Cia402Drive) -> None:
+        try:
+            self._reboot(name, drive)
+        except Exception:
+            log.exception("%s: recovery failed", drive.device)
+        finally:
+            self._recovering.discard(name)
+
+    def _reboot(self, name: str, drive: Cia402Drive) -> None:
+        backoff = self._retry.get(name, (0.0, 0.5))[1]
+        log.warning("%s must be booted again (it rebooted, lost the TCS heartbeat, or the bus "
+                    "was reopened): booting it", drive.device)
+        self.cycle.forget_tpdos(drive.sync_tpdo_ids)
+        try:
+            drive.boot()
+        except TcsError as exc:
+            backoff = min(2 * backoff, 30.0)
+            self._retry[name] = (time.monotonic() + backoff, backoff)
+            log.error("%s (retry in %g s)", exc, backoff)
+            return
+        self._retry.pop(name, None)
+        self.cycle.expect_tpdos(drive.sync_tpdo_ids)
+        self.recoveries += 1
+        log.warning("%s booted again; its axis stays off until ERROR_STATE=0 and POWER=1",
+                    drive.device)
+
+    def _on_bus_error(self, error: TcsError) -> None:
+        """Bus health changed (notifier thread): bus-off / error passive fault every drive."""
+        state = self.bus.health().state
+        fault = error if state in ("bus-off", "passive") else None
+        if state not in ("bus-off", "passive", "ok"):
+            return  # warnings, single error frames: counted, not acted on
+        for drive in self.drives.values():
+            drive.set_bus_fault(fault)
+
+    def _on_reconnect(self) -> None:
+        """The bus was reopened: every drive is booted again (as after a power blip)."""
+        for drive in self.drives.values():
+            drive.request_reboot()
+        self._retry.clear()
+
+    def release(self) -> None:
+        """Clean stop (blocking; after the axes are off): every booted drive that is not
+        enabled gets its TCS-heartbeat consumer switched off (0x1016:1 = 0) and NMT
+        pre-operational, so the service's end leaves no heartbeat faults. An enabled drive
+        is left watching: it reacts when the heartbeat stops."""
+        from tcs.drivers.drive import DriveState
+
+        self._stop_supervisor()
+        for drive in self.drives.values():
+            status = drive.status()
+            if not status.booted or status.state in (DriveState.OPERATION_ENABLED,
+                                                      DriveState.QUICK_STOP_ACTIVE,
+                                                      DriveState.OFFLINE):
+                continue
+            try:
+                drive.release()
+                send_nmt(self.bus.network, NMT_PRE_OPERATIONAL, drive.node_id)
+            except Exception as exc:
+                log.warning("%s: could not switch its heartbeat consumer off: %s", drive.device, exc)
 
     def close(self) -> None:
         """Stop everything this object started (idempotent)."""
+        self._stop_supervisor()
         self.cycle.stop()
         self.worker.stop()
         for drive in self.drives.values():

@@ -5,15 +5,27 @@
 :class:`~canopen.Network` on it (used for SDO, NMT and EDS — not for PDOs, see
 :mod:`tcs.drivers.pdo`), and runs
 
-* the TCS's own **heartbeat producer** (COB-ID 0x700 + ``can.node_id``, state 5) with
-  ``send_periodic``: the kernel broadcast manager on socketcan, a python-can thread elsewhere.
-  Every drive watches it (0x1016) and faults when it stops; :meth:`stop_heartbeat` exists for
-  that test and for a deliberate safe stop;
+* the TCS's own **heartbeat producer** (COB-ID 0x700 + ``can.node_id``, state 5). Every
+  drive watches it (0x1016) and faults when it stops. Until the cyclic phase it is a
+  ``send_periodic`` task (boot, commissioning tools); once the control cycle runs
+  (:meth:`heartbeat_from_cycle`) the cycle thread itself sends it, through :meth:`beat`, after
+  each cycle's work is done — so a stalled control loop, a hung or stopped (SIGSTOP) process
+  stops the heartbeat and every drive reacts within its consumer time, which a kernel or
+  thread timer independent of the loop would hide. :meth:`stop_heartbeat` stops it in
+  either mode (tests, a deliberate safe stop);
 * a **bus-health listener** in the notifier: error frames (controller warning / passive,
   bus-off, restarted) and receive failures are counted and kept as :class:`BusHealth`; the
   latest problem is a :class:`~tcs.errors.CommunicationError`; callbacks registered with
   :meth:`add_error_callback` hear each one. Nothing is swallowed: a failed ``send`` raises to
   its caller and is recorded here too.
+
+**Reconnect.** A bus whose link broke (sends fail: the socketcand peer went away, the
+interface is down) is reopened by a thread of its own (``tcs-can-reconnect``) with back-off
+(0.2 s doubling to 5 s): the python-can bus and the notifier are replaced under the same
+canopen ``Network``, so every subscription stays; callbacks of :meth:`add_reconnect_callback`
+then run (the drives are booted again, as after a power blip). Kernel SYNC
+(``send_periodic`` on socketcan) is not moved to the new socket: on socketcan the socket
+survives an interface down/up and no reopen happens unless sends keep failing.
 
 The SYNC producer is not here but in :class:`tcs.drivers.cycle.CycleSource`, which must know
 when each SYNC went out. All receive callbacks run in the one notifier thread and never block.
@@ -100,10 +112,20 @@ class CanBus:
         self.bus: can.BusABC | None = None
         self.network: canopen.Network | None = None
         self._heartbeat_task = None
+        self._heartbeat_wanted = False
+        self._cycle_beats = False   # the cycle sends the heartbeat (beat())
+        self._last_beat = float("-inf")
+        self._heartbeat_msg = None
         self._lock = threading.Lock()
         self._health = BusHealth()
         self._callbacks: list[Callable[[TcsError], None]] = []
+        self._reconnect_callbacks: list[Callable[[], None]] = []
         self._last_receive_error = 0.0
+        self._broken = threading.Event()   # the link broke: reopen
+        self._closing = threading.Event()
+        self._reconnector: threading.Thread | None = None
+        self._failures_in_row = 0
+        self.reconnects = 0
 
     # ---------------------------------------------------------------- life cycle
     @property
@@ -133,10 +155,76 @@ class CanBus:
         self.network.connect()
         if heartbeat:
             self.start_heartbeat()
+        self._closing.clear()
+        self._broken.clear()
+        self._reconnector = threading.Thread(target=self._reconnect_loop, name="tcs-can-reconnect",
+                                             daemon=True)
+        self._reconnector.start()
         return self
+
+    # ---------------------------------------------------------------- reconnect
+    def add_reconnect_callback(self, callback: Callable[[], None]) -> None:
+        """``callback()`` after the bus was reopened (in the reconnect thread)."""
+        self._reconnect_callbacks.append(callback)
+
+    def _reconnect_loop(self) -> None:
+        backoff = 0.2
+        while not self._closing.is_set():
+            if not self._broken.wait(0.5):
+                continue
+            if self._closing.is_set():
+                return
+            try:
+                self._reopen()
+            except Exception as exc:  # the peer is not back yet
+                log.warning("%s: reopening failed (%s); next try in %g s", self.name, exc, backoff)
+                if self._closing.wait(backoff):
+                    return
+                backoff = min(2 * backoff, 5.0)
+                continue
+            backoff = 0.2
+            self._broken.clear()
+            self._failures_in_row = 0
+            self.reconnects += 1
+            self._record(CommunicationError(self.name, "bus reopened", ErrorNumber.CONFAIL), "ok")
+            for callback in list(self._reconnect_callbacks):
+                try:
+                    callback()
+                except Exception:
+                    log.exception("bus reconnect callback failed")
+
+    def _reopen(self) -> None:
+        """Replace the python-can bus and the notifier (same Network, same subscriptions)."""
+        network = self.network
+        if network is None:
+            return
+        old_bus, old_notifier = self.bus, network.notifier
+        if old_notifier is not None:
+            try:
+                old_notifier.stop(0.5)
+            except Exception:
+                pass
+        periodic = self._heartbeat_task is not None
+        self._heartbeat_task = None  # (bound to the old bus)
+        if old_bus is not None:
+            try:
+                old_bus.shutdown()
+            except Exception:
+                pass
+        new = can.Bus(**self.section.bus_kwargs())
+        network.bus = new
+        network.notifier = can.Notifier(new, network.listeners, network.NOTIFIER_CYCLE)
+        self.bus = new
+        if periodic:
+            self.start_heartbeat()
 
     def close(self) -> None:
         """Stop the heartbeat and the notifier, shut the bus down (idempotent)."""
+        self._closing.set()
+        self._broken.set()
+        thread, self._reconnector = self._reconnector, None
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout=5.0)
         self.stop_heartbeat()
         network, self.network = self.network, None
         if network is not None:
@@ -157,14 +245,14 @@ class CanBus:
     # ---------------------------------------------------------------- heartbeat
     def start_heartbeat(self) -> None:
         """Produce the TCS heartbeat (state operational) every ``heartbeat_period``."""
-        if self._heartbeat_task is not None or self.bus is None:
+        self._heartbeat_wanted = True
+        if self._cycle_beats or self._heartbeat_task is not None or self.bus is None:
             return
         msg = can.Message(arbitration_id=HEARTBEAT_BASE + self.section.node_id,
                           data=[NMT_OPERATIONAL], is_extended_id=False)
         self._heartbeat_task = self.bus.send_periodic(msg, self.section.heartbeat_period)
 
-    def stop_heartbeat(self) -> None:
-        """Stop the TCS heartbeat: every drive faults after its consumer time (0x1016)."""
+    def _stop_task(self) -> None:
         task, self._heartbeat_task = self._heartbeat_task, None
         if task is not None:
             task.stop()
@@ -172,9 +260,36 @@ class CanBus:
             if thread is not None and thread is not threading.current_thread():
                 thread.join(timeout=2.0)
 
+    def stop_heartbeat(self) -> None:
+        """Stop the TCS heartbeat: every drive faults after its consumer time (0x1016)."""
+        self._heartbeat_wanted = False
+        self._stop_task()
+
+    def heartbeat_from_cycle(self) -> None:
+        """The control cycle starts: from now on it produces the heartbeat with :meth:`beat`."""
+        self._stop_task()
+        self._cycle_beats = True
+
+    def heartbeat_to_periodic(self) -> None:
+        """The control cycle stopped on purpose: back to the periodic task (if wanted)."""
+        self._cycle_beats = False
+        if self._heartbeat_wanted:
+            self.start_heartbeat()
+
+    def beat(self, now: float) -> None:
+        """Send the heartbeat if one is due (cycle thread, after the cycle's work)."""
+        if not (self._cycle_beats and self._heartbeat_wanted) or \
+                now - self._last_beat < 0.95 * self.section.heartbeat_period:
+            return
+        self._last_beat = now
+        try:
+            self.send(HEARTBEAT_BASE + self.section.node_id, bytes([NMT_OPERATIONAL]))
+        except TcsError:
+            pass  # recorded in the health
+
     @property
     def heartbeat_running(self) -> bool:
-        return self._heartbeat_task is not None
+        return self._heartbeat_task is not None or (self._cycle_beats and self._heartbeat_wanted)
 
     # ---------------------------------------------------------------- sending
     def send(self, cob_id: int, data: bytes) -> None:
@@ -188,8 +303,15 @@ class CanBus:
         except (can.CanError, OSError) as exc:
             error = CommunicationError(self.name, f"send of 0x{cob_id:03X} failed: {exc}",
                                        ErrorNumber.CONFAIL)
-            self._record(error, send_failures=1)
+            self._failures_in_row += 1
+            broken = self._failures_in_row >= 20 or isinstance(
+                exc, (BrokenPipeError, ConnectionError)) or isinstance(exc.__context__, (
+                    BrokenPipeError, ConnectionError))
+            self._record(error, "failed" if broken else None, send_failures=1)
+            if broken:
+                self._broken.set()
             raise error from exc
+        self._failures_in_row = 0
 
     # ---------------------------------------------------------------- health
     def health(self) -> BusHealth:
@@ -248,6 +370,7 @@ class CanBus:
         notifier = self.network.notifier if self.network is not None else None
         if notifier is not None:
             notifier.exception = None
+        self._broken.set()  # reopen it (tcs-can-reconnect)
         now = time.monotonic()
         if now - self._last_receive_error < 0.5:
             time.sleep(0.1)

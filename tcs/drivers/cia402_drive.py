@@ -21,9 +21,20 @@ Safety rules kept here
 ----------------------
 * CSP: until the axis layer gives a setpoint after enabling, the target sent is the actual
   position latched when Operation enabled (or CSP) began — the drive never jumps.
-* A fault, a lost heartbeat or a drive that leaves Operation enabled by itself sets the wanted
-  state to *disabled*: after a fault reset (rising edge of bit 7, transition 15) the drive
-  stays in Switch on disabled until ``enable()`` is requested again.
+* A fault, a lost heartbeat, stale TPDOs, a bus fault (bus-off, error passive) or a drive that
+  leaves Operation enabled by itself sets the wanted state to *disabled*: after a fault reset
+  (rising edge of bit 7, transition 15) the drive stays in Switch on disabled until
+  ``enable()`` is requested again.
+* **Controlled stop, never a cut at speed.** Whatever asks for *disabled* (the cases above,
+  POWER=0, a fault of the axis), a drive in Operation enabled or Quick stop active that is not
+  at rest gets *quick stop* (0x0002, transition 11: it ramps with 0x6085 and, per 0x605A,
+  ends in Switch on disabled); *disable voltage* (0x0000) follows only at standstill, or
+  after ``stop_timeout`` = max velocity / quick-stop deceleration + 1 s whatever it reports.
+  A drive given up for silence (OFFLINE) gets quick stop for ``stop_timeout``, then disable.
+* Timing tolerates jitter: the drive's heartbeat is lost only after ``can.heartbeat_tolerance``
+  periods of silence (default 5), its data is stale only after ``can.tpdo_stale_cycles``
+  cycles in a row without its synchronous TPDOs (default 30). A genuine loss therefore stops
+  the axis within tolerance × period (detection) + ``stop_timeout``.
 * Setpoints and move targets are clamped to the software limits of the hardware file.
 
 Units: the interface is in user units; the wire in increments (``increments_per_unit``).
@@ -41,8 +52,8 @@ import canopen
 
 from tcs.config.can import CanSection, DriveSection
 from tcs.drivers import cia402 as sm
-from tcs.drivers.boot import (HB_OPERATIONAL, NMT_STATE_NAMES, BootResult, HeartbeatWatch, Sdo,
-                              boot_node, set_mode)
+from tcs.drivers.boot import (HB_OPERATIONAL, HB_PRE_OPERATIONAL, HB_STOPPED, NMT_STATE_NAMES,
+                              BootResult, HeartbeatWatch, Sdo, boot_node, set_mode)
 from tcs.drivers.canbus import HEARTBEAT_BASE, CanBus
 from tcs.drivers.cia402 import Want
 from tcs.drivers.drive import DriveState, DriveStatus, Mode, Progress
@@ -105,7 +116,17 @@ class Cia402Drive:
         self._raw: dict[int, int] = {}
         self._raw_time = float("-inf")
         self._hb = HeartbeatWatch(clock)
-        self._hb_timeout = 1.5 * section.heartbeat_period
+        self._hb_timeout = can.heartbeat_tolerance * section.heartbeat_period
+        self._sync_time = float("-inf")   # last synchronous TPDO (notifier)
+        self._seen_sync_time = float("-inf")
+        self._stale_cycles = 0
+        self._stale_fault: TcsError | None = None
+        self._bus_fault: TcsError | None = None
+        quick = section.quick_stop_deceleration or section.max_acceleration
+        self.stop_timeout = abs(section.max_velocity) / max(abs(quick), 1e-9) + 1.0
+        self._standstill = max(1.0, 1e-3 * abs(section.max_velocity * section.velocity_scale))
+        self._stopping_since: float | None = None
+        self._offline_since: float | None = None
         self._bootups_at_boot = 0
         self._emcy: DriveFault | None = None
         self._emcy_count = 0
@@ -141,6 +162,10 @@ class Cia402Drive:
         self.steps = 0
         self._code_mapped = any(0x603F in p.indices for p in self.layouts.values())
         self._code_job: Job | None = None
+        self._boot_count = 0
+        self._lost_position = False
+        self._reboot_wanted = False
+        self.reboots = 0  # boot-ups seen after a successful boot (power blip, reset)
 
     # ================================================================= boot (blocking)
     @property
@@ -156,15 +181,19 @@ class Cia402Drive:
         HardwareError, CommunicationError
             Naming this drive and node, the step and the object that failed.
         """
+        if self._boot_count > 0 and self._hb.bootups != self._bootups_at_boot:
+            self._lost_position = True  # a boot-up since the last boot: power blip or reset
         self._booted = False
         self._boot_error = None
         try:
             result = self._boot()
         except TcsError as exc:
             self._boot_error = exc
+            self._bootups_at_boot = self._hb.bootups
             raise
         except Exception as exc:  # canopen / python-can internals: still name the node
             self._boot_error = HardwareError(self.device, f"boot failed: {exc!r}")
+            self._bootups_at_boot = self._hb.bootups
             raise self._boot_error from exc
         with self._lock:
             self._want = Want.DISABLED
@@ -182,9 +211,15 @@ class Cia402Drive:
         self._homing = self._move = None
         self._homed = self.section.absolute  # referenced by configuration
         self._setpoint = None
+        self._stale_cycles, self._stale_fault = 0, None
+        self._stopping_since = self._offline_since = None
         if result.error_code and not self._emcy:
             self._emcy = DriveFault(self.device, result.error_code)
         self._bootups_at_boot = self._hb.bootups
+        self._boot_count += 1
+        self._reboot_wanted = False
+        self.reboots += self._lost_position
+        self._lost_position = False
         self._booted = True
 
     def _boot(self) -> BootResult:
@@ -221,6 +256,15 @@ class Cia402Drive:
         return boot_node(network, self._sdo, self._hb, self.section, self._can, self.layouts,
                          int(self._default_mode), start=subscribe_tpdos)
 
+    def release(self) -> None:
+        """Clean stop: switch the drive's consumer of the TCS heartbeat off (0x1016:1 = 0;
+        blocking SDO). The driver stops stepping it (it is not booted any more)."""
+        sdo = self._sdo
+        if sdo is None:
+            return
+        self._booted = False
+        sdo.write(0x1016, 1, "<I", 0)
+
     def close(self) -> None:
         """Forget the node (unsubscribe; the bus stays open). The drive is offline after."""
         self._booted = False
@@ -244,6 +288,7 @@ class Cia402Drive:
     # ================================================================= notifier thread
     def _tpdo_handler(self, pdo: PdoLayout) -> Callable:
         unpack, indices, size, clock = pdo.codec.unpack_from, pdo.indices, pdo.codec.size, self._clock
+        synchronous = pdo.synchronous
 
         def on_tpdo(cob_id: int, data: bytearray, timestamp: float) -> None:
             if len(data) < size:
@@ -252,6 +297,8 @@ class Cia402Drive:
             for index, value in zip(indices, unpack(data)):
                 raw[index] = value
             self._raw_time = clock()
+            if synchronous:
+                self._sync_time = self._raw_time
         return on_tpdo
 
     def _on_emcy(self, cob_id: int, data: bytearray, timestamp: float) -> None:
@@ -285,6 +332,37 @@ class Cia402Drive:
     def fault_reset(self) -> None:
         with self._lock:
             self._reset_requested = True
+
+    def set_bus_fault(self, error: TcsError | None) -> None:
+        """The bus is faulty (bus-off, error passive: ``error``) or well again (None). Any
+        thread; a fault makes this drive's axis stop (controlled) like a drive fault."""
+        self._bus_fault = error
+
+    def request_reboot(self) -> None:
+        """The link to the node was lost and is back (bus reopened): boot it again once it is
+        not wanted enabled; its position may have been lost meanwhile (REFERENCED)."""
+        self._reboot_wanted = True
+        if self._boot_count > 0:
+            self._lost_position = True
+
+    def needs_reboot(self) -> bool:
+        """True when the node must be booted again: it sent a boot-up since it was booted
+        (power blip, reset) or its heartbeat shows pre-operational / stopped (it lost the TCS
+        heartbeat) — and the driver no longer wants it enabled. Any thread."""
+        hb = self._hb
+        if self._want is Want.ENABLED:
+            return False
+        if self._reboot_wanted:
+            return True
+        if hb.time is None:
+            return False
+        if not self._booted:  # failed boot: retry (with back-off) while the node shows life
+            return self._boot_error is not None and (
+                hb.bootups != self._bootups_at_boot or self._clock() - hb.time <= self._hb_timeout)
+        if hb.bootups != self._bootups_at_boot:
+            return True
+        fresh = self._clock() - hb.time <= self._hb_timeout
+        return fresh and hb.state in (HB_PRE_OPERATIONAL, HB_STOPPED)
 
     def set_mode(self, mode: Mode) -> None:
         try:
@@ -347,11 +425,13 @@ class Cia402Drive:
                 return DriveState.OFFLINE, self._emcy, True
             return DriveState.OFFLINE, CommunicationError(
                 self.device, f"{why}: it must be booted again"), True
+        if self._stale_fault is not None:  # its state is unknown: the last one is history
+            return DriveState.OFFLINE, self._emcy or self._stale_fault, True
         sw = self._raw.get(0x6041, 0)
         state = sm.decode_state(sw) or DriveState.NOT_READY
-        fault = None
+        fault = self._bus_fault
         if state in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
-            fault = self._emcy
+            fault = self._emcy or fault
             code = self._raw.get(0x603F, 0)
             if fault is None and code:
                 fault = DriveFault(self.device, code)
@@ -387,7 +467,8 @@ class Cia402Drive:
             target_reached=bool(sw & sm.SW_TARGET_REACHED),
             setpoint=self._target_sent / k if self._target_sent is not None else None,
             heartbeat_ok=hb_ok, heartbeat_age=now - self._hb.time if self._hb.time is not None
-            else float("inf"), booted=self._booted, age=now - self._raw_time)
+            else float("inf"), booted=self._booted, age=now - self._raw_time,
+            reboots=self.reboots)
 
     # ================================================================= the cycle
     def step(self) -> None:
@@ -396,6 +477,7 @@ class Cia402Drive:
             return
         now = self._clock()
         self.steps += 1
+        self._watch_tpdos()
         state, fault, hb_ok = self._observe(now)
         self._fetch_error_code(state)
         raw = self._raw
@@ -431,17 +513,23 @@ class Cia402Drive:
             self._end_move(why)
 
         if state is DriveState.OFFLINE:
-            # Heartbeat lost or node not operational: if it still listens, it powers off and
-            # holds; one RPDO per cycle either way.
-            self._send(sm.DISABLE_VOLTAGE, actual)
+            # Heartbeat lost or node not operational: if it still listens it may still be
+            # moving, so it gets a quick stop for stop_timeout, then disable voltage; one RPDO
+            # per cycle either way.
+            if self._offline_since is None:
+                self._offline_since = now
+            self._stopping_since = None
+            stopping = now - self._offline_since <= self.stop_timeout
+            self._send(sm.QUICK_STOP if stopping else sm.DISABLE_VOLTAGE, actual)
             return
+        self._offline_since = None
 
         # --- fault reset: 0x0000 one cycle, then 0x0080 until Fault is left (15) ----------
         if reset and state in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
             self._reset_phase, self._reset_since = 1, now
         elif reset:
             self._emcy = None  # nothing to reset: forget the last warning
-        cw = sm.controlword(want, state)
+        cw = self._controlled(sm.controlword(want, state), state, sw, now)
         if self._reset_phase:
             if state not in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
                 self._reset_phase = 0
@@ -506,6 +594,46 @@ class Cia402Drive:
         def read() -> None:
             raw[0x603F] = sdo.read(0x603F, 0, "<H")
         self._code_job = self._worker.submit(read, f"{self.name} error code")
+
+    def _watch_tpdos(self) -> None:
+        """Count cycles in a row without this drive's synchronous TPDOs (control loop)."""
+        if self._sync_time != self._seen_sync_time or not self.sync_tpdo_ids:
+            self._seen_sync_time = self._sync_time
+            self._stale_cycles = 0
+            if self._stale_fault is not None:
+                log.warning("%s: TPDOs again", self.device)
+                self._stale_fault = None
+            return
+        self._stale_cycles += 1
+        limit = self._can.tpdo_stale_cycles
+        if self._stale_cycles >= limit and self._stale_fault is None and self._hb.state == HB_OPERATIONAL:
+            self._stale_fault = CommunicationError(
+                self.device, f"no TPDO for {self._stale_cycles} cycles: its data is stale")
+            log.warning("%s", self._stale_fault)
+
+    def _at_rest(self, state: DriveState, sw: int) -> bool:
+        """Standing still by the latest TPDOs (velocity actual value; in Quick stop active
+        also statusword bit 10). Unknown velocity counts as moving."""
+        if state is DriveState.QUICK_STOP_ACTIVE and sw & sm.SW_TARGET_REACHED:
+            return True
+        velocity = self._raw.get(0x606C)
+        return velocity is not None and abs(velocity) <= self._standstill and self._stale_fault is None
+
+    def _controlled(self, cw: int, state: DriveState, sw: int, now: float) -> int:
+        """Never cut the power of a moving drive: disable voltage (9, 12) becomes quick stop
+        (11, or stays in 11) until the drive stands still or ``stop_timeout`` has passed."""
+        if cw == sm.DISABLE_VOLTAGE and state in (DriveState.OPERATION_ENABLED,
+                                                  DriveState.QUICK_STOP_ACTIVE):
+            if self._at_rest(state, sw):
+                return cw
+            if self._stopping_since is None:
+                self._stopping_since = now
+                log.info("%s: quick stop before disabling (moving)", self.device)
+            if now - self._stopping_since <= self.stop_timeout:
+                return sm.QUICK_STOP
+            return cw
+        self._stopping_since = None
+        return cw
 
     def _set_want(self, want: Want, now: float) -> Want:
         if self._want is not want:

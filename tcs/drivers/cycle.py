@@ -178,6 +178,7 @@ class CycleSource:
         if self._thread is not None:
             return
         self._stop.clear()
+        self.bus.heartbeat_from_cycle()  # the TCS heartbeat now proves the loop works
         if self.kernel_sync:
             self.bus.network.subscribe(SYNC_COB_ID, self._on_sync)
             msg = can.Message(arbitration_id=SYNC_COB_ID, data=b"", is_extended_id=False)
@@ -198,6 +199,7 @@ class CycleSource:
         thread, self._thread = self._thread, None
         if thread is not None and thread is not threading.current_thread():
             thread.join(timeout=5.0)
+        self.bus.heartbeat_to_periodic()
         periodic, self._periodic = self._periodic, None
         if periodic is not None:
             periodic.stop()
@@ -275,6 +277,7 @@ class CycleSource:
                 self.last_error = exc
                 log.exception("cycle callback %r failed", callback)
         end = self._clock()
+        self.bus.beat(end)  # the TCS heartbeat: only from a cycle whose work is done
         spent = end - sync_time
         self.callback_time.append(spent)
         s = self._stats

@@ -193,6 +193,10 @@ KEYS: dict[tuple[int, int], tuple[str, str]] = {
     (0x6099, 2): ("homing.speed_zero", "velocity"),
     (0x609A, 0): ("homing.acceleration", "acceleration"),
     (0x607C, 0): ("homing.offset", "position"),
+    (0x6007, 0): ("abort_connection_option", ""),
+    (0x605A, 0): ("quick_stop_option", ""),
+    (0x605C, 0): ("disable_operation_option", ""),
+    (0x605E, 0): ("fault_reaction_option", ""),
 }
 
 #: What the axis loses without a mandatory object (for the error text).

@@ -435,17 +435,21 @@ class Cabinet(ModuleHealth):
                 log.debug("ERROR_STATE of %s unreadable", _name(member), exc_info=True)
         return state
 
-    def acknowledge_errors(self, value: int) -> None:
-        """``CABINET.ERROR_STATE=0``: acknowledge every module, the cabinet and the list's counts."""
+    def acknowledge_errors(self, value: int):
+        """``CABINET.ERROR_STATE=0``: acknowledge every module, the cabinet and the list's counts;
+        long-running while drive fault resets are under way (completes when they ended)."""
         if value != 0:
             raise RangeRefused("only 0 (acknowledge) may be written to ERROR_STATE")
         self._batch = True
+        resets = []  # drive axes: their fault resets (ERROR_STATE=0 of an axis is long-running)
         try:
             for member in self.members():
                 ack = getattr(member, "acknowledge_errors", None)
                 if callable(ack):
                     try:
-                        ack(0)
+                        result = ack(0)
+                        if inspect.isawaitable(result):
+                            resets.append(result)
                     except Exception:
                         log.exception("acknowledging %s failed", _name(member))
         finally:
@@ -453,6 +457,9 @@ class Cabinet(ModuleHealth):
         super().acknowledge_errors(0)
         self.status_list.acknowledged(None)
         self._publish("acknowledged")
+        if resets:  # complete when every reset ended (a reset that failed leaves its error)
+            return asyncio.gather(*resets, return_exceptions=True)
+        return None
 
     def _changed(self, before: int, text: str) -> None:  # ModuleHealth hook
         self._publish(text)

@@ -14,7 +14,9 @@ on the bus, nothing started) when another master is heard on it → the PLC and 
 DOME[], COVER, SENSOR[], SWITCH[], GPS) → drive simulators (they are "the hardware") → bus
 (its TCS heartbeat) → boot every drive in parallel (a drive that fails
 to boot leaves its axis in ERROR_STATE, the others work) → axes → control loop and SYNC. Stop
-order is the reverse; axes are stopped and their drives disabled first.
+order is the reverse; axes are stopped and their drives disabled first, then released (their
+consumer of the TCS heartbeat switched off, NMT pre-operational: a clean stop leaves no drive
+faults; a crash does, on purpose).
 """
 
 from __future__ import annotations
@@ -198,6 +200,9 @@ class Telescope:
             while self.control_loop is not None and time.monotonic() < deadline and any(
                     axis.power_state != 0.0 for axis in self.axes):
                 await asyncio.sleep(0.02)
+            # clean stop: the disabled drives stop watching our heartbeat (no 0x8130 faults
+            # left behind); an enabled one keeps watching and reacts when it stops
+            await self.run_blocking(self.can.release)
             await self.run_blocking(self.can.close)
             self.can = None
         if self.sims is not None:

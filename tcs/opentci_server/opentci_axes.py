@@ -50,6 +50,17 @@ TRAJECTORY = module(
 )
 
 
+def _measured(attr: str):
+    """Getter of a measured value: the axis's ``stale`` error (FAILED 4) while its drive gives
+    no fresh data (offline, stale TPDOs), so a frozen position never reads as live."""
+    def get(axis):
+        stale = getattr(axis, "stale", None)
+        if stale is not None:
+            raise stale
+        return getattr(axis, attr)
+    return get
+
+
 def axis_members():
     """The variables of the generic axis (§5.1), in the spec's order."""
     return (
@@ -64,11 +75,11 @@ def axis_members():
         var("REFERENCED", FLOAT, get="referenced", info="0 not referenced … 1 referenced (progress)"),
         var("REINIT", INT, set="set_reinit", min=0, max=1, rlevel=NOBODY,
             info="reference: 0 if not referenced, 1 force; returns at once"),
-        var("REALPOS", FLOAT, get="real_position", min=_lo, max=_hi,
+        var("REALPOS", FLOAT, get=_measured("real_position"), min=_lo, max=_hi,
             info="measured position; !MIN/!MAX are the software limits"),
         var("CYCLIC", FLOAT, get="cyclic", info="period of a rotary axis (0: not cyclic)"),
-        var("CURRPOS", FLOAT, get="current_position", info="REALPOS - OFFSET"),
-        var("CURRSPEED", FLOAT, get="current_speed", set="set_speed", min=0.0, wlevel=_speed_wlevel,
+        var("CURRPOS", FLOAT, get=_measured("current_position"), info="REALPOS - OFFSET"),
+        var("CURRSPEED", FLOAT, get=_measured("current_speed"), set="set_speed", min=0.0, wlevel=_speed_wlevel,
             max=lambda a: a.section.max_velocity,
             info="speed, units/s; writing lowers the speed of new motion"),
         var("CURRACC", FLOAT, get="current_acc", min=lambda a: -a.section.max_acceleration,
@@ -79,7 +90,7 @@ def axis_members():
             info="demanded position (user frame); returns on arrival, a newer target supersedes"),
         var("OFFSET", FLOAT, get="offset", set="set_offset", long=True, wlevel=_offset_wlevel,
             info="added to every positioning request; returns when reached"),
-        var("TARGETDISTANCE", FLOAT, get="target_distance", info="TARGETPOS - CURRPOS"),
+        var("TARGETDISTANCE", FLOAT, get=_measured("target_distance"), info="TARGETPOS - CURRPOS"),
         var("STOP", INT, set="set_stop", min=0, max=1, wlevel=OPERATE, rlevel=NOBODY,
             info="quick stop, cancels targets and trajectories; returns at once"),
         TRAJECTORY,

@@ -26,12 +26,17 @@ CANopen behaviour (CiA-301):
 * SYNC: synchronous RPDOs received since the last SYNC are applied, the drive logic is
   stepped (CSP target latched), then synchronous TPDOs are sent. An RPDO shorter than its
   mapping is dropped with EMCY 0x8210.
+* The master watched (CiA-402 0x6007, "abort connection"): with a SYNC period in 0x1006, a
+  drive enabled in operational that sees no SYNC for :data:`SYNC_LOSS_PERIODS` periods (at
+  least :data:`SYNC_LOSS_MIN` s) reacts per 0x6007 with code 0x8250 (see
+  :meth:`tcs.sim.drive_logic.DriveLogic.connection_lost`); so it does when NMT stop /
+  pre-operational takes it out of operational while enabled. Missing RPDOs: see drive_logic.
 * EMCY (0x1014, default 0x80 + id): ``[code lo, code hi, error register, 0, 0, 0, 0, 0]``.
 
 Fault injection (for tests): :meth:`inject_fault` ("overcurrent" 0x2310, "following_error"
 0x8611, "encoder" 0x7305, "position_limit" 0x8612, "heartbeat" 0x8130, "rpdo_timeout"
 0x8250, or any int code), :meth:`set_responding` (False = a dead node: sends nothing,
-answers nothing) and :meth:`set_refuse_sdo` (every SDO request aborted with 0x08000020).
+answers nothing), :meth:`hold_heartbeat` (late heartbeats), :meth:`mute_tpdos` and :meth:`set_refuse_sdo` (every SDO request aborted with 0x08000020).
 """
 
 from __future__ import annotations
@@ -79,6 +84,10 @@ FAULT_CODES: dict[str, int] = {
     "heartbeat": EMCY_HEARTBEAT,
     "rpdo_timeout": EMCY_RPDO_TIMEOUT,
 }
+
+#: SYNC silence (in 0x1006 periods, and at least SYNC_LOSS_MIN s) that counts as a lost master.
+SYNC_LOSS_PERIODS = 10
+SYNC_LOSS_MIN = 0.5
 
 # NMT states as the heartbeat reports them.
 INITIALISING, STOPPED, OPERATIONAL, PRE_OPERATIONAL = 0x00, 0x04, 0x05, 0x7F
@@ -138,11 +147,14 @@ class SimDrive:
         self.sync_count = 0
         self.emcy_sent: list[int] = []
         self._rpdo_since_sync = False
+        self._last_sync: float | None = None  # real time of the last SYNC while operational
         self._subscribed: dict[int, str] = {}
         self._sync_cob = 0x080
         self._timers: list[TimerHandle] = []
         self._heartbeat_timer: TimerHandle | None = None
         self._heartbeat_period = 0
+        self._heartbeat_hold = 0.0
+        self._tpdos_muted = False
         self._consumers: dict[int, float] = {}       # node -> timeout (s)
         self._consumer_seen: dict[int, float] = {}   # node -> last heartbeat (real time)
         self._started = False
@@ -221,6 +233,16 @@ class SimDrive:
         with self.lock:
             self.responding = bool(responding)
             self._consumer_seen.clear()
+
+    def mute_tpdos(self, muted: bool) -> None:
+        """True: send no TPDO (the node otherwise works: heartbeat, SDO, RPDOs)."""
+        with self.lock:
+            self._tpdos_muted = bool(muted)
+
+    def hold_heartbeat(self, seconds: float) -> None:
+        """Send no heartbeat for ``seconds`` (a late heartbeat; the node keeps working)."""
+        with self.lock:
+            self._heartbeat_hold = time.monotonic() + seconds
 
     def set_refuse_sdo(self, refuse: bool) -> None:
         """True: abort every SDO request with 0x08000020 ("cannot be stored/transferred")."""
@@ -367,6 +389,10 @@ class SimDrive:
         if len(data) < 2 or data[1] not in (0, self.node_id) or self.nmt_state == INITIALISING:
             return
         command = data[0]
+        if command in (0x02, 0x80) and self.nmt_state == OPERATIONAL:
+            self.logic.update(self.clock())
+            self.logic.connection_lost(None)  # leaving operational while enabled: 0x6007
+        self._last_sync = None
         if command == 0x01:
             self.nmt_state = OPERATIONAL
         elif command == 0x02:
@@ -416,15 +442,17 @@ class SimDrive:
         self.logic.update(self.clock())
         if self.nmt_state != OPERATIONAL:
             return
+        self._last_sync = time.monotonic()
         self.pdo.apply_sync_rpdos()
         fresh, self._rpdo_since_sync = self._rpdo_since_sync, False
         self.logic.on_sync(fresh)
         for cob, payload in self.pdo.on_sync(time.monotonic()):
-            self._send(cob, payload)
+            if not self._tpdos_muted:
+                self._send(cob, payload)
 
     # -- timers ------------------------------------------------------------------------------
     def _heartbeat(self) -> None:
-        if self.nmt_state != INITIALISING:
+        if self.nmt_state != INITIALISING and time.monotonic() >= self._heartbeat_hold:
             self._send(0x700 + self.node_id, bytes([self.nmt_state]))
 
     def _poll(self) -> None:
@@ -434,6 +462,8 @@ class SimDrive:
         if not self.responding:
             return
         now = time.monotonic()
+        if self.nmt_state == OPERATIONAL:
+            self._watch_sync(now)  # (the shorter time-out first, should a poll come late)
         for node, last in list(self._consumer_seen.items()):
             timeout = self._consumers.get(node)
             if timeout is not None and now - last > timeout:
@@ -446,3 +476,17 @@ class SimDrive:
         if self.nmt_state == OPERATIONAL:
             for cob, payload in self.pdo.poll_events(now):
                 self._send(cob, payload)
+
+    def _watch_sync(self, now: float) -> None:
+        """SYNC stopped while enabled (0x1006 > 0): the master is gone, react per 0x6007."""
+        last = self._last_sync
+        try:
+            period = self.store.get(0x1006, 0) / 1e6
+        except KeyError:
+            return
+        if last is None or period <= 0:
+            return
+        if now - last > max(SYNC_LOSS_PERIODS * period, SYNC_LOSS_MIN):
+            self._last_sync = None  # re-armed by the next SYNC
+            log.info("simulated drive %d: SYNC lost", self.node_id)
+            self.logic.connection_lost(EMCY_RPDO_TIMEOUT)

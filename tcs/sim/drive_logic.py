@@ -39,7 +39,12 @@ Behaviour chosen where CiA-402 leaves it to the vendor (the driver can rely on i
 * Following error: |demand − actual| > 0x6065 for longer than 0x6066 ms in PP/CSP/HM →
   fault 0x8611 (0x6065 = 0xFFFFFFFF switches the check off). Bit 13 shows |error| > window.
 * CSP: synchronous RPDOs missing at :data:`RPDO_TIMEOUT_SYNCS` consecutive SYNCs while
-  enabled in CSP → fault 0x8250 "RPDO time-out" (CiA-301 code). Every SYNC without a fresh
+  enabled in CSP → the abort connection reaction 0x6007 with code 0x8250 "RPDO time-out"
+  (:meth:`DriveLogic.connection_lost`: 0 none, 1 fault — the EDS default —, 2 disable
+  voltage, 3 quick stop per 0x605A; 2 and 3 send the code by EMCY as a warning). The node
+  applies the same reaction when SYNC stops (0x1006) or NMT takes it out of operational.
+* Disable operation (transition 5) ramps down with the profile deceleration when 0x605C = 1,
+  brakes at once when 0. Every SYNC without a fresh
   RPDO while enabled in CSP counts in ``rpdo_missed``. The velocity offset 0x60B1 is accepted
   and ignored (the model's position loop needs no feed-forward).
 * Statusword bit 12 in CSP = 1 "drive follows the command"; PP bit 12 = set-point
@@ -270,7 +275,12 @@ class DriveLogic:
             self._emcy(EMCY_RESET, 0)
         elif old in POWERED and new not in POWERED:
             self._abort_homing(error=False)
-            self._brake()
+            if number == 5 and self._option(0x605C, 0) == 1:
+                ax = self.axis  # disable operation option 1: ramp down, then the brake
+                ax.set_reference(stop_profile(ax.t, ax.x, ax.v, self._decel("profile")))
+                self.alarm_reason, ax.alarm = None, None
+            else:
+                self._brake()
         self._refresh_watch()
 
     def _brake(self) -> None:
@@ -313,6 +323,31 @@ class DriveLogic:
             self._brake()
         self._refresh_watch()
         return True
+
+    def _option(self, index: int, default: int) -> int:
+        """An option code object, or ``default`` when the EDS has no such object."""
+        try:
+            return self.store.get(index, 0)
+        except KeyError:
+            return default
+
+    def connection_lost(self, code: int | None) -> None:
+        """The master is gone (RPDOs or SYNC missing, NMT left operational): react per 0x6007
+        while the power stage is on (0 none, 1 fault ``code``, 2 disable voltage, 3 quick stop)."""
+        if self.state is not S.OPERATION_ENABLED:
+            return
+        option = self._option(0x6007, 1)
+        if option == 1:
+            self.fault(code if code is not None else EMCY_RPDO_TIMEOUT)
+            return
+        if option not in (2, 3):
+            return
+        if code is not None:
+            self._emcy(code, self.store.get(0x1001, 0))
+        if option == 2:
+            self._enter(S.SWITCH_ON_DISABLED, 9)
+        else:
+            self._enter(S.QUICK_STOP_ACTIVE, 11)
 
     # -- modes -------------------------------------------------------------------------------
     def _on_mode(self, mode: int) -> None:
@@ -545,7 +580,7 @@ class DriveLogic:
             self.rpdo_missed += 1
             self.missed_in_row += 1
             if self.missed_in_row >= RPDO_TIMEOUT_SYNCS:
-                self.fault(EMCY_RPDO_TIMEOUT)
+                self.connection_lost(EMCY_RPDO_TIMEOUT)
             return
         self.missed_in_row = 0
         target = self._clamp_target(self.store.get(0x607A, 0))

@@ -1,0 +1,210 @@
+"""Recovery in place (issue 10): a drive that was power-cycled or lost the TCS heartbeat is
+booted again by the running service; the operator's ``ERROR_STATE=0`` (complete only when the
+drive's fault reset is done) and ``POWER=1`` bring its axis back — no restart of the service.
+Over TPL2 against the fast simulated telescope, faults made with real CAN frames."""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import time
+from pathlib import Path
+
+import can
+
+from support.opentci_client import Client, done_ok
+from support.service import make_config
+from tcs.app import Service
+from test_axes import MOVING, ready
+
+FAST = Path(__file__).with_name("hw_axes_fast.toml")
+WAIT = 30.0
+
+
+def fast_config(tmp_path, **zd):
+    config = make_config(tmp_path / "state", FAST)
+    drives = dict(config.drives)
+    drives["zd"] = dataclasses.replace(drives["zd"], **zd)
+    new = dataclasses.replace(config, drives=drives)
+    object.__setattr__(new, "source", config.source)
+    return new
+
+
+async def acknowledge(c: Client, axis: str) -> list[str]:
+    """``ERROR_STATE=0`` as an operator does: again while the drive is still being booted
+    (that answer says so); the successful one completes when the reset is done."""
+    deadline = time.monotonic() + WAIT
+    while True:
+        lines = await c.set(f"{axis}.ERROR_STATE=0")
+        if done_ok(lines, f"{axis}.ERROR_STATE"):
+            return lines
+        assert time.monotonic() < deadline, lines
+        assert any("FAILED" in line for line in lines), lines
+        await asyncio.sleep(0.2)
+
+
+async def power_on_and_move(c: Client, axis: str, target: float) -> None:
+    lines = await c.set(f"{axis}.POWER=1")  # at once after ERROR_STATE=0 completed
+    assert done_ok(lines, f"{axis}.POWER"), lines
+    if await c.num(f"{axis}.REFERENCED") < 1.0:
+        await c.set(f"{axis}.REINIT=0")
+        await c.wait(f"{axis}.REFERENCED", lambda v: v == 1.0)
+    lines = await c.set(f"{axis}.TARGETPOS={target}")
+    assert done_ok(lines, f"{axis}.TARGETPOS"), lines
+    await c.wait(f"{axis}.MOTION_STATE", lambda v: not int(v) & MOVING)
+
+
+async def test_power_cycled_drive_recovers_without_restart(tmp_path):
+    svc = Service(fast_config(tmp_path))
+    port = await svc.start()
+    c = await Client.connect(port)
+    try:
+        await ready(c, "ZD")
+        lines = await c.set("ZD.TARGETPOS=3")
+        assert done_ok(lines, "ZD.TARGETPOS"), lines
+        # a power blip of the ZD drive: NMT reset node, put on the bus by a third party
+        with can.Bus(interface="virtual", channel=svc.config.can.channel) as bus:
+            bus.send(can.Message(arbitration_id=0x000, data=[0x81, 2], is_extended_id=False))
+        await c.wait("ZD.ERROR_STATE", lambda v: int(v) & 2)
+        assert await c.num("ZD.POWER_STATE") == 0.0
+        await acknowledge(c, "ZD")
+        assert await c.num("ZD.ERROR_STATE") == 0
+        assert await c.num("ZD.REFERENCED") == 0.0  # its position was lost with the reboot
+        assert await c.num("CABINET.REFERENCED") < 1.0
+        await power_on_and_move(c, "ZD", 5.0)
+        assert abs(await c.num("ZD.REALPOS") - 5.0) <= 0.0005
+        assert svc.telescope.can.recoveries >= 1
+    finally:
+        await c.close()
+        await svc.stop()
+
+
+async def test_tcs_heartbeat_loss_recovers_without_restart(tmp_path):
+    """ZD's drive watches the TCS heartbeat with 0.3 s (the others 5 s): a heartbeat gap
+    faults it (0x8130) and drops it to pre-operational; the service boots it again, and
+    ERROR_STATE=0 (fault reset done) + POWER=1 make it work."""
+    svc = Service(fast_config(tmp_path, heartbeat_consumer_timeout=0.3))
+    port = await svc.start()
+    c = await Client.connect(port)
+    sim = svc.telescope.sims[2]
+    try:
+        await ready(c, "ZD")
+        bus = svc.telescope.can.bus
+        bus.stop_heartbeat()
+        deadline = time.monotonic() + WAIT
+        while 0x8130 not in sim.emcy_sent:
+            assert time.monotonic() < deadline
+            await asyncio.sleep(0.02)
+        bus.start_heartbeat()
+        await c.wait("ZD.ERROR_STATE", lambda v: int(v) & 2)
+        await c.wait("ZD.POWER_STATE", lambda v: v == 0.0)
+        await acknowledge(c, "ZD")
+        assert sim.error_code == 0 and sim.state == "SWITCH ON DISABLED"
+        assert await c.num("ZD.REFERENCED") == 1.0  # no power loss: still referenced
+        await power_on_and_move(c, "ZD", 4.0)
+        assert abs(await c.num("ZD.REALPOS") - 4.0) <= 0.0005
+        assert svc.telescope.can.recoveries >= 1
+    finally:
+        await c.close()
+        await svc.stop()
+
+
+async def test_bus_off_stops_the_axes_then_they_recover(tmp_path):
+    """Bus-off (an error frame on the virtual bus): every drive axis fails its motion, shows
+    ERROR_STATE with an event and a CABINET.STATUS.LIST entry, its drive is quick-stopped
+    (never cut at speed); when the controller is back (error frame "restarted") the axes work
+    again after ERROR_STATE=0 and POWER=1."""
+    from tcs.drivers.canbus import CAN_ERR_BUSOFF, CAN_ERR_RESTARTED
+
+    svc = Service(fast_config(tmp_path))
+    port = await svc.start()
+    c = await Client.connect(port)
+    sim = svc.telescope.sims[2]
+    try:
+        await ready(c, "ZD")
+        start = await c.num("ZD.REALPOS")
+        cmd = await c.start(f"ZD.TARGETPOS={-start if abs(start) > 20 else 60}")
+        await c.wait("ZD.REALPOS", lambda v: abs(v - start) > 2)
+        before = len(sim.logic.transitions)
+        with can.Bus(interface="virtual", channel=svc.config.can.channel) as bus:
+            bus.send(can.Message(arbitration_id=CAN_ERR_BUSOFF, is_error_frame=True,
+                                 is_extended_id=False, data=bytes(8)))
+            lines = await c.until(cmd, WAIT)
+            assert "FAILED" in lines[-2], lines
+            await c.event(r"^\d+ EVENT ERROR ZD:\d+ .*bus-off")
+            assert int(await c.num("ZD.ERROR_STATE")) & 2
+            assert int(await c.num("AZ.ERROR_STATE")) & 2
+            assert "bus-off" in await c.value("CABINET.STATUS.LIST")
+            await c.wait("ZD.POWER_STATE", lambda v: v == 0.0)
+            deadline = time.monotonic() + WAIT
+            while sim.state != "SWITCH ON DISABLED":
+                assert time.monotonic() < deadline
+                await asyncio.sleep(0.02)
+            taken = sim.logic.transitions[before:]
+            assert taken[0] == 11 and 9 not in taken, taken
+            bus.send(can.Message(arbitration_id=CAN_ERR_RESTARTED, is_error_frame=True,
+                                 is_extended_id=False, data=bytes(8)))
+        await acknowledge(c, "ZD")
+        await power_on_and_move(c, "ZD", 2.0)
+    finally:
+        await c.close()
+        await svc.stop()
+
+
+async def test_values_without_fresh_data_fail(tmp_path):
+    """While ZD's drive sends no TPDOs its measured values answer FAILED 4 instead of a frozen
+    position; they are live again when the data is."""
+    svc = Service(fast_config(tmp_path))
+    port = await svc.start()
+    c = await Client.connect(port)
+    sim = svc.telescope.sims[2]
+    try:
+        await ready(c, "ZD")
+        float(await c.value("ZD.REALPOS"))
+        sim.mute_tpdos(True)
+        deadline = time.monotonic() + WAIT
+        while True:
+            lines = await c.command(77, "GET ZD.REALPOS;ZD.CURRPOS;ZD.CURRSPEED;AZ.REALPOS")
+            if "FAILED" in lines[1]:
+                break
+            assert time.monotonic() < deadline, lines
+            await asyncio.sleep(0.05)
+        assert lines[1:4] == ["77 DATA INLINE ZD.REALPOS=FAILED 4", "77 DATA INLINE ZD.CURRPOS=FAILED 4",
+                              "77 DATA INLINE ZD.CURRSPEED=FAILED 4"], lines
+        assert lines[4].startswith("77 DATA INLINE AZ.REALPOS=") and "FAILED" not in lines[4], lines
+        sim.mute_tpdos(False)
+        await c.wait("ZD.REALPOS", lambda v: isinstance(v, float))
+    finally:
+        await c.close()
+        await svc.stop()
+
+
+async def test_fault_of_one_mount_axis_stops_the_other_under_control(tmp_path):
+    """ZD faults (over-current) while AZ slews: AZ is given up too — its TARGETPOS fails, it
+    is powered off — with a quick stop of its drive, never disable voltage at speed."""
+    svc = Service(fast_config(tmp_path))
+    port = await svc.start()
+    c = await Client.connect(port)
+    az_sim, zd_sim = svc.telescope.sims[1], svc.telescope.sims[2]
+    try:
+        await ready(c, "AZ", "ZD")
+        start = await c.num("AZ.REALPOS")
+        cmd = await c.start(f"AZ.TARGETPOS={start - 200 if start > 0 else start + 200}")
+        deadline = time.monotonic() + WAIT
+        while abs(az_sim.velocity) < 50:  # well under way (max 200/s)
+            assert time.monotonic() < deadline
+            await asyncio.sleep(0.01)
+        before = len(az_sim.logic.transitions)
+        zd_sim.inject_fault("overcurrent")
+        lines = await c.until(cmd, WAIT)
+        assert "DATA ERROR AZ.TARGETPOS FAILED 2" in lines[-2], lines
+        await c.event(r"^\d+ EVENT ERROR AZ:21 .*ZD faulted")
+        await c.wait("AZ.POWER_STATE", lambda v: v == 0.0)
+        taken = az_sim.logic.transitions[before:]
+        assert taken and taken[0] == 11 and 9 not in taken, taken
+        assert int(await c.num("ZD.ERROR_STATE")) & 2
+        lines = await c.set("AZ.POWER=1")  # AZ itself has no fault
+        assert done_ok(lines, "AZ.POWER"), lines
+    finally:
+        await c.close()
+        await svc.stop()
