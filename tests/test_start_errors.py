@@ -1,22 +1,31 @@
 """``tcs-server`` when its hardware cannot be reached at start: a CAN interface that cannot be
-opened ends the server with one clear line (status 1, no traceback), and each lost PLC is
-warned about once in the log, not once per module it serves (the modules' events are still
-sent to clients, logged at INFO)."""
+opened ends the server with one clear line (status 1, no traceback) before anything else is
+started; and each lost PLC is warned about once in the log, not once per module it serves (the
+modules' events are still sent to clients, logged at INFO)."""
 
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
+import time
 
 import tomlkit
 
-from tcs.config.hwconfig import PACKAGE_ROOT
+from tcs.resources import hwconfig_file
 
-REMOTE = PACKAGE_ROOT / "hwconfig" / "sim-remote.toml"
+REMOTE = hwconfig_file("sim-remote.toml")
 
 
-def test_unreachable_bus_and_plcs_give_clean_short_messages(tmp_path):
+def _write(tmp_path, doc) -> str:
+    hwfile = tmp_path / "unreachable.toml"
+    hwfile.write_text(tomlkit.dumps(doc))
+    (tmp_path / "eds").symlink_to(hwconfig_file("eds"))
+    return str(hwfile)
+
+
+def test_unreachable_bus_is_one_clean_line(tmp_path):
     doc = tomlkit.parse(REMOTE.read_text())
     can = doc["can"]
     can["interface"] = "socketcan"
@@ -25,17 +34,45 @@ def test_unreachable_bus_and_plcs_give_clean_short_messages(tmp_path):
         can.pop(key, None)
     doc["plcs"]["dome"]["port"] = 1        # nothing listens on ports 1 and 2
     doc["plcs"]["telescope"]["port"] = 2
-    hwfile = tmp_path / "unreachable.toml"
-    hwfile.write_text(tomlkit.dumps(doc))
-    (tmp_path / "eds").symlink_to(PACKAGE_ROOT / "hwconfig" / "eds")
+    doc.pop("alpaca", None)
     env = dict(os.environ, XDG_STATE_HOME=str(tmp_path / "state"))
-    proc = subprocess.run([sys.executable, "-m", "tcs.cli.server", "--config", str(hwfile),
+    proc = subprocess.run([sys.executable, "-m", "tcs.cli.server", "--config", _write(tmp_path, doc),
                            "--port", "0"], env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 1, proc.stderr
     assert "Traceback" not in proc.stderr, proc.stderr
     last = proc.stderr.strip().splitlines()[-1]
     assert last.startswith("tcs-server: cannot start: CAN socketcan:tcs-no-such-can: cannot open the bus")
-    warnings = [line for line in proc.stderr.splitlines() if line.startswith("WARNING")]
+    # the bus is checked first (one master per bus): no PLC was started, so none was lost
+    assert not [line for line in proc.stderr.splitlines() if "PLC " in line], proc.stderr
+
+
+def test_each_lost_plc_is_warned_about_once(tmp_path):
+    doc = tomlkit.parse(REMOTE.read_text())
+    for key in ("can", "drives", "axes", "simulation", "alpaca"):
+        doc.pop(key, None)               # the PLC side alone
+    doc["plcs"]["dome"]["port"] = 1        # nothing listens on ports 1 and 2
+    doc["plcs"]["telescope"]["port"] = 2
+    env = dict(os.environ, XDG_STATE_HOME=str(tmp_path / "state"))
+    proc = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--config",
+                             _write(tmp_path, doc), "--port", "0"], env=env,
+                            stderr=subprocess.PIPE, text=True)
+    lines: list[str] = []
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:  # until both PLCs were found lost
+            line = proc.stderr.readline()
+            if not line:
+                break
+            lines.append(line)
+            if sum("PLC " in x and ": lost" in x for x in lines) >= 2:
+                break
+        time.sleep(2.0)  # the modules' reactions, had they been logged as warnings too
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        rest = proc.communicate(timeout=60)[1]
+    lines += rest.splitlines()
+    assert proc.returncode == 0, "".join(lines)
+    warnings = [line for line in lines if line.startswith("WARNING")]
     for plc in ("dome", "telescope"):
         # (the weather interlock's own warnings, "weather unknown: PLC dome unreachable", are
         # about the interlock, not the PLC)
