@@ -11,6 +11,7 @@ of the ``SERVER`` module (``UPTIME``, ``STARTTIME``, ``VERSION``, ``INFO.*``).
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import hashlib
 import hmac
 import logging
@@ -47,7 +48,9 @@ class Tpl2Server:
     device = "OpenTCI telescope control system"
 
     def __init__(self, settings: ServerSection, users: tuple[UserSection, ...], events: EventHub,
-                 manufacturer: str = ""):
+                 manufacturer: str = "", event_source=None):
+        #: Optional ``f(module name) -> name`` for the event lines of another tree (OpenTSI).
+        self.event_source = event_source
         self.settings = settings
         self.users = {u.name: u for u in users}
         self.events = events
@@ -148,5 +151,7 @@ class Tpl2Server:
 
     # -- events --------------------------------------------------------------------------------
     def _on_event(self, event: Event) -> None:
+        if self.event_source is not None:
+            event = dataclasses.replace(event, source=self.event_source(event.source))
         for session in list(self.sessions.values()):
             session.deliver_event(event)

@@ -457,6 +457,23 @@ class Pointing(ModuleHealth):
             session.stop(TcsError("the service is stopping", ErrorNumber.INVMODE))
             await asyncio.wait([session.task], timeout=10.0)
 
+    @property
+    def tracking_settled(self) -> bool:
+        """True while tracking runs on the path of its latest TRACK (the slew may go on)."""
+        return bool(self._controlled())
+
+    @property
+    def tracktime(self) -> float | None:
+        """Seconds of tracking left before the target leaves a limit (the planning horizon
+        when it stays inside it that long); None while not tracking on a settled path."""
+        session = self._tracking()
+        if session is None or not session.settled:
+            return None
+        until = session.plan.in_limits_until
+        if until is None:
+            return float(self.config.plan_horizon)
+        return max(0.0, until - self.ut1())
+
     # -- distances ------------------------------------------------------------------------------
     def _controlled(self) -> list:
         """The axes tracking runs, once they run the current plan (before: none, so that
