@@ -112,6 +112,7 @@ class Operations(ModuleHealth):
         self._ready_demand = 0
         self._job: asyncio.Task | None = None
         self._job_kind = ""
+        self._closing = False
 
     # -- parts of the model ----------------------------------------------------------------------
     @property
@@ -162,8 +163,9 @@ class Operations(ModuleHealth):
         power = max(0.0, float(cab.power_state))
         referenced = float(cab.referenced)
         changing = self._job is not None and not self._job.done()
+        axes_on = all(a.power_state == 1.0 for a in self.telescope.axes)
         if not changing:
-            if power == 1.0 and referenced >= 1.0:
+            if power == 1.0 and referenced >= 1.0 and axes_on:
                 return 1.0
             if power == 0.0 and not cab.main_power:
                 return 0.0
@@ -196,7 +198,7 @@ class Operations(ModuleHealth):
 
     async def _ready_on(self) -> None:
         cab = self.cabinet
-        if cab.power_state != 1.0:
+        if cab.power_state != 1.0 or any(a.power_state != 1.0 for a in self.telescope.axes):
             await cab.set_power(1)
         for _order, axes in cab.reference_plan(False):
             await asyncio.gather(*(a.reference(False) for a in axes))
@@ -246,7 +248,7 @@ class Operations(ModuleHealth):
             await asyncio.sleep(0.05)
 
     def _tracking_ended(self, fut: asyncio.Future) -> None:
-        if fut.cancelled():
+        if fut.cancelled() or self._closing:
             return
         exc = fut.exception()
         if isinstance(exc, TcsError) and exc.number != ErrorNumber.TARGETCHANGE:
@@ -414,6 +416,7 @@ class Operations(ModuleHealth):
         return wait()
 
     async def close(self) -> None:
+        self._closing = True
         if self._job is not None and not self._job.done():
             self._job.cancel()
             await asyncio.wait([self._job])
