@@ -426,3 +426,29 @@ async def test_song_status(live):
         assert await c.num("POSITION.INSTRUMENTAL.PORT_SELECT.CURRPOS") == await c.num("POINTING.SETUP.USE_PORT")
     finally:
         await c.close()
+
+
+# ------------------------------------------------------------------------------ the whole tree
+
+async def test_every_opentsi_variable_reads_on_the_default_telescope(service):
+    """hwconfig/sim.toml serves OpenTSI beside OpenTCI; a GET of every variable of the tree
+    answers a value or a documented keyword, never an internal failure, and garbage on that
+    port is answered as on the OpenTCI port."""
+    from tcs.opentci_server.tree import VarNode
+
+    svc, _port = service
+    tree = svc.opentsi_server.tree
+    paths = [path for path, node in tree.walk() if isinstance(node, VarNode)
+             and ".TRAJECTORY.BUFFER[" not in path and not path.startswith("SERVER.CONNECTION")]
+    c = await RawClient.connect(svc.opentsi_port)
+    try:
+        for i in range(0, len(paths), 40):
+            lines = await c.command(7, "GET " + ";".join(paths[i:i + 40]), timeout=30)
+            assert lines[-1] == "7 COMMAND COMPLETE"
+            bad = [x for x in lines if re.search(r"=(FAILED 13|INVALID|DENIED)$", x)]
+            assert not bad, bad
+        await c.send_bytes(b"\xff\xfe garbage\n8 SET TELESCOPE.READY=\n9 GET OBJECT.NOPE\n")
+        assert (await c.until(9))[1] == "9 DATA INLINE OBJECT.NOPE=UNKNOWN"
+        assert (await c.get("TELESCOPE.READY_STATE")) == "0.0"
+    finally:
+        await c.close()
