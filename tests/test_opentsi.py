@@ -11,6 +11,7 @@ inverse pipeline, within 1″ of the target; a goto within the axes' on-target t
 
 from __future__ import annotations
 
+import asyncio
 import math
 import re
 import time
@@ -452,3 +453,57 @@ async def test_every_opentsi_variable_reads_on_the_default_telescope(service):
         assert (await c.get("TELESCOPE.READY_STATE")) == "0.0"
     finally:
         await c.close()
+
+
+async def test_position_angle_on_the_sky(live):
+    """SETUP.DEROTATOR.OFFSET is a position angle: the derotator follows the field rotation
+    turned by it (the same target tracked with 0 and then 30 degrees)."""
+    c = await tsi(live)
+    try:
+        await ready(c)
+        ra, dec = star_near(live, 160.0, 55.0, ahead=5.0)
+        await pyobs_set(c, "POINTING.SETUP.DEROTATOR.SYNCMODE", 3)
+        readings = []
+        for pa in (0.0, 30.0):
+            await pyobs_set(c, "POINTING.SETUP.DEROTATOR.OFFSET", pa)
+            await c.set(f"OBJECT.EQUATORIAL.RA={ra!r};OBJECT.EQUATORIAL.DEC={dec!r}")
+            assert complete(await pyobs_set(c, "POINTING.TRACK", 1))
+            await c.wait("TELESCOPE.MOTION_STATE", lambda v: v == 11)
+            await c.wait("POSITION.INSTRUMENTAL.DEROTATOR[2].MOTION_STATE", lambda v: int(v) & 8)
+            assert await c.num("CURRENT.DEROTATOR_OFFSET") == pa
+            readings.append(await c.num("POSITION.INSTRUMENTAL.DEROTATOR[2].REALPOS"))
+        turned = math.remainder(readings[1] - readings[0], 360.0)
+        assert abs(turned - 30.0) < 1.0, readings
+        await pyobs_set(c, "POINTING.SETUP.DEROTATOR.OFFSET", 0.0)
+        await pyobs_set(c, "POINTING.SETUP.DEROTATOR.SYNCMODE", 0)
+        await pyobs_set(c, "POINTING.TRACK", 0)
+    finally:
+        await c.close()
+
+
+async def test_rts2_differential_rates_on_opentci(live):
+    """OpenTCI POINTING.TARGET.RA_V / DEC_V (RTS2's setDiffTrack, NTM): the tracked place moves
+    at the rate; 0 tracks the fixed star."""
+    c, o = await tsi(live), await tci(live)
+    try:
+        await ready(c)
+        ra, dec = star_near(live, 200.0, 60.0, ahead=5.0)
+        assert complete(await o.set(f"POINTING.TARGET.RA={ra!r};POINTING.TARGET.DEC={dec!r};"
+                                    "POINTING.TARGET.RA_V=0;POINTING.TARGET.DEC_V=36"))
+        cmd = await o.start("POINTING.TRACK=1")
+        await o.wait("POINTING.TARGETDISTANCE", lambda v: v < ARCSEC and v > 0)
+        await o.wait("POINTING.TRACK", lambda v: v == 1)
+        await c.wait("TELESCOPE.MOTION_STATE", lambda v: v == 11)
+        t0, d0 = await o.nums("LOCAL.UTC", "POINTING.CURRENT.DEC")   # one GET: one moment
+        await asyncio.sleep(3.0)
+        await o.wait("POINTING.TARGETDISTANCE", lambda v: v < ARCSEC)
+        t1, d1 = await o.nums("LOCAL.UTC", "POINTING.CURRENT.DEC")
+        rate = (d1 - d0) * 3600.0 / (t1 - t0)
+        assert abs(rate - 36.0) < 1.0, rate          # encoders a control cycle old: < 0.4"
+        assert await o.num("POINTING.TARGET.DEC_V") == 36.0
+        await o.set("POINTING.TRACK=0")
+        await o.until(cmd, WAIT)
+        await o.set("POINTING.TARGET.DEC_V=0")
+    finally:
+        await c.close()
+        await o.close()

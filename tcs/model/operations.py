@@ -230,7 +230,10 @@ class Operations(ModuleHealth):
             ra, dec = self.object.icrs(p.utc())
             p.target.set_ra(ra)
             p.target.set_dec(dec)
-            result = p.set_track(self.setup.track_mode() | self._track_flags())
+            p.target.set_ra_v(0.0)        # OBJECT has no differential rates: none left over
+            p.target.set_dec_v(0.0)
+            result = p.set_track(self.setup.track_mode() | self._track_flags(),
+                                 pa=self.setup.derotator_offset)
         except TcsError as exc:
             self._failed("track", exc)
             raise

@@ -30,6 +30,12 @@ def _place(writable: bool, mount: str, what: str):
         var(n1, FLOAT, get="correction1", info=f"pointing model correction in {t1}, degrees"),
         var(n2, FLOAT, get="correction2", info=f"pointing model correction in {t2}, degrees"),
         var("SIDEREAL_TIME", FLOAT, get="sidereal_time", info="local apparent sidereal time, hours"),
+        *((var("RA_V", FLOAT, get="ra_v", set="set_ra_v", min=-3600.0, max=3600.0,
+               info="differential rate of RA, arcsec of RA per second (RTS2, NTM); used from the "
+                    "next TRACK write"),
+           var("DEC_V", FLOAT, get="dec_v", set="set_dec_v", min=-3600.0, max=3600.0,
+               info="differential rate of Dec, arcsec per second; used from the next TRACK write"))
+          if writable else ()),
     )
 
 

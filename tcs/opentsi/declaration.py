@@ -162,7 +162,7 @@ SETUP = module(
            var("SYNCMODE", INT, get="derotator_syncmode", set="set_derotator_syncmode", min=0, max=5,
                info="0 off; else the derotator at the active port follows the field rotation"),
            var("OFFSET", FLOAT, get="derotator_offset", set="set_derotator_offset", min=-360.0, max=360.0,
-               info="position angle on the sky, degrees (stored; see the README)"),
+               info="position angle on the sky, degrees: added to the field angle the derotator follows"),
            info="derotator following"),
     module("DOME",
            var("SYNCMODE", INT, get="dome_syncmode", set="set_dome_syncmode", min=0, max=5,
