@@ -507,3 +507,21 @@ async def test_rts2_differential_rates_on_opentci(live):
     finally:
         await c.close()
         await o.close()
+
+
+async def test_rts2_leftovers_on_opentci(live):
+    """RTS2's model term names are aliases of ours (AOFF = IA, ZOFF = −IE, AE = −AW, FLEX = TF)
+    and CABINET.STATUS.TEXT[n] names error n (rts2-opentpl-errors)."""
+    o = await tci(live)
+    try:
+        assert await o.value("CABINET.STATUS.TEXT[5]") == '"invmode"'
+        assert await o.value("CABINET.STATUS.TEXT[10]") == '"targetchange"'
+        assert complete(await o.set("POINTING.POINTINGPARAMS.AOFF=0.01;POINTING.POINTINGPARAMS.ZOFF=0.02;"
+                                    "POINTING.POINTINGPARAMS.AE=0.003;POINTING.POINTINGPARAMS.FLEX=0.004"))
+        assert await o.nums("POINTING.POINTINGPARAMS.IA", "POINTING.POINTINGPARAMS.IE",
+                            "POINTING.POINTINGPARAMS.AW", "POINTING.POINTINGPARAMS.TF") == [0.01, -0.02, -0.003, 0.004]
+        assert await o.num("POINTING.POINTINGPARAMS.ZOFF") == 0.02
+        for term in ("IA", "IE", "AW", "TF"):
+            await o.set(f"POINTING.POINTINGPARAMS.{term}=0")
+    finally:
+        await o.close()

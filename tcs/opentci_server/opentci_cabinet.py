@@ -9,7 +9,12 @@ documented in ``tcs/model/cabinet.py`` and ``tcs/model/status_list.py``; the COR
 from __future__ import annotations
 
 from tcs.opentci_server.opentci_common import common
-from tcs.opentci_server.tree import FLOAT, INT, STRING, module, module_array, var
+from tcs.errors import ErrorNumber
+from tcs.opentci_server.tree import FLOAT, INT, STRING, module, module_array, var, var_array
+
+#: CABINET.STATUS.TEXT[n]: the name of error number n (RTS2's ``rts2-opentpl-errors``).
+_ERROR_TEXTS = tuple(next((e.name.lower() for e in ErrorNumber if e.value == n), "")
+                     for n in range(max(e.value for e in ErrorNumber) + 1))
 
 
 def _zero(_obj) -> int:
@@ -65,6 +70,8 @@ STATUS = module(
              "until CLEAR=-1 and across restarts"),
     var("CLEAR", INT, get=_zero, set="clear_status", min=-1, max=-1,
         info="write -1 to delete every LIST entry"),
+    var_array("TEXT", STRING, count=len(_ERROR_TEXTS), get=lambda c: _ERROR_TEXTS,
+              info="TEXT[n]: the name of error number n (Appendix B)"),
     info="system status: error memory and log",
 )
 

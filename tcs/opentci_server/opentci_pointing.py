@@ -45,6 +45,20 @@ def _coefficient(term: str):
                info=f"pointing model term {term}, degrees (active model; writing re-plans tracking)")
 
 
+#: RTS2's names of model terms (rts2 ``teld/opentpl``: "AOFF, ZOFF = az / zd offset, AE =
+#: azimuth tilt east, FLEX = sagging of tube") as aliases of ours, with the sign that makes
+#: them mean the same: a ZD offset is −IE, a tilt to the east is −AW (AN, NPAE and CA keep
+#: their names).
+RTS2_ALIASES = {"AZ-ZD": (("AOFF", "IA", 1.0), ("ZOFF", "IE", -1.0), ("AE", "AW", -1.0),
+                          ("FLEX", "TF", 1.0))}
+
+
+def _alias(name: str, term: str, sign: float):
+    return var(name, FLOAT, get=lambda p: sign * p.coefficient(term) + 0.0,
+               set=lambda p, value: p.set_coefficient(term, sign * value), min=-10.0, max=10.0,
+               info=f"RTS2's name of {'' if sign > 0 else '−'}{term}, degrees")
+
+
 def _pointing(mount: str):
     return module(
         "POINTING",
@@ -81,6 +95,7 @@ def _pointing(mount: str):
                var("SAVE", STRING, get="save", set="set_save", info="save the active model by name"),
                var("ERASE", STRING, get="erase", set="set_erase", info="delete a saved model"),
                *(_coefficient(term) for term in MOUNT_TERMS[mount]),
+               *(_alias(*alias) for alias in RTS2_ALIASES.get(mount, ())),
                info="pointing model: samples, fit, named models, coefficients (degrees)",
                bind="params"),
         module("REFRACTION",
