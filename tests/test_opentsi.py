@@ -525,3 +525,50 @@ async def test_rts2_leftovers_on_opentci(live):
             await o.set(f"POINTING.POINTINGPARAMS.{term}=0")
     finally:
         await o.close()
+
+
+def test_tcs_server_opentsi_port_option(tmp_path):
+    """``tcs-server --opentsi-port N`` serves the OpenTSI tree there (like ``--port``)."""
+    import os
+    import signal
+    import socket
+    import subprocess
+    import sys
+
+    def free_port() -> int:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            return s.getsockname()[1]
+
+    def connect(port: int) -> socket.socket:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                return socket.create_connection(("127.0.0.1", port), timeout=10)
+            except OSError:
+                assert time.monotonic() < deadline, f"nothing listens on {port}"
+                time.sleep(0.1)
+
+    port, tsi_port = free_port(), free_port()
+    env = dict(os.environ, XDG_STATE_HOME=str(tmp_path / "state"))
+    proc = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--port", str(port),
+                             "--opentsi-port", str(tsi_port)], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        for p, query, answer in ((tsi_port, b"TELESCOPE.READY_STATE", b"0.0"),
+                                 (port, b"CABINET.POWER_STATE", b"0.0")):
+            s = connect(p)
+            f = s.makefile("rb")
+            assert f.readline().startswith(b"TPL2 2.1 CONN ")
+            s.sendall(b'AUTH PLAIN "admin" "admin"\n1 GET ' + query + b"\n")
+            assert f.readline() == b"AUTH OK 0 0\n"
+            assert [f.readline() for _ in range(3)][1] == b"1 DATA INLINE " + query + b"=" + answer + b"\n"
+            f.close()
+            s.close()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(60) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stderr.close()
