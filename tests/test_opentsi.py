@@ -572,3 +572,35 @@ def test_tcs_server_opentsi_port_option(tmp_path):
             proc.kill()
             proc.wait()
         proc.stderr.close()
+
+
+async def test_pyobs_pointing_series(live, tmp_path):
+    """start_pointing_series / add_pointing_measure / stop_pointing_series: MODEL.CLEAR, FILE
+    (pyobs's absolute path: its name is kept, in the model directory), AUTO_SAVE=0, ADD and
+    SAVE while tracking a star, COUNT; LOAD=1 reads FILE back; pyobs sees no COMMAND ERROR."""
+    c = await tsi(live)
+    try:
+        await ready(c)
+        for key, value in (("POINTING.MODEL.CLEAR", 1), ("POINTING.MODEL.FILE", tmp_path / "pointing_1.dat"),
+                           ("POINTING.MODEL.AUTO_SAVE", 0)):
+            assert complete(await pyobs_set(c, key, value))
+        assert await c.value("POINTING.MODEL.FILE") == '"pointing_1.dat"'
+        assert await c.num("POINTING.MODEL.COUNT") == 0
+        for n, (az, alt) in enumerate(((100.0, 50.0), (220.0, 65.0)), start=1):
+            ra, dec = star_near(live, az, alt)
+            await pyobs_set(c, "OBJECT.EQUATORIAL.RA", ra)
+            await pyobs_set(c, "OBJECT.EQUATORIAL.DEC", dec)
+            assert complete(await pyobs_set(c, "POINTING.TRACK", 1))
+            await c.wait("TELESCOPE.MOTION_STATE", lambda v: v == 11)
+            lines = await pyobs_set(c, "POINTING.MODEL.ADD", str(n))
+            assert complete(lines) and "DATA OK POINTING.MODEL.ADD" in lines[-2], lines
+            assert complete(await pyobs_set(c, "POINTING.MODEL.SAVE", 1))
+            assert await c.num("POINTING.MODEL.COUNT") == n
+        assert complete(await pyobs_set(c, "POINTING.MODEL.CLEAR", 1))
+        assert await c.num("POINTING.MODEL.COUNT") == 0
+        assert complete(await pyobs_set(c, "POINTING.MODEL.LOAD", 1))
+        assert await c.num("POINTING.MODEL.COUNT") == 2
+        assert "DATA ERROR POINTING.MODEL.LOAD" in (await c.set("POINTING.MODEL.LOAD=2"))[-2]
+        await pyobs_set(c, "POINTING.TRACK", 0)
+    finally:
+        await c.close()
