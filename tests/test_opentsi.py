@@ -604,3 +604,64 @@ async def test_pyobs_pointing_series(live, tmp_path):
         await pyobs_set(c, "POINTING.TRACK", 0)
     finally:
         await c.close()
+
+
+# ------------------------------------------------------------------------------ fuzz (last: it
+# writes harmless variables of the shared service)
+
+_TSI_FRAGMENTS = [b"GET ", b"SET ", b"ABORT ", b"1 ", b"0 ", b"TELESCOPE.READY_STATE", b"TELESCOPE.STATUS.LIST",
+                  b"TELESCOPE.STATUS.CLEAR", b"OBJECT.EQUATORIAL.RA", b"OBJECT.EQUATORIAL.EQUINOX",
+                  b"OBJECT.HORIZONTAL.ALT", b"POSITION.HORIZONTAL.AZ", b"POSITION.INSTRUMENTAL.FILTER[2].CURRPOS",
+                  b"POINTING.SETUP.FILTER.INDEX", b"POINTING.SETUP.FILTER.NAME", b"AUXILIARY.SENSOR",
+                  b"TELESCOPE.CONFIG.PORT", b"!MEMBERS", b"!TYPE", b"[0-3]", b"[2]", b"<1>.<2>", b"=", b";",
+                  b",", b'"', b"\\", b"1.5", b"-7", b"1e400", b"NULL", b"\n", b"\x00", b"\xff", b" ", b"."]
+
+
+def test_fuzz_the_opentsi_port(live):
+    """Any bytes on the OpenTSI port get well-formed 7-bit replies and the port keeps serving."""
+    import socket
+
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    port = live.service.opentsi_port
+
+    def login() -> tuple[socket.socket, object]:
+        s = socket.create_connection(("127.0.0.1", port), timeout=10)
+        f = s.makefile("rb")
+        assert f.readline().startswith(b"TPL2 ")
+        s.sendall(b'AUTH PLAIN "admin" "admin"\n')
+        assert f.readline() == b"AUTH OK 0 0\n"
+        return s, f
+
+    def until(f, final: bytes) -> list[bytes]:
+        lines = []
+        while line := f.readline():
+            lines.append(line)
+            if line.startswith(final):
+                break
+        return lines
+
+    @settings(max_examples=80, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(st.lists(st.one_of(st.sampled_from(_TSI_FRAGMENTS), st.binary(max_size=12)), max_size=30))
+    def check(parts):
+        s, f = login()
+        try:
+            s.sendall(b"".join(parts) + b"\n4000000000 GET TELESCOPE.MOTION_STATE\n")
+            lines = until(f, b"4000000000 COMMAND COMPLETE")
+        finally:
+            f.close()
+            s.close()
+        for line in lines:
+            text = line.decode("ascii")
+            assert text.endswith("\n") and (text.split(" ", 1)[0].isdigit() or
+                                            text.split(" ", 1)[0] in ("AUTH", "DISCONNECT", "ENC")), text
+        s, f = login()
+        try:
+            s.sendall(b"1 GET TELESCOPE.CONFIG.MOUNT\n")
+            assert until(f, b"1 COMMAND COMPLETE")[1] == b'1 DATA INLINE TELESCOPE.CONFIG.MOUNT="AZ-ZD"\n'
+        finally:
+            f.close()
+            s.close()
+
+    check()
