@@ -244,6 +244,14 @@ async def test_pyobs_goto_altaz_through_the_cable_wrap(live):
             assert abs(real - min(candidates, key=lambda t: abs(t - before))) < 0.001
             assert await o.num("POINTING.TRACK") == 0
         assert await c.num("POSITION.INSTRUMENTAL.AZ.REALPOS") < -180.0   # 330° = -30°, 200° = -160°, 170° = -190°
+        # UNAM's "unpark": an instrumental position, taken as it is (written last: it is used)
+        assert complete(await c.set("OBJECT.INSTRUMENTAL.AZ=-100.0;OBJECT.INSTRUMENTAL.ZD=-30.0"))
+        assert complete(await pyobs_set(c, "POINTING.TRACK", 2))
+        assert await c.nums("POSITION.INSTRUMENTAL.AZ.REALPOS", "POSITION.INSTRUMENTAL.ZD.REALPOS") == \
+            pytest.approx([-100.0, -30.0], abs=0.001)
+        got_az, got_alt = await c.nums("POSITION.HORIZONTAL.AZ", "POSITION.HORIZONTAL.ALT")
+        assert abs(math.remainder(got_az - 80.0, 360.0)) < 0.001 and abs(got_alt - 60.0) < 0.001  # reverse
+        await pyobs_set(c, "OBJECT.HORIZONTAL.AZ", 90.0)
         # below the altitude limit: refused, and visible to a client that ignores SET errors
         await pyobs_set(c, "OBJECT.HORIZONTAL.ALT", 5.0)
         lines = await pyobs_set(c, "POINTING.TRACK", 2)

@@ -20,8 +20,8 @@ Verbs (each returns an awaitable for a long SET, or raises at once):
   once tracking runs on the new path. An end of that tracking by anything else than TRACK=0 /
   STOP raises the ``tracking`` condition.
 * :meth:`goto_horizontal`: the fixed (observed) alt/az of the target through the pointing model,
-  on the azimuth turn nearest to where the axis stands, normal orientation; complete on
-  arrival.
+  on the azimuth turn nearest to where the axis stands, normal orientation — or, when an
+  instrumental position was written last, that axis position as it is; complete on arrival.
 * :meth:`apply_filter` / :meth:`apply_focus`: the set-up's filter index / focus position.
 
 Summary states: :attr:`ready_state` (−3 local, −2 emergency off, −1 errors block, 0 off,
@@ -107,7 +107,7 @@ class Operations(ModuleHealth):
     def __init__(self, telescope):
         super().__init__("TELESCOPE", telescope.events, status_sink=telescope.cabinet.status_sink)
         self.telescope = telescope
-        self.object = SkyObject()
+        self.object = SkyObject(telescope.config.mount.type)
         self.setup = TrackSetup()
         self._ready_demand = 0
         self._job: asyncio.Task | None = None
@@ -306,9 +306,20 @@ class Operations(ModuleHealth):
     def goto_horizontal(self):
         p = self._need_pointing()
         try:
-            if self.object.az is None or self.object.alt is None:
+            obj = self.object
+            if obj.goto_frame == "instrumental":
+                d1, d2 = obj.instrumental
+                if d1 is None or d2 is None:
+                    raise TcsError("no position: write both OBJECT.INSTRUMENTAL axes first",
+                                   ErrorNumber.INVMODE)
+                for axis, d in ((p.axis1, d1), (p.axis2, d2)):
+                    if not axis.limits.contains(d + axis.offset):
+                        raise TcsError(f"{axis.module_name}: {d:.3f} is outside the limits",
+                                       ErrorNumber.SOFTLIMIT)
+            elif obj.az is None or obj.alt is None:
                 raise TcsError("no position: write OBJECT.HORIZONTAL.AZ and ALT first", ErrorNumber.INVMODE)
-            d1, d2 = self.horizontal_demand(self.object.az, self.object.alt)
+            else:
+                d1, d2 = self.horizontal_demand(obj.az, obj.alt)
             for axis in (p.axis1, p.axis2):
                 if axis.power_state != 1.0 or axis.referenced < 1.0:
                     raise TcsError(f"{axis.module_name} is not powered and referenced", ErrorNumber.INVMODE)

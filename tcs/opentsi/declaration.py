@@ -49,6 +49,10 @@ def _zero(_obj) -> int:
     return 0
 
 
+def _mount_of(sky_object) -> str:
+    return sky_object.mount
+
+
 # ------------------------------------------------------------------------------ TELESCOPE
 
 STATUS = module(
@@ -137,6 +141,14 @@ OBJECT = module(
            var("ALT", FLOAT, get="alt", set="set_alt", min=-90.0, max=90.0, info="observed altitude, degrees"),
            var("ZD", FLOAT, get="zd", set="set_zd", min=0.0, max=180.0, info="90 - ALT"),
            info="the position of POINTING.TRACK=2"),
+    *(module("INSTRUMENTAL",
+             var(n1, FLOAT, get=lambda o: o.instrumental[0], set=lambda o, v: o.set_instrumental(0, v),
+                 info=f"{n1} axis position (its TARGETPOS frame) of POINTING.TRACK=2"),
+             var(n2, FLOAT, get=lambda o: o.instrumental[1], set=lambda o, v: o.set_instrumental(1, v),
+                 info=f"{n2} axis position (its TARGETPOS frame) of POINTING.TRACK=2"),
+             info="an axis position for POINTING.TRACK=2 (the kind written last is used)",
+             bind=lambda obj, m=mount: obj if _mount_of(obj) == m else None)
+      for mount, (n1, n2) in (("AZ-ZD", ("AZ", "ZD")), ("RA-DEC", ("HA", "DEC")))),
     info="the target (kept by the telescope model)", bind=lambda root: root.ops.object,
 )
 

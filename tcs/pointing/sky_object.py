@@ -14,7 +14,9 @@ Conventions (the README's "OpenTSI" section says why):
 * ``EPOCH`` is the epoch of the position for proper motion, in years; unset, it is the equinox.
 * ``RA_PM`` (RA·cos Dec) and ``DEC_PM`` are in milliarcseconds per year, applied linearly from
   ``EPOCH`` to the time of the track.
-* Horizontal positions are observed (refracted) azimuth (north 0, east 90) and altitude.
+* Horizontal positions are observed (refracted) azimuth (north 0, east 90) and altitude;
+  an instrumental goto target is in the main axes' own frame (their TARGETPOS). A goto uses
+  the kind written last.
 
 What may touch it: the event loop (tree setters and the operations that start a track).
 """
@@ -35,7 +37,8 @@ EQUINOX_RANGE = (1900.0, 2100.0)
 class SkyObject:
     """A target as catalogued (see the module docstring)."""
 
-    def __init__(self) -> None:
+    def __init__(self, mount: str = "AZ-ZD") -> None:
+        self.mount = mount          # names the instrumental axes (AZ/ZD or HA/DEC)
         self.ra: float | None = None
         self.dec: float | None = None
         self.equinox = 2000.0
@@ -45,6 +48,10 @@ class SkyObject:
         self.name = ""
         self.az: float | None = None
         self.alt: float | None = None
+        #: instrumental goto target (axis 1, axis 2) in the axes' own frame (UNAM's "unpark")
+        self.instrumental: list[float | None] = [None, None]
+        #: which of the two the next goto uses: the one written last
+        self.goto_frame = "horizontal"
 
     # -- equatorial --------------------------------------------------------------------------
     def set_ra(self, value: float) -> None:
@@ -102,12 +109,14 @@ class SkyObject:
         if not -360.0 <= value <= 720.0:
             raise RangeRefused(f"azimuth {value}° is not an azimuth")
         self.az = value % 360.0
+        self.goto_frame = "horizontal"
 
     def set_alt(self, value: float) -> None:
         value = float(value)
         if not -90.0 <= value <= 90.0:
             raise RangeRefused(f"altitude {value}° is outside -90…90")
         self.alt = value
+        self.goto_frame = "horizontal"
 
     @property
     def zd(self) -> float | None:
@@ -115,6 +124,12 @@ class SkyObject:
 
     def set_zd(self, value: float) -> None:
         self.set_alt(90.0 - float(value))
+
+    # -- instrumental ------------------------------------------------------------------------
+    def set_instrumental(self, axis: int, value: float) -> None:
+        """Axis position (TARGETPOS frame) of a goto; ``axis`` 0 or 1."""
+        self.instrumental[axis] = float(value)
+        self.goto_frame = "instrumental"
 
 
 def precess_from_j2000(ra_h: float, dec_deg: float, equinox: float) -> tuple[float, float]:
