@@ -42,6 +42,9 @@ class Tpl2Server:
         The telescope's event hub; every event goes to every logged-in connection.
     cabinet:
         Text for ``SERVER.INFO.MANUFACTURER``.
+    event_source:
+        Optional ``f(module) -> name`` for the event lines (the OpenTSI server names its own
+        modules); the same users and settings may serve several trees on several ports.
     """
 
     vendor = "tcs project"
