@@ -251,9 +251,11 @@ class Operations(ModuleHealth):
             await asyncio.sleep(0.05)
 
     def _tracking_ended(self, fut: asyncio.Future) -> None:
-        if fut.cancelled() or self._closing:
+        if fut.cancelled():
             return
-        exc = fut.exception()
+        exc = fut.exception()            # retrieved in any case (no "never retrieved" noise)
+        if self._closing:
+            return
         if isinstance(exc, TcsError) and exc.number != ErrorNumber.TARGETCHANGE:
             self._failed("tracking", exc)
 

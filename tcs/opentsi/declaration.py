@@ -125,8 +125,9 @@ TELESCOPE = module(
 OBJECT = module(
     "OBJECT",
     module("EQUATORIAL",
-           var("RA", FLOAT, get="ra", set="set_ra", min=0.0, max=24.0, info="right ascension, hours"),
-           var("DEC", FLOAT, get="dec", set="set_dec", min=-90.0, max=90.0, info="declination, degrees"),
+           var("RA", FLOAT, get="ra_value", set="set_ra", min=0.0, max=24.0,
+               info="right ascension, hours (0 until written)"),
+           var("DEC", FLOAT, get="dec_value", set="set_dec", min=-90.0, max=90.0, info="declination, degrees"),
            var("EQUINOX", FLOAT, get="equinox", set="set_equinox", min=1900.0, max=2100.0,
                info="Julian equinox of RA/DEC, years (precessed to J2000)"),
            var("EPOCH", FLOAT, get="epoch", set="set_epoch", min=1900.0, max=2100.0,

@@ -54,6 +54,15 @@ class SkyObject:
         self.goto_frame = "horizontal"
 
     # -- equatorial --------------------------------------------------------------------------
+    @property
+    def ra_value(self) -> float:
+        """RA as served: 0 until written (as POINTING.TARGET; pyobs reads it with float())."""
+        return self.ra if self.ra is not None else 0.0
+
+    @property
+    def dec_value(self) -> float:
+        return self.dec if self.dec is not None else 0.0
+
     def set_ra(self, value: float) -> None:
         value = float(value)
         if not 0.0 <= value < 24.0:
