@@ -25,12 +25,16 @@ log = logging.getLogger(__name__)
 class Service:
     """One running TCS."""
 
-    def __init__(self, config: HwConfig, host: str | None = None, port: int | None = None):
+    def __init__(self, config: HwConfig, host: str | None = None, port: int | None = None,
+                 opentsi_port: int | None = None):
         self.config = config
         self.host = host
         self.port = port
         self.telescope: Telescope | None = None
         self.server: Tpl2Server | None = None
+        #: The OpenTSI tree's listener (``[server] opentsi_port`` ≥ 0), same users and model.
+        self.opentsi_server: Tpl2Server | None = None
+        self.opentsi_port = config.server.opentsi_port if opentsi_port is None else opentsi_port
 
     async def start(self) -> int:
         """Start everything; returns the TPL2 port.
@@ -50,12 +54,19 @@ class Service:
             raise
         self.server.tree = build_tree(self.telescope, self.server)
         try:
-            return await self.server.start(self.host, self.port)
+            port = await self.server.start(self.host, self.port)
+            if self.opentsi_port >= 0:
+                from tcs.opentsi import build_opentsi_server
+                self.opentsi_server = build_opentsi_server(self.config, self.telescope)
+                self.opentsi_port = await self.opentsi_server.start(self.host, self.opentsi_port)
+            return port
         except BaseException:
-            await self.telescope.stop()
+            await self.stop()
             raise
 
     async def stop(self) -> None:
+        if self.opentsi_server is not None:
+            await self.opentsi_server.stop()
         if self.server is not None:
             await self.server.stop()
         if self.telescope is not None:

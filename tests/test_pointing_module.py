@@ -667,7 +667,7 @@ async def test_equatorial_mount(tmp_path, sky):
     svc, port = await start_service(tmp_path / "state", CONFIG.with_name("hw_pointing_eq.toml"))
     c = await Client.connect(port)
     try:
-        assert await c.members("POINTING.TARGET") == ["RA", "DEC", "HA", "PA", "DH", "DD", "SIDEREAL_TIME"]
+        assert await c.members("POINTING.TARGET") == ["RA", "DEC", "HA", "PA", "DH", "DD", "SIDEREAL_TIME", "RA_V", "DEC_V"]
         assert "IH,ID,CH,NP,MA,ME,TF" in ",".join(await c.members("POINTING.POINTINGPARAMS"))
         assert await c.get("POINTING.TARGET.DA") == "UNKNOWN"
         assert ok(await c.set("CABINET.POWER=1"), "CABINET.POWER")

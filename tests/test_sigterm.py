@@ -46,7 +46,8 @@ class Client:
 
 
 def start(port: int, env: dict) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--port", str(port)], env=env,
+    return subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--port", str(port),
+                             "--opentsi-port", "0"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
 
 

@@ -46,7 +46,8 @@ def test_notify_sequence_and_watchdog(tmp_path):
     env = dict(os.environ, NOTIFY_SOCKET=path, WATCHDOG_USEC="200000",
                XDG_STATE_HOME=str(tmp_path / "state"))
     env.pop("WATCHDOG_PID", None)
-    proc = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--port", str(port)], env=env,
+    proc = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--port", str(port),
+                             "--opentsi-port", "0"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         before_ready = receive_all(sock, "READY=1")

@@ -71,7 +71,7 @@ def test_server_drives_the_simulator_in_another_process(tmp_path):
             line = sim.stderr.readline()
         assert "tcs-sim: ready" in line, line
         server = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--config", str(hwfile),
-                                   "--port", str(tpl2_port)], env=env,
+                                   "--port", str(tpl2_port), "--opentsi-port", "0"], env=env,
                                   stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         s = connect(tpl2_port, timeout=60)
         f = s.makefile("rb")

@@ -46,16 +46,25 @@ class AxisSection:
     positions: dict[str, float] = setting(
         factory=dict, doc="discrete axes: integer position (as a string key) -> drive position")
     hw_type: int = setting(1, min=1, doc="TYPE of the module")
+    park: float | None = setting(None, doc="park position, user units (OpenTSI TELESCOPE.READY=0 "
+                                           "moves the axis there); absent: the axis is not parked")
+    names: dict[str, str] = setting(
+        factory=dict, doc="discrete axes: integer position (string key) -> name (filter names)")
 
     def check(self):
         problems = []
         if self.min >= self.max:
             problems.append(("max", f"must be greater than min ({self.min})"))
+        if self.park is not None and not self.min <= self.park <= self.max:
+            problems.append(("park", f"{self.park} is outside [{self.min}, {self.max}]"))
         if self.module in ARRAY_MODULES[:2] and self.index is None:
             problems.append(("index", f"{self.module} is an array: give its index (port)"))
         if self.module in DISCRETE_MODULES:
             if not self.positions:
                 problems.append(("positions", f"{self.module} moves between discrete positions: list them"))
+            for key in self.names:
+                if key not in self.positions:
+                    problems.append((f"names.{key}", f"no position {key} in positions"))
             for key, value in self.positions.items():
                 if not key.lstrip("-").isdigit():
                     problems.append((f"positions.{key}", "keys are the integer positions, e.g. \"0\""))

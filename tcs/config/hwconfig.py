@@ -22,6 +22,7 @@ from tcs.config.schema import build, setting
 from tcs.config.gps import GpsSection
 from tcs.config.modules import (CoverSection, DomeSection, InterlockSection, SensorSection,
                                  SwitchSection, check_modules)
+from tcs.config.opentsi import OpenTsiSection
 from tcs.config.plc import PlcSection
 from tcs.config.pointing import PointingSection
 from tcs.config.sections import (CabinetSection, MountSection, ServerSection, SiteSection,
@@ -57,6 +58,7 @@ class HwConfig:
     sensors: list[SensorSection] = setting(factory=tuple, doc="SENSOR[] on PLC points (tcs.config.modules)")
     switches: list[SwitchSection] = setting(factory=tuple, doc="SWITCH[] on PLC points (tcs.config.modules)")
     interlocks: InterlockSection | None = setting(None, doc="weather interlock of dome and covers (tcs.config.modules)")
+    opentsi: OpenTsiSection = setting(factory=OpenTsiSection, doc="names used by the OpenTSI tree (tcs.config.opentsi)")
     # Set by load_config, not by the file.
     source: Path = field(default=Path("<memory>"), init=False, compare=False)
     #: The top-level tables and keys the file itself wrote (a section left to its defaults is

@@ -19,6 +19,8 @@ from tcs.config.schema import setting
 class ServerSection:
     host: str = setting("127.0.0.1", doc="address the TPL2 server binds to")
     port: int = setting(65432, min=0, max=65535, doc="TCP port (0 = any free port)")
+    opentsi_port: int = setting(-1, min=-1, max=65535, doc="TCP port of the OpenTSI tree "
+                                                           "(-1 = not served, 0 = any free port)")
     line_ending: Literal["LF", "CRLF"] = setting("LF", doc="line end the server sends (RTS2 needs CRLF)")
     implicit_auth: bool = setting(False, doc="log every connection in without AUTH (RTS2, NTM clients)")
     implicit_user: str = setting("", doc="user whose levels implicit authentication grants")

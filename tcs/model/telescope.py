@@ -52,7 +52,10 @@ class Telescope:
         self.mount_config = MountConfig(config, self.store, self.events)
         self.log_buffer = LogBuffer(config.cabinet.log_lines)
         self.cabinet = Cabinet(config, self.store, self.events, log_buffer=self.log_buffer)
-        self.cabinet.attach(modules=[self.local, self.mount_config])
+        # whole-telescope verbs and summary states (the OpenTSI tree binds to them)
+        from tcs.model.operations import Operations
+        self.operations = Operations(self)
+        self.cabinet.attach(modules=[self.local, self.mount_config, self.operations])
         self.status_sink = self.cabinet.status_sink
         # DOME[], COVER, SENSOR[], SWITCH[] and GPS on PLCs and NMEA (tcs.model.peripherals)
         self.peripherals = Peripherals(config, events=self.events, local=self.local,
@@ -87,7 +90,7 @@ class Telescope:
 
     def modules_health(self):
         """Every domain object with an ERROR_STATE (for CABINET.ERROR_STATE)."""
-        return [m for m in (self.local, self.mount_config, *self.axes) if m is not None]
+        return [m for m in (self.local, self.mount_config, self.operations, *self.axes) if m is not None]
 
     @property
     def main_power(self) -> bool:
@@ -186,6 +189,7 @@ class Telescope:
 
     async def stop(self) -> None:
         """Stop motion, disable the drives, stop the loop and the bus, stop the simulators."""
+        await self.operations.close()
         if self.pointing is not None:
             await self.pointing.close()  # tracking ends before the axes are stopped
         if self.can is not None:

@@ -9,7 +9,13 @@ documented in ``tcs/model/cabinet.py`` and ``tcs/model/status_list.py``; the COR
 from __future__ import annotations
 
 from tcs.opentci_server.opentci_common import common
-from tcs.opentci_server.tree import CONFIGURE, FLOAT, INT, NOBODY, STRING, module, module_array, var
+from tcs.errors import ErrorNumber
+from tcs.opentci_server.tree import (CONFIGURE, FLOAT, INT, NOBODY, STRING, module, module_array, var,
+                                     var_array)
+
+#: CABINET.STATUS.TEXT[n]: the name of error number n (RTS2's ``rts2-opentpl-errors``).
+_ERROR_TEXTS = tuple(next((e.name.lower() for e in ErrorNumber if e.value == n), "")
+                     for n in range(max(e.value for e in ErrorNumber) + 1))
 
 
 MANUAL_CONTROL = module(
@@ -61,6 +67,8 @@ STATUS = module(
              "until CLEAR=-1 and across restarts"),
     var("CLEAR", INT, set="clear_status", min=-1, max=-1, rlevel=NOBODY, wlevel=CONFIGURE,
         info="write -1 to delete every LIST entry (configuration level: the record is the operators')"),
+    var_array("TEXT", STRING, count=len(_ERROR_TEXTS), get=lambda c: _ERROR_TEXTS,
+              info="TEXT[n]: the name of error number n (Appendix B)"),
     info="system status: error memory and log",
 )
 

@@ -30,6 +30,12 @@ def _place(writable: bool, mount: str, what: str):
         var(n1, FLOAT, get="correction1", info=f"pointing model correction in {t1}, degrees"),
         var(n2, FLOAT, get="correction2", info=f"pointing model correction in {t2}, degrees"),
         var("SIDEREAL_TIME", FLOAT, get="sidereal_time", info="local apparent sidereal time, hours"),
+        *((var("RA_V", FLOAT, get="ra_v", set="set_ra_v", min=-3600.0, max=3600.0,
+               info="differential rate of RA, arcsec of RA per second (RTS2, NTM); used from the "
+                    "next TRACK write"),
+           var("DEC_V", FLOAT, get="dec_v", set="set_dec_v", min=-3600.0, max=3600.0,
+               info="differential rate of Dec, arcsec per second; used from the next TRACK write"))
+          if writable else ()),
     )
 
 
@@ -37,6 +43,20 @@ def _coefficient(term: str):
     return var(term, FLOAT, get=lambda p: p.coefficient(term),
                set=lambda p, value: p.set_coefficient(term, value), min=-10.0, max=10.0,
                info=f"pointing model term {term}, degrees (active model; writing re-plans tracking)")
+
+
+#: RTS2's names of model terms (rts2 ``teld/opentpl``: "AOFF, ZOFF = az / zd offset, AE =
+#: azimuth tilt east, FLEX = sagging of tube") as aliases of ours, with the sign that makes
+#: them mean the same: a ZD offset is −IE, a tilt to the east is −AW (AN, NPAE and CA keep
+#: their names).
+RTS2_ALIASES = {"AZ-ZD": (("AOFF", "IA", 1.0), ("ZOFF", "IE", -1.0), ("AE", "AW", -1.0),
+                          ("FLEX", "TF", 1.0))}
+
+
+def _alias(name: str, term: str, sign: float):
+    return var(name, FLOAT, get=lambda p: sign * p.coefficient(term) + 0.0,
+               set=lambda p, value: p.set_coefficient(term, sign * value), min=-10.0, max=10.0,
+               info=f"RTS2's name of {'' if sign > 0 else '−'}{term}, degrees")
 
 
 def _pointing(mount: str):
@@ -75,6 +95,7 @@ def _pointing(mount: str):
                var("SAVE", STRING, set="set_save", rlevel=NOBODY, info="save the active model by name"),
                var("ERASE", STRING, set="set_erase", rlevel=NOBODY, info="delete a saved model"),
                *(_coefficient(term) for term in MOUNT_TERMS[mount]),
+               *(_alias(*alias) for alias in RTS2_ALIASES.get(mount, ())),
                info="pointing model: samples, fit, named models, coefficients (degrees)",
                bind="params"),
         module("REFRACTION",

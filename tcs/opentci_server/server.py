@@ -20,6 +20,7 @@ login takes does not tell which names exist.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import hashlib
 import hmac
 import logging
@@ -56,13 +57,18 @@ class Tpl2Server:
         The telescope's event hub; every event goes to every logged-in connection.
     cabinet:
         Text for ``SERVER.INFO.MANUFACTURER``.
+    event_source:
+        Optional ``f(module) -> name`` for the event lines (the OpenTSI server names its own
+        modules); the same users and settings may serve several trees on several ports.
     """
 
     vendor = "tcs project"
     device = "OpenTCI telescope control system"
 
     def __init__(self, settings: ServerSection, users: tuple[UserSection, ...], events: EventHub,
-                 manufacturer: str = ""):
+                 manufacturer: str = "", event_source=None):
+        #: Optional ``f(module name) -> name`` for the event lines of another tree (OpenTSI).
+        self.event_source = event_source
         self.settings = settings
         self.users = {u.name: u for u in users}
         self.events = events
@@ -219,6 +225,8 @@ class Tpl2Server:
 
     # -- events --------------------------------------------------------------------------------
     def _on_event(self, event: Event) -> None:
+        if self.event_source is not None:
+            event = dataclasses.replace(event, source=self.event_source(event.source))
         for session in list(self.sessions.values()):
             session.deliver_event(event)
 

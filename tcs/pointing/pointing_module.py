@@ -155,6 +155,10 @@ class Target:
         self._owner = owner
         self._ra: float | None = None
         self._dec: float | None = None
+        #: differential tracking rates, arcsec of RA (not × cos Dec) and of Dec per second
+        #: (RTS2's RA_V / DEC_V), from the TRACK write on
+        self.ra_v = 0.0
+        self.dec_v = 0.0
 
     @property
     def complete(self) -> bool:
@@ -179,6 +183,12 @@ class Target:
         if not -90.0 <= value <= 90.0:
             raise RangeRefused(f"TARGET.DEC {value}° is outside -90…90")
         self._dec = value
+
+    def set_ra_v(self, value: float) -> None:
+        self.ra_v = float(value)
+
+    def set_dec_v(self, value: float) -> None:
+        self.dec_v = float(value)
 
     def _now(self):
         """(observed place, corrections) of the target now; None without a target."""
@@ -369,8 +379,9 @@ class Pointing(ModuleHealth):
         s = self._tracking()
         return s.value if s is not None else 0
 
-    def set_track(self, value: int):
-        """``TRACK``: from 0 an awaitable ending with the tracking; while tracking, at once."""
+    def set_track(self, value: int, pa: float = 0.0):
+        """``TRACK``: from 0 an awaitable ending with the tracking; while tracking, at once.
+        ``pa``: position angle on the sky added to the derotator's field angle (flag 256)."""
         mode, flags = parse_track(value)
         session = self._tracking()
         if mode == 0:
@@ -379,7 +390,8 @@ class Pointing(ModuleHealth):
             return None
         if not self.target.complete:
             raise TcsError("no target: set TARGET.RA and TARGET.DEC first", ErrorNumber.INVMODE)
-        request = TrackRequest(self.target.ra, self.target.dec, mode, flags)
+        request = TrackRequest(self.target.ra, self.target.dec, mode, flags, float(pa),
+                               self.target.ra_v / 3600.0, self.target.dec_v / 3600.0, self.ut1())
         plan = self._plan(request)
         if session is not None:
             session.retarget(plan, current_cause.get())
@@ -456,6 +468,23 @@ class Pointing(ModuleHealth):
         if session is not None:
             session.stop(TcsError("the service is stopping", ErrorNumber.INVMODE))
             await asyncio.wait([session.task], timeout=10.0)
+
+    @property
+    def tracking_settled(self) -> bool:
+        """True while tracking runs on the path of its latest TRACK (the slew may go on)."""
+        return bool(self._controlled())
+
+    @property
+    def tracktime(self) -> float | None:
+        """Seconds of tracking left before the target leaves a limit (the planning horizon
+        when it stays inside it that long); None while not tracking on a settled path."""
+        session = self._tracking()
+        if session is None or not session.settled:
+            return None
+        until = session.plan.in_limits_until
+        if until is None:
+            return float(self.config.plan_horizon)
+        return max(0.0, until - self.ut1())
 
     # -- distances ------------------------------------------------------------------------------
     def _controlled(self) -> list:

@@ -100,6 +100,20 @@ class TrackRequest:
     dec: float
     mode: int
     flags: int = 0
+    pa: float = 0.0          # degrees added to the derotator's field angle (flag 256): the
+    #                          position angle on the sky (OpenTSI SETUP.DEROTATOR.OFFSET)
+    ra_rate: float = 0.0     # differential rates, degrees of RA / Dec per second (RA_V, DEC_V)
+    dec_rate: float = 0.0
+    epoch: float = 0.0       # UT1 where the target is at (ra, dec)
+
+    def place(self, ut1):
+        """(RA hours, Dec degrees) at the UT1 times ``ut1`` (the rates applied)."""
+        if not (self.ra_rate or self.dec_rate):
+            return self.ra, self.dec
+        dt = np.asarray(ut1, float) - self.epoch
+        ra = np.mod(self.ra + self.ra_rate * dt / 15.0, 24.0)
+        dec = np.clip(self.dec + self.dec_rate * dt, -90.0, 90.0)
+        return ra, dec
 
 
 @dataclass
@@ -189,7 +203,7 @@ def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derot
             _ready(axis, "track")
     step = min(_COARSE_STEP, plan_horizon / 4)
     times = ut1 + np.arange(0.0, plan_horizon + step / 2, step)
-    obs = pipeline.astrometry.observed(request.ra, request.dec, times - ut1_utc)
+    obs = pipeline.astrometry.observed(*request.place(times), times - ut1_utc)
     if obs.zd[0] > zd_limit:
         raise TcsError(f"target is {90.0 - obs.zd[0]:.2f}° above the horizon, below the "
                        f"altitude limit {90.0 - zd_limit:g}°", ErrorNumber.SOFTLIMIT)
@@ -213,7 +227,7 @@ def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derot
     slew = chosen.slew_time
     if derotator is not None:
         angle = np.unwrap(field_angle(pipeline.mount, np.asarray(obs.pa)[:up], chosen.axis2,
-                                      chosen.reverse, port), period=360.0)
+                                      chosen.reverse, port) + request.pa, period=360.0)
         sec, off = derotator.section, derotator.offset
         current = derotator.real_position - off
         if sec.cyclic:
@@ -464,7 +478,7 @@ class TrackSession:
             return out
         pipe = self.owner.pipeline()
         req = plan.request
-        d = pipe.demand(req.ra, req.dec, times - self.owner.ut1_utc, plan.reverse)
+        d = pipe.demand(*req.place(times), times - self.owner.ut1_utc, plan.reverse)
         ok = d.zd <= self.owner.zd_limit
         reason = np.where(ok, "", "set")
         for lane in lanes:
@@ -473,7 +487,7 @@ class TrackSession:
             elif lane.role == "axis2":
                 raw = d.axis2
             else:
-                raw = field_angle(pipe.mount, d.observed.pa, d.axis2, plan.reverse, lane.port)
+                raw = field_angle(pipe.mount, d.observed.pa, d.axis2, plan.reverse, lane.port) + req.pa
             sec = lane.axis.section
             if sec.cyclic or lane.role != "axis2":
                 ref = lane.start if lane.last is None else lane.last
@@ -547,7 +561,7 @@ class TrackSession:
         if dome is None or (self._dome_move is not None and not self._dome_move.done()):
             return
         req = self.plan.request
-        az = float(self.owner.pipeline().astrometry.observed(req.ra, req.dec, now - self.owner.ut1_utc).az)
+        az = float(self.owner.pipeline().astrometry.observed(*req.place(now), now - self.owner.ut1_utc).az)
         if abs(math.remainder(dome.current_position - az, 360.0)) <= self.owner.dome_deviation:
             return
         try:

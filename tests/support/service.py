@@ -13,9 +13,12 @@ from tcs.config.sections import StateSection
 
 def make_config(state_dir: Path, path: Path = DEFAULT_CONFIG, **server) -> HwConfig:
     """The hardware file at ``path`` with state in ``state_dir`` and server settings overridden
-    (port 0 = a free port; a short login-failure delay)."""
+    (port 0 = a free port, for the OpenTSI tree too where the file serves it; a short
+    login-failure delay)."""
     config = load_config(path)
     settings = dict(port=0, auth_fail_delay=0.05)
+    if config.server.opentsi_port >= 0:
+        settings["opentsi_port"] = 0   # the OpenTSI tree too: a free port
     settings.update(server)
     changes = dict(server=dataclasses.replace(config.server, **settings),
                    state=StateSection(path=str(state_dir)))

@@ -5,7 +5,11 @@ simulated telescope, in its own process), and the same figures for a minimal asy
 server measured in the same run with the same client as the baseline, with the ratios. The
 last line is one JSON object with the figures.
 
-    python3 tools/bench/tpl2_load.py [--clients 50] [--seconds 5]
+    python3 tools/bench/tpl2_load.py [--clients 50] [--seconds 5] [--tree opentsi]
+
+``--tree opentsi``: pyobs-pilar's 14-variable status GET on the OpenTSI port, and the same 14
+values through their OpenTCI names on the OpenTCI port of the same server, one after the other
+in the same run (goal: OpenTSI within 20 % of OpenTCI's throughput).
 
 Goal (issue: TPL2 server): p99 latency of a 20-variable GET under 5 ms with 50 clients.
 """
@@ -30,6 +34,21 @@ VARIABLES = [  # what a status display polls
     "ZD.REALPOS", "ZD.TARGETPOS", "ZD.MOTION_STATE", "ZD.LIMIT_STATE", "ZD.CURRSPEED",
     "DEROTATOR[2].REALPOS", "FOCUS.REALPOS", "FILTER[2].REALPOS", "MIRROR.REALPOS",
     "AZ.REALPOS!MIN", "ZD.REALPOS!MAX",
+]
+
+#: pyobs-pilar's status GET (PilarTelescope._pilar_variables) and the OpenTCI names of the same values
+PYOBS_OPENTSI = [
+    "OBJECT.EQUATORIAL.RA", "OBJECT.EQUATORIAL.DEC", "POSITION.EQUATORIAL.RA_J2000",
+    "POSITION.EQUATORIAL.DEC_J2000", "POSITION.HORIZONTAL.ZD", "POSITION.HORIZONTAL.ALT",
+    "POSITION.HORIZONTAL.AZ", "POSITION.INSTRUMENTAL.FOCUS.REALPOS",
+    "POSITION.INSTRUMENTAL.DEROTATOR[2].REALPOS", "POINTING.SETUP.DEROTATOR.OFFSET",
+    "TELESCOPE.READY_STATE", "TELESCOPE.MOTION_STATE", "POSITION.INSTRUMENTAL.AZ.OFFSET",
+    "POSITION.INSTRUMENTAL.ZD.OFFSET",
+]
+PYOBS_OPENTCI = [
+    "POINTING.TARGET.RA", "POINTING.TARGET.DEC", "POINTING.CURRENT.RA", "POINTING.CURRENT.DEC",
+    "ZD.REALPOS", "ZD.REALPOS", "AZ.REALPOS", "FOCUS.REALPOS", "DEROTATOR[2].REALPOS",
+    "DEROTATOR[2].OFFSET", "CABINET.POWER_STATE", "AZ.MOTION_STATE", "AZ.OFFSET", "ZD.OFFSET",
 ]
 
 ECHO_SERVER = r"""
@@ -112,7 +131,12 @@ def main() -> None:
     p.add_argument("--seconds", type=float, default=5.0)
     p.add_argument("--config", help="hardware file for tcs-server (default: the simulated telescope)")
     p.add_argument("--vars", help="comma-separated variables to GET (default: a status display's 20)")
+    p.add_argument("--tree", choices=("opentci", "opentsi"), default="opentci",
+                   help="opentsi: compare pyobs's status GET on both trees of one server")
     args = p.parse_args()
+    if args.tree == "opentsi":
+        compare_trees(args)
+        return
     if args.config:
         EXTRA.extend(["--config", args.config])
     if args.vars:
@@ -125,7 +149,8 @@ def main() -> None:
         ):
             port = free_port()
             env = dict(os.environ, XDG_STATE_HOME=state)
-            proc = run_server(cmd + ([str(port)] if not tpl2 else ["--port", str(port)]), env)
+            proc = run_server(cmd + ([str(port)] if not tpl2 else ["--port", str(port), "--opentsi-port", "-1"]),
+                              env)
             try:
                 wait_port(port)
                 results[name] = asyncio.run(load(port, tpl2, args.clients, args.seconds))
@@ -143,6 +168,35 @@ def main() -> None:
     print(json.dumps({"benchmark": "tpl2_load", "clients": args.clients, "seconds": args.seconds,
                       "variables_per_get": len(VARIABLES), "tcs": tcs, "echo": echo, **ratio,
                       "goal_p99_ms": 5.0, "goal_met": tcs["p99_ms"] < 5.0}))
+
+
+def compare_trees(args) -> None:
+    """pyobs's status GET on the OpenTSI port against the same values on the OpenTCI port."""
+    results = {}
+    with tempfile.TemporaryDirectory() as state:
+        port, tsi_port = free_port(), free_port()
+        env = dict(os.environ, XDG_STATE_HOME=state)
+        proc = run_server([sys.executable, "-m", "tcs.cli.server", "--log-level", "WARNING", *EXTRA,
+                           "--port", str(port), "--opentsi-port", str(tsi_port)], env)
+        try:
+            wait_port(port)
+            wait_port(tsi_port)
+            for name, p, names in (("opentci", port, PYOBS_OPENTCI), ("opentsi", tsi_port, PYOBS_OPENTSI),
+                                   ("opentci_again", port, PYOBS_OPENTCI)):
+                VARIABLES[:] = names
+                results[name] = asyncio.run(load(p, True, args.clients, args.seconds))
+        finally:
+            proc.terminate()
+            proc.wait(30)
+    for name, r in results.items():
+        print(f"{name:13s}: {r['requests_per_s']:9.0f} req/s {r['variables_per_s']:10.0f} var/s  "
+              f"latency p50 {r['p50_ms']:.2f} ms  p99 {r['p99_ms']:.2f} ms  max {r['max_ms']:.2f} ms")
+    tci = (results["opentci"]["requests_per_s"] + results["opentci_again"]["requests_per_s"]) / 2
+    ratio = results["opentsi"]["requests_per_s"] / tci
+    print(f"OpenTSI / OpenTCI throughput: {ratio:.2f} (goal: >= 0.80)")
+    print(json.dumps({"benchmark": "tpl2_load", "tree": "opentsi", "clients": args.clients,
+                      "seconds": args.seconds, "variables_per_get": len(PYOBS_OPENTSI), **results,
+                      "throughput_ratio_opentsi_to_opentci": ratio, "goal_met": ratio >= 0.8}))
 
 
 if __name__ == "__main__":

@@ -1,0 +1,456 @@
+"""Telescope-wide operations: ready/park, the catalogue target, goto, filter and focus verbs.
+
+:class:`Operations` is the part of the telescope model that the OpenTSI tree (and any other
+front end that thinks in whole-telescope verbs) binds to; it holds what such clients name —
+the catalogue target (:class:`~tcs.pointing.sky_object.SkyObject`), the set-up of the next
+verb (:class:`TrackSetup`: filter index, focus position, derotator and dome following,
+orientation) — and it computes the summary states they poll. It holds no hardware state of
+its own: power, referencing, tracking and positions are the cabinet's, the pointing module's
+and the axes'. It is a :class:`~tcs.model.health.ModuleHealth` (``TELESCOPE``) attached to the
+cabinet: a verb that fails raises a latched ERROR condition here, so that a client that never
+sees a refused SET (pyobs) sees the failure in READY_STATE / STATUS.GLOBAL / STATUS.LIST.
+
+Verbs (each returns an awaitable for a long SET, or raises at once):
+
+* :meth:`set_ready` 1: cabinet power on, then reference what is not referenced (main axes
+  first; a failing main axis stops the rest), complete when operational. 0: stop tracking, move
+  every axis with a ``park`` position in the hardware file there, power off.
+* :meth:`track_object`: ICRS place of the catalogue target → POINTING.TARGET, start tracking
+  (POINTING.TRACK with the orientation and the dome/derotator flags from the set-up); complete
+  once tracking runs on the new path. An end of that tracking by anything else than TRACK=0 /
+  STOP raises the ``tracking`` condition.
+* :meth:`goto_horizontal`: the fixed (observed) alt/az of the target through the pointing model,
+  on the azimuth turn nearest to where the axis stands, normal orientation — or, when an
+  instrumental position was written last, that axis position as it is; complete on arrival.
+* :meth:`apply_filter` / :meth:`apply_focus`: the set-up's filter index / focus position.
+
+Summary states: :attr:`ready_state` (−3 local, −2 emergency off, −1 errors block, 0 off,
+0 < x < 1 changing, 1.0 powered and referenced) and :attr:`motion_state` (0 at rest; bit 0
+moving; while tracking bit 1, and bits 0 and 3 once on target: 11 — never an idle "on target"
+or a "limited" bit).
+
+What may touch it: the event loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+
+import erfa
+
+from tcs.errors import ErrorNumber, RangeRefused, TcsError
+from tcs.model.health import ERROR, PANIC, ModuleHealth
+from tcs.pointing.sky_object import SkyObject
+
+log = logging.getLogger(__name__)
+
+MOVING, TRAJECTORY, ON_TARGET, PARKING = 1, 2, 8, 32
+MAIN_AXES = {"AZ-ZD": ("AZ", "ZD"), "RA-DEC": ("HA", "DEC")}
+
+
+class TrackSetup:
+    """How the next verb is carried out (OpenTSI POINTING.SETUP.*); plain settings."""
+
+    def __init__(self) -> None:
+        self.derotator_syncmode = 0
+        self.derotator_offset = 0.0
+        self.dome_syncmode = 0
+        self.dome_offset = 0.0
+        self.focus_syncmode = 1
+        self.focus_position = 0.0
+        self.filter_index = 0
+        self.optimization = 0
+        self.orientation = 0
+        self.min_tracktime = 0.0
+
+    def set_derotator_syncmode(self, value: int) -> None:
+        self.derotator_syncmode = int(value)
+
+    def set_derotator_offset(self, value: float) -> None:
+        self.derotator_offset = float(value)
+
+    def set_dome_syncmode(self, value: int) -> None:
+        self.dome_syncmode = int(value)
+
+    def set_dome_offset(self, value: float) -> None:
+        self.dome_offset = float(value)
+
+    def set_focus_syncmode(self, value: int) -> None:
+        self.focus_syncmode = int(value)
+
+    def set_focus_position(self, value: float) -> None:
+        self.focus_position = float(value)
+
+    def set_optimization(self, value: int) -> None:
+        self.optimization = int(value)
+
+    def set_orientation(self, value: int) -> None:
+        self.orientation = int(value)
+
+    def set_min_tracktime(self, value: float) -> None:
+        self.min_tracktime = float(value)
+
+    def track_mode(self) -> int:
+        """POINTING.TRACK mode of OpenTCI for this orientation/optimization."""
+        if self.orientation == 1:
+            return 3
+        if self.orientation == 2 or self.optimization:
+            return 4 if self.optimization == 2 else 2
+        return 1
+
+
+class Operations(ModuleHealth):
+    """Whole-telescope verbs and summary states (see the module docstring)."""
+
+    def __init__(self, telescope):
+        super().__init__("TELESCOPE", telescope.events, status_sink=telescope.cabinet.status_sink)
+        self.telescope = telescope
+        self.object = SkyObject(telescope.config.mount.type)
+        self.setup = TrackSetup()
+        self._ready_demand = 0
+        self._job: asyncio.Task | None = None
+        self._job_kind = ""
+        self._closing = False
+
+    # -- parts of the model ----------------------------------------------------------------------
+    @property
+    def cabinet(self):
+        return self.telescope.cabinet
+
+    @property
+    def pointing(self):
+        return self.telescope.pointing
+
+    def main_axes(self) -> list:
+        names = MAIN_AXES.get(self.telescope.config.mount.type, ())
+        return [a for a in (self.telescope.axis(n) for n in names) if a is not None]
+
+    def park_positions(self) -> list[tuple[object, float]]:
+        return [(a, a.section.park) for a in self.telescope.axes if a.section.park is not None]
+
+    def filter_axis(self, port: int | None = None):
+        wheels = self.telescope.axis_array("FILTER")
+        if port is not None and 0 <= port < len(wheels) and wheels[port] is not None:
+            return wheels[port]
+        active = self.active_port()
+        if active is not None and 0 <= active < len(wheels) and wheels[active] is not None:
+            return wheels[active]
+        return next((w for w in wheels if w is not None), None)
+
+    def active_port(self) -> int | None:
+        mirror = self.telescope.axis("MIRROR")
+        if mirror is None:
+            return None
+        return int(round(mirror.real_position))
+
+    # -- summary states ------------------------------------------------------------------------
+    @property
+    def ready(self) -> int:
+        return self._ready_demand
+
+    @property
+    def ready_state(self) -> float:
+        cab = self.cabinet
+        if cab.power_state == -1.0:
+            return -2.0
+        manual = cab.manual_control
+        if cab.mode == 0 or (manual.mode and manual.active):
+            return -3.0
+        if cab.error_state & (PANIC | ERROR):
+            return -1.0
+        power = max(0.0, float(cab.power_state))
+        referenced = float(cab.referenced)
+        changing = self._job is not None and not self._job.done()
+        axes_on = all(a.power_state == 1.0 for a in self.telescope.axes)
+        if not changing:
+            if power == 1.0 and referenced >= 1.0 and axes_on:
+                return 1.0
+            if power == 0.0 and not cab.main_power:
+                return 0.0
+        return min(0.99, max(0.01, 0.5 * power + 0.5 * power * referenced))
+
+    @property
+    def motion_state(self) -> int:
+        axes = self.main_axes()
+        state = PARKING if self._job_kind == "park" and not self._job.done() else 0
+        p = self.pointing
+        if p is not None and p.track:
+            on_target = p.tracking_settled and all(a.motion_state & ON_TARGET for a in axes)
+            return state | TRAJECTORY | MOVING | (ON_TARGET if on_target else 0)
+        if (self._job_kind == "goto" and not self._job.done()) or any(a.motion_state & MOVING for a in axes):
+            state |= MOVING
+        return state
+
+    @property
+    def power(self) -> int:
+        return 1 if self.cabinet.power_state == 1.0 else 0
+
+    # -- READY -------------------------------------------------------------------------------------
+    def set_ready(self, value: int):
+        """``READY`` 1 / 0 (long-running; a newer one supersedes the older)."""
+        on = bool(int(value))
+        if on and self.cabinet.power_state == -1.0:
+            raise TcsError("emergency off is active", ErrorNumber.INVMODE)
+        self._ready_demand = int(on)
+        return self._start("ready" if on else "park", self._ready_on() if on else self._park_off())
+
+    async def _ready_on(self) -> None:
+        cab = self.cabinet
+        if cab.power_state != 1.0 or any(a.power_state != 1.0 for a in self.telescope.axes):
+            await cab.set_power(1)
+        for _order, axes in cab.reference_plan(False):
+            await asyncio.gather(*(a.reference(False) for a in axes))
+
+    async def _park_off(self) -> None:
+        p = self.pointing
+        if p is not None and p.track:
+            p.set_track(0)
+            await self._until(lambda: not p.track)
+        moves = []
+        for axis, park in self.park_positions():
+            if axis.power_state == 1.0 and axis.referenced >= 1.0:
+                moves.append(axis.set_target(park - axis.offset))
+        if moves:
+            await asyncio.gather(*moves)
+        await self.cabinet.set_power(0)
+
+    # -- POINTING.TRACK verbs --------------------------------------------------------------------
+    def stop_tracking(self) -> None:
+        p = self.pointing
+        if p is not None and p.track:
+            p.set_track(0)
+        if self._job is not None and self._job_kind == "goto":
+            self._job.cancel()
+
+    def track_object(self):
+        p = self._need_pointing()
+        try:
+            ra, dec = self.object.icrs(p.utc())
+            p.target.set_ra(ra)
+            p.target.set_dec(dec)
+            p.target.set_ra_v(0.0)        # OBJECT has no differential rates: none left over
+            p.target.set_dec_v(0.0)
+            result = p.set_track(self.setup.track_mode() | self._track_flags(),
+                                 pa=self.setup.derotator_offset)
+        except TcsError as exc:
+            self._failed("track", exc)
+            raise
+        if result is not None:
+            result.add_done_callback(self._tracking_ended)
+        return self._start("track", self._until_tracking(result))
+
+    async def _until_tracking(self, result) -> None:
+        p = self.pointing
+        await asyncio.sleep(0)
+        while not p.tracking_settled:
+            if result is not None and result.done():
+                result.result()   # its error, or None: ended already
+                return
+            await asyncio.sleep(0.05)
+
+    def _tracking_ended(self, fut: asyncio.Future) -> None:
+        if fut.cancelled():
+            return
+        exc = fut.exception()            # retrieved in any case (no "never retrieved" noise)
+        if self._closing:
+            return
+        if isinstance(exc, TcsError) and exc.number != ErrorNumber.TARGETCHANGE:
+            self._failed("tracking", exc)
+
+    def _track_flags(self) -> int:
+        p = self.pointing
+        flags = 0
+        if self.setup.derotator_syncmode:
+            try:
+                rotator, _port = p.active_derotator()
+                if rotator.power_state == 1.0 and rotator.referenced >= 1.0:
+                    flags |= 256
+            except TcsError:
+                pass
+        if self.setup.dome_syncmode:
+            try:
+                p.rotating_dome()
+                flags |= 128
+            except TcsError:
+                pass
+        return flags
+
+    def horizontal_demand(self, az: float, alt: float) -> tuple[float, float]:
+        """Axis demands (TARGETPOS) for the observed ``az``/``alt``: pointing model applied,
+        normal orientation, the azimuth turn nearest the axis's position."""
+        p = self._need_pointing()
+        if alt < p.config.min_altitude:
+            raise TcsError(f"altitude {alt:.3f}° is below the limit {p.config.min_altitude:g}°",
+                           ErrorNumber.SOFTLIMIT)
+        a1, a2 = p.axis1, p.axis2
+        if p.mount == "AZ-ZD":
+            i1, i2 = az, 90.0 - alt
+        else:
+            ha, dec = erfa.ae2hd(math.radians(az), math.radians(alt), math.radians(p.latitude))
+            i1, i2 = math.degrees(math.remainder(float(ha), 2 * math.pi)), math.degrees(float(dec))
+        d1, d2 = (float(x) for x in p.pipeline().model.apply(i1, i2))
+        cycle = a1.section.cyclic
+        if cycle:
+            here = a1.current_position
+            turns = [d1 + k * cycle for k in range(-3, 4)]
+            inside = [t for t in turns if a1.limits.contains(t + a1.offset)]
+            if not inside:
+                raise TcsError(f"{a1.module_name}: {d1:.3f}° is outside the limits on every turn",
+                               ErrorNumber.SOFTLIMIT)
+            d1 = min(inside, key=lambda t: abs(t - here))
+        for axis, d in ((a1, d1), (a2, d2)):
+            if not axis.limits.contains(d + axis.offset):
+                raise TcsError(f"{axis.module_name}: {d:.3f}° is outside the limits", ErrorNumber.SOFTLIMIT)
+        return d1, d2
+
+    def goto_horizontal(self):
+        p = self._need_pointing()
+        try:
+            obj = self.object
+            if obj.goto_frame == "instrumental":
+                d1, d2 = obj.instrumental
+                if d1 is None or d2 is None:
+                    raise TcsError("no position: write both OBJECT.INSTRUMENTAL axes first",
+                                   ErrorNumber.INVMODE)
+                for axis, d in ((p.axis1, d1), (p.axis2, d2)):
+                    if not axis.limits.contains(d + axis.offset):
+                        raise TcsError(f"{axis.module_name}: {d:.3f} is outside the limits",
+                                       ErrorNumber.SOFTLIMIT)
+            elif obj.az is None or obj.alt is None:
+                raise TcsError("no position: write OBJECT.HORIZONTAL.AZ and ALT first", ErrorNumber.INVMODE)
+            else:
+                d1, d2 = self.horizontal_demand(obj.az, obj.alt)
+            for axis in (p.axis1, p.axis2):
+                if axis.power_state != 1.0 or axis.referenced < 1.0:
+                    raise TcsError(f"{axis.module_name} is not powered and referenced", ErrorNumber.INVMODE)
+        except TcsError as exc:
+            self._failed("goto", exc)
+            raise
+        return self._start("goto", self._goto(p, d1, d2))
+
+    async def _goto(self, p, d1: float, d2: float) -> None:
+        if p.track:
+            p.set_track(0)
+            await self._until(lambda: not p.track)
+        try:
+            await asyncio.gather(p.axis1.set_target(d1), p.axis2.set_target(d2))
+        except TcsError as exc:
+            self._failed("goto", exc)
+            raise
+
+    def apply_filter(self):
+        axis = self.filter_axis()
+        if axis is None:
+            raise TcsError("no filter wheel", ErrorNumber.INVMODE)
+        keys = sorted(axis.positions)
+        index = self.setup.filter_index
+        if not 0 <= index < len(keys):
+            raise RangeRefused(f"filter index {index} is outside 0…{len(keys) - 1}")
+        try:
+            return axis.set_target(keys[index])
+        except TcsError as exc:
+            self._failed("filter", exc)
+            raise
+
+    def apply_focus(self):
+        axis = self.telescope.axis("FOCUS")
+        if axis is None:
+            raise TcsError("no focus axis", ErrorNumber.INVMODE)
+        try:
+            return axis.set_target(self.setup.focus_position)
+        except TcsError as exc:
+            self._failed("focus", exc)
+            raise
+
+    # -- filters ---------------------------------------------------------------------------------
+    def filter_count(self, axis) -> int:
+        return len(axis.positions)
+
+    def set_filter_index(self, value: int) -> None:
+        axis = self.filter_axis()
+        count = len(axis.positions) if axis is not None else 0
+        value = int(value)
+        if not 0 <= value < count:
+            raise RangeRefused(f"filter index {value} is outside 0…{count - 1}")
+        self.setup.filter_index = value
+
+    @property
+    def filter_name(self) -> str:
+        axis = self.filter_axis()
+        if axis is None:
+            return ""
+        keys = sorted(axis.positions)
+        if not 0 <= self.setup.filter_index < len(keys):
+            return ""
+        key = str(keys[self.setup.filter_index])
+        return axis.section.names.get(key, key)
+
+    # -- errors ----------------------------------------------------------------------------------
+    def acknowledge_mask(self, mask: int, levels: int = 0xF) -> None:
+        """Acknowledge the modules whose ERROR_STATE has a bit of ``mask & levels``."""
+        mask = int(mask) & levels
+        if not mask:
+            return
+        cab = self.cabinet
+        if not (cab.error_state & 0xF & ~mask):
+            cab.acknowledge_errors(0)
+            return
+        for member in cab.members():
+            if int(getattr(member, "error_state", 0) or 0) & mask:
+                member.acknowledge_errors(0)
+
+    def _failed(self, what: str, exc: TcsError) -> None:
+        """A verb failed: a latched ERROR (gone, kept until acknowledged)."""
+        name = f"{what} failed"
+        self.raise_condition(name, ERROR, exc.message)
+        self.clear_condition(name)
+
+    # -- jobs ------------------------------------------------------------------------------------
+    def halt(self) -> None:
+        """TELESCOPE.STOP: end a READY or goto sequence (not ``stop``: the cabinet's STOP and
+        its power-off call ``stop()`` of its modules, and a READY=0 waits for that power-off)."""
+        if self._job is not None and not self._job.done():
+            self._job.cancel()
+
+    def _start(self, kind: str, coro):
+        if self._job is not None and not self._job.done() and self._job_kind in ("ready", "park", "goto"):
+            self._job.cancel()
+        self._job = asyncio.get_running_loop().create_task(coro, name=f"TELESCOPE {kind}")
+        self._job_kind = kind
+        job = self._job
+
+        async def wait() -> None:
+            try:
+                await asyncio.shield(job)
+            except asyncio.CancelledError:
+                if job.cancelled():
+                    raise TcsError(f"TELESCOPE {kind} was ended", ErrorNumber.TARGETCHANGE) from None
+                job.cancel()
+                raise
+        return wait()
+
+    async def close(self) -> None:
+        self._closing = True
+        if self._job is not None and not self._job.done():
+            self._job.cancel()
+            await asyncio.wait([self._job])
+
+    def _need_pointing(self):
+        p = self.pointing
+        if p is None:
+            raise TcsError("this telescope has no POINTING module", ErrorNumber.INVMODE)
+        return p
+
+    @staticmethod
+    async def _until(condition, timeout: float = 30.0) -> None:
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        while not condition():
+            if loop.time() > deadline:
+                raise TcsError("timed out", ErrorNumber.TIMEOUT)
+            await asyncio.sleep(0.05)
+
+
+__all__ = ["Operations", "TrackSetup"]
