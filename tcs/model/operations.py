@@ -114,7 +114,6 @@ class Operations(ModuleHealth):
         self._job_kind = ""
         self._closing = False
         self._parked = False          # parked by park() or READY=0 (at_park also checks positions)
-        self._home: dict | None = None  # main axes' positions after find_home()
         self._guiding_until = 0.0     # loop time a pulse_guide() ends
 
     # -- parts of the model ----------------------------------------------------------------------
@@ -498,30 +497,40 @@ class Operations(ModuleHealth):
             saved[axis.module_name] = round(float(axis.real_position), 6)
         self.telescope.store.update(park=saved)
 
+    def home_positions(self) -> list[tuple[object, float]]:
+        """(main axis, home position): where its drive's homing puts the reference (the home
+        offset, 0x607C — the home switch's position in user units), inside the axis limits."""
+        out = []
+        for axis in self.main_axes():
+            drive = self.telescope.config.drives.get(axis.section.drive)
+            home = float(drive.homing.offset) if drive is not None else 0.0
+            out.append((axis, min(max(home, axis.section.min), axis.section.max)))
+        return out
+
     @property
     def at_home(self) -> bool:
-        home = self._home
-        if not home or (self._job is not None and not self._job.done() and self._job_kind == "home"):
+        """The main axes, referenced, stand at their home positions (not while moving there)."""
+        if self._job is not None and not self._job.done() and self._job_kind == "home":
             return False
-        return all(abs(a.real_position - home.get(a.module_name, math.inf)) <= self.PARK_TOLERANCE
-                   for a in self.main_axes())
+        homes = self.home_positions()
+        return bool(homes) and all(a.referenced >= 1.0 and abs(a.real_position - home) <= self.PARK_TOLERANCE
+                                   for a, home in homes)
 
     def find_home(self):
-        """Reference the main axes again (their home switches); :attr:`at_home` afterwards,
-        until they move. Long-running."""
-        axes = self.main_axes()
-        for axis in axes:
+        """Reference the main axes that are not referenced, then move them to their home
+        positions (:meth:`home_positions`); tracking ends first. Long-running."""
+        homes = self.home_positions()
+        for axis, _home in homes:
             if axis.power_state != 1.0:
                 raise TcsError(f"{axis.module_name} is not powered", ErrorNumber.INVMODE)
-        self._home = None
 
         async def run() -> None:
             p = self.pointing
             if p is not None and p.track:
                 p.set_track(0)
                 await self._until(lambda: not p.track)
-            await asyncio.gather(*(a.reference(True) for a in axes))
-            self._home = {a.module_name: a.real_position for a in axes}
+            await asyncio.gather(*(a.reference(False) for a, _h in homes))
+            await asyncio.gather(*(a.set_target(home - a.offset) for a, home in homes))
         return self._start("home", run())
 
     @property
