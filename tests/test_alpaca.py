@@ -252,3 +252,97 @@ def test_tpl2_clients_see_no_change(live):
         finally:
             await c.close()
     asyncio.run(run())
+
+
+def test_every_device_connects_and_answers_its_state(live):
+    from alpaca.covercalibrator import CoverCalibrator
+    from alpaca.dome import Dome
+    from alpaca.filterwheel import FilterWheel
+    from alpaca.focuser import Focuser
+    from alpaca.observingconditions import ObservingConditions
+    from alpaca.rotator import Rotator
+    from alpaca.safetymonitor import SafetyMonitor
+    from alpaca.switch import Switch
+
+    classes = {"Telescope": Telescope, "Dome": Dome, "Focuser": Focuser, "FilterWheel": FilterWheel,
+               "Rotator": Rotator, "CoverCalibrator": CoverCalibrator, "Switch": Switch,
+               "ObservingConditions": ObservingConditions, "SafetyMonitor": SafetyMonitor}
+    devices = management.configureddevices(address(live))
+    kinds = sorted({d["DeviceType"] for d in devices})
+    assert kinds == sorted(classes)
+    assert sum(d["DeviceType"] == "Rotator" for d in devices) == 2      # one per derotator
+    for d in devices:
+        device = classes[d["DeviceType"]](address(live), d["DeviceNumber"])
+        device.Connect()
+        assert device.Connected and device.Name == d["DeviceName"]
+        assert isinstance(device.DeviceState, list)
+        assert device.InterfaceVersion >= 2
+        device.Disconnect()
+
+
+def test_focuser_filter_cover_dome_switch_weather(live):
+    from alpaca.covercalibrator import CoverCalibrator, CoverStatus
+    from alpaca.dome import Dome, ShutterState
+    from alpaca.filterwheel import FilterWheel
+    from alpaca.focuser import Focuser
+    from alpaca.observingconditions import ObservingConditions
+    from alpaca.safetymonitor import SafetyMonitor
+    from alpaca.switch import Switch
+
+    t = connected_telescope(live)
+    ready(live, t)
+    a = address(live)
+    focuser = Focuser(a, 0)
+    focuser.Connect()
+    focuser.Move(12345)
+    until(lambda: not focuser.IsMoving and focuser.Position == 12345, "the focuser at 12.345 mm")
+    assert abs(live.telescope.axis("FOCUS").real_position - 12.345) < 0.002
+    with pytest.raises(InvalidValueException):
+        focuser.Move(focuser.MaxStep + 1)
+
+    wheel = FilterWheel(a, 0)
+    wheel.Connect()
+    names = wheel.Names
+    section = next(a for a in live.telescope.config.axes.values() if a.module == "FILTER")
+    assert names == [section.names.get(str(k), str(k)) for k in sorted(int(k) for k in section.positions)]
+    assert len(wheel.FocusOffsets) == len(names)
+    wheel.Position = 3
+    until(lambda: wheel.Position == 3, "filter slot 3")
+    with pytest.raises(InvalidValueException):
+        wheel.Position = len(names)
+
+    weather = SafetyMonitor(a, 0)
+    weather.Connect()
+    until(lambda: weather.IsSafe, "good weather")
+    cover = CoverCalibrator(a, 0)
+    cover.Connect()
+    cover.OpenCover()
+    until(lambda: cover.CoverState == CoverStatus.Open, "the cover open")
+    dome = Dome(a, 0)
+    dome.Connect()
+    dome.OpenShutter()
+    until(lambda: dome.ShutterStatus == ShutterState.shutterOpen, "the shutter open", timeout=WAIT)
+    dome.SlewToAzimuth(90.0)
+    until(lambda: not dome.Slewing and abs(dome.Azimuth - 90.0) < 0.5, "the dome at 90°")
+
+    switch = Switch(a, 0)
+    switch.Connect()
+    assert switch.MaxSwitch == len(live.telescope.peripherals.switches)
+    switch.SetSwitch(0, True)
+    until(lambda: switch.GetSwitch(0), "switch 0 on")
+    switch.SetSwitch(0, False)
+    until(lambda: not switch.GetSwitch(0), "switch 0 off")
+    with pytest.raises(InvalidValueException):
+        switch.SetSwitchValue(1, 99)
+
+    conditions = ObservingConditions(a, 0)
+    conditions.Connect()
+    assert -50.0 < conditions.Temperature < 60.0 and conditions.WindSpeed >= 0.0
+    assert "pressure" in conditions.SensorDescription("Pressure").lower()
+
+    dome.CloseShutter()
+    cover.CloseCover()
+    until(lambda: dome.ShutterStatus == ShutterState.shutterClosed, "the shutter closed", timeout=WAIT)
+    until(lambda: cover.CoverState == CoverStatus.Closed, "the cover closed")
+    for device in (focuser, wheel, weather, cover, dome, switch, conditions, t):
+        device.Disconnect()

@@ -51,6 +51,7 @@ class Device:
     INTERFACE_VERSION = 1
     MEMBERS: tuple[str, ...] = ()   #: the interface's own members (lower case)
     STATE: tuple[str, ...] = ()     #: members reported by DeviceState
+    ALWAYS: frozenset[str] = frozenset()   #: members of this interface answered while not connected
 
     def __init__(self, number: int, name: str, description: str, telescope, *, commands=None,
                  unique_seed: str = ""):
@@ -76,7 +77,7 @@ class Device:
             if getattr(self, f"{other}_{member}", None) is not None or member in COMMON_GET + COMMON_PUT:
                 raise BadRequest(f"{member} does not accept {method}")
             raise not_implemented(f"{self.NAME}.{member}")
-        if member not in UNCONNECTED and not self.connected:
+        if member not in UNCONNECTED and member not in self.ALWAYS and not self.connected:
             raise AscomError(Code.NOT_CONNECTED, f"{self.NAME} {self.number} is not connected")
         try:
             result = handler(request)
@@ -154,8 +155,11 @@ class Device:
     async def get_devicestate(self, r: AlpacaRequest) -> list[dict[str, Any]]:
         out = []
         for member in self.STATE:
+            getter = getattr(self, f"get_{member}", None)
+            if getter is None:
+                continue   # not implemented here: left out
             try:
-                value = getattr(self, f"get_{member}")(r)
+                value = getter(r)
                 if inspect.isawaitable(value):
                     value = await value
             except (AscomError, TcsError, BadRequest):
@@ -174,8 +178,11 @@ class Device:
         """(name, value) pairs for the /setup page: the DeviceState members, read now."""
         rows = []
         for member in self.STATE:
+            getter = getattr(self, f"get_{member}", None)
+            if getter is None:
+                continue
             try:
-                value = getattr(self, f"get_{member}")(AlpacaRequest("GET", {}))
+                value = getter(AlpacaRequest("GET", {}))
                 if inspect.isawaitable(value):
                     value.close()
                     continue
