@@ -346,3 +346,112 @@ def test_focuser_filter_cover_dome_switch_weather(live):
     until(lambda: cover.CoverState == CoverStatus.Closed, "the cover closed")
     for device in (focuser, wheel, weather, cover, dome, switch, conditions, t):
         device.Disconnect()
+
+
+# ------------------------------------------------------------------ protocol rules, raw HTTP
+
+def http(live, method: str, path: str, query: str = "", form: str | None = None, timeout: float = 10.0):
+    """(status, content type, body text) of one request over a fresh connection."""
+    import http.client
+
+    conn = http.client.HTTPConnection("127.0.0.1", live.service.alpaca_port, timeout=timeout)
+    try:
+        headers = {"Content-Type": "application/x-www-form-urlencoded"} if form is not None else {}
+        conn.request(method, path + (f"?{query}" if query else ""),
+                     body=form.encode() if form is not None else None, headers=headers)
+        resp = conn.getresponse()
+        return resp.status, resp.getheader("Content-Type", ""), resp.read().decode()
+    finally:
+        conn.close()
+
+
+def api(live, method: str, member: str, query: str = "", form: str | None = None, device="telescope/0"):
+    import json
+
+    status, kind, text = http(live, method, f"/api/v1/{device}/{member}", query, form)
+    assert status == 200 and kind.startswith("application/json"), (status, text)
+    return json.loads(text)
+
+
+def test_transaction_ids_are_echoed_and_server_ids_increase(live):
+    a = api(live, "GET", "connected", "ClientID=7&ClientTransactionID=41")
+    b = api(live, "PUT", "connected", form="Connected=True&ClientID=7&ClientTransactionID=42")
+    c = api(live, "GET", "name", "ClientTransactionID=notanumber")
+    d = api(live, "GET", "name", "ClientTransactionID=4294967296")   # beyond uint32
+    assert (a["ClientTransactionID"], b["ClientTransactionID"]) == (41, 42)
+    assert c["ClientTransactionID"] == 0 and d["ClientTransactionID"] == 0
+    ids = [x["ServerTransactionID"] for x in (a, b, c, d)]
+    assert ids == sorted(ids) and len(set(ids)) == 4 and ids[0] > 0
+    assert "Value" not in b and b["ErrorNumber"] == 0 and b["ErrorMessage"] == ""
+    api(live, "PUT", "disconnect", form="")
+
+
+def test_get_names_are_case_insensitive_put_fields_are_not(live):
+    api(live, "PUT", "connect", form="")
+    low = api(live, "GET", "axisrates", "axis=0&clienttransactionid=3")
+    up = api(live, "GET", "axisrates", "AXIS=0&CLIENTTRANSACTIONID=4")
+    assert low["ErrorNumber"] == 0 and low["Value"] == up["Value"] and low["ClientTransactionID"] == 3
+    assert up["ClientTransactionID"] == 4
+    status, kind, text = http(live, "PUT", "/api/v1/telescope/0/connected", form="connected=True")
+    assert status == 400 and kind.startswith("text/plain") and "Connected" in text
+    assert api(live, "PUT", "connected", form="Connected=true")["ErrorNumber"] == 0
+    api(live, "PUT", "disconnect", form="")
+
+
+@pytest.mark.parametrize("method, path, query, form", [
+    ("GET", "/api/v1/telescope/7/name", "", None),              # no such device number
+    ("GET", "/api/v1/telescope/-1/name", "", None),
+    ("GET", "/api/v1/telescope/x/name", "", None),
+    ("GET", "/api/v1/camera/0/name", "", None),                 # no such device type here
+    ("GET", "/api/v1/telescope/0/nosuchmember", "", None),
+    ("GET", "/api/v1/telescope/0/Name", "", None),              # member names are lower case
+    ("GET", "/api/v1/telescope/0/axisrates", "Axis=abc", None),  # not an integer
+    ("GET", "/api/v1/telescope/0/axisrates", "", None),          # missing
+    ("PUT", "/api/v1/telescope/0/connected", "", "Connected=maybe"),
+    ("PUT", "/api/v1/telescope/0/slewtocoordinatesasync", "", "RightAscension=1&Declination=nan"),
+    ("PUT", "/api/v1/telescope/0/name", "", ""),                 # read-only member
+    ("GET", "/api/v1/telescope/0/park", "", None),               # a method is not read
+])
+def test_malformed_requests_are_http_400_plain_text(live, method, path, query, form):
+    api(live, "PUT", "connect", form="")
+    try:
+        status, kind, text = http(live, method, path, query, form)
+        assert status == 400 and kind.startswith("text/plain") and text
+    finally:
+        api(live, "PUT", "disconnect", form="")
+
+
+def test_device_errors_are_200_with_ascom_numbers_and_values_have_their_types(live):
+    assert api(live, "GET", "rightascension")["ErrorNumber"] == 0x407          # not connected
+    api(live, "PUT", "connect", form="")
+    assert api(live, "PUT", "synctoaltaz", form="Azimuth=1&Altitude=45")["ErrorNumber"] == 0x400
+    assert api(live, "PUT", "moveaxis", form="Axis=0&Rate=1000")["ErrorNumber"] == 0x401
+    assert api(live, "PUT", "trackingrate", form="TrackingRate=2")["ErrorNumber"] == 0x401
+    bad = api(live, "PUT", "moveaxis", form="Axis=0&Rate=1000")
+    assert isinstance(bad["ErrorMessage"], str) and bad["ErrorMessage"] and "Value" not in bad
+    types = {"rightascension": float, "declination": float, "altitude": float, "azimuth": float,
+             "siderealtime": float, "sitelatitude": float, "tracking": bool, "atpark": bool,
+             "slewing": bool, "alignmentmode": int, "equatorialsystem": int, "sideofpier": int,
+             "interfaceversion": int, "utcdate": str, "name": str, "supportedactions": list,
+             "trackingrates": list, "guideraterightascension": float}
+    for member, kind in types.items():
+        value = api(live, "GET", member)["Value"]
+        assert type(value) is kind, (member, value)
+    rates = api(live, "GET", "axisrates", "Axis=0")["Value"]
+    assert type(rates[0]["Minimum"]) is float and type(rates[0]["Maximum"]) is float
+    api(live, "PUT", "disconnect", form="")
+
+
+def test_management_and_setup_pages(live):
+    import json
+
+    status, kind, text = http(live, "GET", "/management/apiversions", "ClientTransactionID=9")
+    body = json.loads(text)
+    assert status == 200 and body["Value"] == [1] and body["ClientTransactionID"] == 9
+    status, kind, text = http(live, "GET", "/management/v1/configureddevices")
+    devices = json.loads(text)["Value"]
+    for d in devices:
+        status, kind, page = http(live, "GET", f"/setup/v1/{d['DeviceType'].lower()}/{d['DeviceNumber']}/setup")
+        assert status == 200 and kind.startswith("text/html") and d["DeviceName"] in page
+    status, kind, page = http(live, "GET", "/setup/v1/telescope/0/setup")
+    assert "RightAscension" in page and "AtPark" in page
