@@ -455,3 +455,67 @@ def test_management_and_setup_pages(live):
         assert status == 200 and kind.startswith("text/html") and d["DeviceName"] in page
     status, kind, page = http(live, "GET", "/setup/v1/telescope/0/setup")
     assert "RightAscension" in page and "AtPark" in page
+
+
+# ------------------------------------------------------------------------------------- fuzz
+
+PARAM_NAMES = ["Axis", "Rate", "RightAscension", "Declination", "Azimuth", "Altitude", "Connected",
+               "Tracking", "Direction", "Duration", "Position", "Id", "State", "Value", "Command",
+               "Raw", "Action", "Parameters", "SensorName", "TrackingRate", "ClientID",
+               "ClientTransactionID", "Brightness", "Name", "UTCDate"]
+VALUES = ["0", "1", "-1", "true", "False", "1e308", "-1e400", "nan", "inf", "9" * 400, "", " ",
+          "0x10", "1,5", "½", "\x00", "TELESCOPE.READY_STATE", "GET POINTING.TRACK", "3.5", "23.99"]
+
+
+@pytest.mark.timeout(300)
+def test_fuzz_the_http_endpoints(live):
+    """Bad numbers, missing, extra and oddly cased parameters, huge values, unknown members and
+    devices: never a 500, never a hung request; TPL2 clients and Alpaca keep working."""
+    import json
+    import urllib.parse
+
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    from tcs.alpaca.device import COMMON_GET, COMMON_PUT
+
+    devices = management.configureddevices(address(live))
+    members = sorted({m for d in live.service.alpaca_server.devices for m in d.MEMBERS}
+                     | set(COMMON_GET) | set(COMMON_PUT))
+    paths = [f"{d['DeviceType'].lower()}/{d['DeviceNumber']}" for d in devices] + ["telescope/99", "dome/x"]
+    for d in devices:   # connected: the members do their work (the fuzz runs last in this module)
+        api(live, "PUT", "connect", form="", device=f"{d['DeviceType'].lower()}/{d['DeviceNumber']}")
+    name = st.one_of(st.sampled_from(PARAM_NAMES), st.sampled_from(PARAM_NAMES).map(str.lower),
+                     st.text(max_size=8))
+    value = st.one_of(st.sampled_from(VALUES), st.text(max_size=30),
+                      st.floats(allow_nan=True).map(repr), st.integers().map(str))
+    request = st.tuples(st.sampled_from(["GET", "PUT", "PUT", "DELETE"]), st.sampled_from(paths),
+                        st.one_of(st.sampled_from(members), st.text(max_size=12)),
+                        st.dictionaries(name, value, max_size=4))
+
+    @settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
+    @given(request)
+    def one(req):
+        method, path, member, params = req
+        encoded = urllib.parse.urlencode(params)
+        quoted = urllib.parse.quote(member, safe="")
+        if method == "GET":
+            status, kind, text = http(live, method, f"/api/v1/{path}/{quoted}", encoded, timeout=30)
+        else:
+            status, kind, text = http(live, method, f"/api/v1/{path}/{quoted}", form=encoded, timeout=30)
+        assert status < 500, (req, status, text)
+        if status == 200:
+            body = json.loads(text)
+            assert isinstance(body["ErrorNumber"], int) and isinstance(body["ServerTransactionID"], int)
+            assert not body["ErrorMessage"].startswith("internal error"), (req, body)
+
+    one()
+
+    async def tpl2():
+        c = await Client.connect(live.port)
+        try:
+            assert float(await c.value("CABINET.POWER_STATE")) in (-1.0, 0.0, 0.75, 1.0)
+        finally:
+            await c.close()
+    asyncio.run(tpl2())
+    assert management.apiversions(address(live)) == [1]
