@@ -519,3 +519,52 @@ def test_fuzz_the_http_endpoints(live):
             await c.close()
     asyncio.run(tpl2())
     assert management.apiversions(address(live)) == [1]
+
+
+def test_tcs_server_alpaca_port_option_and_the_hardware_file_switch(tmp_path):
+    """``tcs-server --alpaca-port N`` serves the devices there; a hardware file without an
+    ``[alpaca]`` section serves none (Alpaca has no authentication: opt in)."""
+    import json
+    import os
+    import signal
+    import socket
+    import subprocess
+    import sys
+    import urllib.request
+
+    from tcs.app import Service
+    from tcs.config import load_config
+
+    assert load_config(Path(__file__).with_name("hw_opentsi.toml")).alpaca.port == -1
+    assert Service(load_config(Path(__file__).with_name("hw_opentsi.toml"))).alpaca_port == -1
+
+    def free_port() -> int:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            return s.getsockname()[1]
+
+    port, alpaca_port = free_port(), free_port()
+    env = dict(os.environ, XDG_STATE_HOME=str(tmp_path / "state"))
+    proc = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--port", str(port), "--opentsi-port",
+                             "-1", "--alpaca-port", str(alpaca_port)], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{alpaca_port}/management/v1/configureddevices",
+                                            timeout=10) as resp:
+                    devices = json.loads(resp.read())["Value"]
+                break
+            except OSError:
+                assert time.monotonic() < deadline and proc.poll() is None, "no Alpaca server"
+                time.sleep(0.2)
+        assert {"Telescope", "Dome", "Focuser", "FilterWheel", "Rotator", "CoverCalibrator", "Switch",
+                "ObservingConditions", "SafetyMonitor"} == {d["DeviceType"] for d in devices}
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(60) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stderr.close()
