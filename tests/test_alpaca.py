@@ -201,6 +201,21 @@ def test_alt_az_slew_set_park_and_home(live):
     until(lambda: t.AtPark, "parked at the new park position")
     assert abs(t.Altitude - 50.0) < 0.05 and abs(t.Azimuth - 120.0) < 0.05
     t.Unpark()
+    # MoveAxis: the azimuth at 2°/s until told to stop; AbortSlew ends a slew
+    from alpaca.telescope import TelescopeAxes
+    az0 = live.telescope.axis("AZ").real_position
+    t.MoveAxis(TelescopeAxes.axisPrimary, 2.0)
+    until(lambda: live.telescope.axis("AZ").real_position > az0 + 0.5, "the azimuth moving")
+    assert t.Slewing
+    t.MoveAxis(TelescopeAxes.axisPrimary, 0.0)
+    until(lambda: not t.Slewing, "the azimuth stopped")
+    with pytest.raises(InvalidValueException):
+        t.MoveAxis(TelescopeAxes.axisPrimary, 1000.0)
+    t.SlewToAltAzAsync(300.0, 40.0)
+    assert t.Slewing
+    t.AbortSlew()
+    until(lambda: not t.Slewing, "the slew aborted")
+    assert abs(t.Azimuth - 300.0) > 1.0
     # the hardware file's park positions again (the state directory is the module's)
     live.telescope.store.update(park={})
     t.FindHome()

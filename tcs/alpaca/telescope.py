@@ -41,7 +41,7 @@ import math
 
 import erfa
 
-from tcs.alpaca.device import Device, need, utc_iso
+from tcs.alpaca.device import Device, axis_ready, need, utc_iso
 from tcs.alpaca.protocol import AlpacaRequest, AscomError, Code, not_implemented
 from tcs.pointing.orientation import to_normal
 
@@ -354,8 +354,7 @@ class TelescopeDevice(Device):
         ops = self.ops
         if p is not None and p.track:
             return not (ops.motion_state & ON_TARGET)
-        job = ops._job
-        if job is not None and not job.done() and ops._job_kind in ("goto", "alpaca-park", "park", "home"):
+        if ops.running in ("goto", "alpaca-park", "park", "home"):
             return True
         if any(a.motion_state & 1 for a in self._move_axes()):
             return True
@@ -467,7 +466,10 @@ class TelescopeDevice(Device):
         if p is not None and p.track:
             ops.stop_tracking()
         ops.halt()
-        for axis in self._move_axes():
+        axes = self._move_axes()
+        for axis in axes[:2]:   # also a move commanded an instant ago, not yet seen moving
+            axis.stop()
+        for axis in axes[2:]:
             if axis.motion_state & 1:
                 axis.stop()
 
@@ -488,10 +490,15 @@ class TelescopeDevice(Device):
             axis.stop()
             self._restore_speed(axis)
             return
+        axis_ready(axis, "MoveAxis")
         goal = (axis.section.max if rate > 0 else axis.section.min) - axis.offset
         axis.set_speed(abs(rate))
         self._moving_axes.add(axis)
-        fut = axis.set_target(goal)
+        try:
+            fut = axis.set_target(goal)
+        except Exception:
+            self._restore_speed(axis)
+            raise
         fut.add_done_callback(lambda f, a=axis: (self._restore_speed(a), f.cancelled() or f.exception()))
 
     def _restore_speed(self, axis) -> None:

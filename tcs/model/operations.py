@@ -449,6 +449,12 @@ class Operations(ModuleHealth):
     PARK_TOLERANCE = 0.1  # degrees (user units) from the park position that still count as parked
 
     @property
+    def running(self) -> str:
+        """The kind of the verb running now ("ready", "park", "goto", "alpaca-park", "home",
+        "track"), or "" when none runs."""
+        return self._job_kind if self._job is not None and not self._job.done() else ""
+
+    @property
     def at_park(self) -> bool:
         """Parked by :meth:`park` or READY=0, and every parked axis still at its park position."""
         if not self._parked or (self._job is not None and not self._job.done()
