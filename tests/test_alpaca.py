@@ -363,6 +363,35 @@ def test_focuser_filter_cover_dome_switch_weather(live):
         device.Disconnect()
 
 
+def test_rain_makes_it_unsafe_and_opening_is_refused(live):
+    from alpaca.covercalibrator import CoverCalibrator
+    from alpaca.dome import Dome, ShutterState
+    from alpaca.safetymonitor import SafetyMonitor
+
+    t = connected_telescope(live)
+    ready(live, t)
+    a = address(live)
+    dome, cover, weather = Dome(a, 0), CoverCalibrator(a, 0), SafetyMonitor(a, 0)
+    for d in (dome, cover, weather):
+        d.Connect()
+    plc = live.telescope.peripherals.sims.plcs["dome"]
+    asyncio.run(live.call(plc.force, "rain", True))
+    try:
+        until(lambda: not weather.IsSafe, "unsafe in the rain")
+        with pytest.raises(InvalidOperationException, match="rain"):
+            dome.OpenShutter()
+        with pytest.raises(InvalidOperationException, match="rain"):
+            cover.OpenCover()
+        assert dome.ShutterStatus == ShutterState.shutterClosed
+    finally:
+        asyncio.run(live.call(plc.release, "rain"))
+    until(lambda: weather.IsSafe, "safe once the rain is over")
+    weather.Disconnect()
+    assert weather.IsSafe is False   # ISafetyMonitor: False while not connected
+    for d in (dome, cover, t):
+        d.Disconnect()
+
+
 # ------------------------------------------------------------------ protocol rules, raw HTTP
 
 def http(live, method: str, path: str, query: str = "", form: str | None = None, timeout: float = 10.0):

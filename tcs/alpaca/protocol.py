@@ -74,11 +74,11 @@ def from_tcs_error(exc: TcsError) -> AscomError:
     number = exc.number
     if isinstance(exc, RangeRefused) or number in (ErrorNumber.SOFTLIMIT, ErrorNumber.LIMIT):
         code = Code.INVALID_VALUE
-    elif number in (ErrorNumber.INVMODE, ErrorNumber.LOCALMODE, ErrorNumber.MANUALCONTROL,
-                    ErrorNumber.TARGETCHANGE) or exc.keyword is not None:
-        code = Code.INVALID_OPERATION
-    else:
+    elif number in (ErrorNumber.LIBFAIL, ErrorNumber.CONFAIL, ErrorNumber.NOCON, ErrorNumber.TIMEOUT,
+                    ErrorNumber.INTERNAL) and exc.keyword is None:
         code = Code.DRIVER_ERROR
+    else:   # not now: power, referencing, local mode, weather interlock (1020), a fault
+        code = Code.INVALID_OPERATION
     return AscomError(code, exc.message or exc.reply)
 
 
