@@ -363,6 +363,31 @@ def test_focuser_filter_cover_dome_switch_weather(live):
         device.Disconnect()
 
 
+def test_opentsi_ready_0_parks_for_alpaca_too(live):
+    """One park position, one parked state: OpenTSI's READY=0 (park, power off) shows as AtPark,
+    and Alpaca's Unpark makes the telescope operational again (READY_STATE 1 for OpenTSI)."""
+    t = connected_telescope(live)
+    ready(live, t)
+    t.Tracking = True
+    until(lambda: not t.Slewing, "tracking")
+
+    async def tsi(text: str):
+        c = await Client.connect(live.service.opentsi_port)
+        try:
+            return await c.set(text, timeout=WAIT)
+        finally:
+            await c.close()
+
+    lines = asyncio.run(tsi("TELESCOPE.READY=0"))
+    assert lines[-1].endswith("COMMAND COMPLETE"), lines
+    assert t.AtPark and not t.Tracking
+    with pytest.raises(ParkedException):
+        t.SlewToAltAzAsync(100.0, 45.0)
+    t.Unpark()
+    assert not t.AtPark and live.telescope.operations.ready_state == 1.0
+    t.Disconnect()
+
+
 def test_rain_makes_it_unsafe_and_opening_is_refused(live):
     from alpaca.covercalibrator import CoverCalibrator
     from alpaca.dome import Dome, ShutterState
