@@ -353,7 +353,10 @@ class TelescopeDevice(Device):
         p = self.telescope.pointing
         ops = self.ops
         if p is not None and p.track:
-            return not (ops.motion_state & ON_TARGET)
+            # on target: every main axis in its window on the current path (the axes' bits can
+            # lag a re-plan by a cycle, so the distance to the demand is checked too)
+            window = max(p.axis1.section.tolerance, p.axis2.section.tolerance)
+            return not (ops.motion_state & ON_TARGET) or p.targetdistance > window
         if ops.running in ("goto", "alpaca-park", "park", "home"):
             return True
         if any(a.motion_state & 1 for a in self._move_axes()):
