@@ -4,14 +4,16 @@ Alpaca-only automation reaches ASTELCO-style telescopes this way (Astra sends
 ``CommandString("TELESCOPE.READY_STATE")``). The command text is one of::
 
     VARIABLE                 GET VARIABLE             (the reply is the wire text of the value)
-    VARIABLE=VALUE           SET VARIABLE=VALUE       (the reply is "OK" once the SET completed)
+    VARIABLE=VALUE           SET VARIABLE=VALUE       (the reply is "OK" once the SET completed,
+                                                       "STARTED" if it still runs after ``timeout``)
 
 optionally prefixed by ``OpenTCI:`` or ``OpenTSI:`` to choose the tree. Without a prefix the
 OpenTSI tree is asked first (the tree Alpaca-side ASTELCO clients speak), then the OpenTCI
 tree (``POINTING.TRACK`` exists in both with different meanings: use the prefix for it).
 
 The trees are the same declarations the TPL2 listeners serve, over the same model: this bridge
-only parses the text, resolves it and awaits a long SET (up to ``timeout`` seconds). Reads and
+only parses the text, resolves it and awaits a long SET for up to ``timeout`` seconds (a longer
+one, such as READY=1 on a real telescope, goes on: poll its state variables). Reads and
 writes run at operator level (read and write level 3: configuration variables are denied).
 A refused SET is an ASCOM InvalidValue (RANGE, TYPE) or InvalidOperation (anything else) with
 the TPL2 keyword in the message; an unknown variable is InvalidValue.
@@ -104,9 +106,12 @@ class CommandBridge:
             waits = [tree.write(t, v, self.conn) for t, v in zip(targets, values)]
             waits = [w for w in waits if w is not None]
             if waits:
-                await asyncio.wait_for(asyncio.gather(*waits), self.timeout)
-        except asyncio.TimeoutError:
-            raise AscomError(Code.DRIVER_ERROR, f"SET {path} did not complete within {self.timeout:g} s") from None
+                task = asyncio.ensure_future(asyncio.gather(*waits))
+                task.add_done_callback(lambda f: f.cancelled() or f.exception())
+                done, _ = await asyncio.wait([task], timeout=self.timeout)
+                if not done:
+                    return "STARTED"   # still running; its outcome shows in the state variables
+                task.result()
         except (RangeRefused, TypeRefused) as exc:
             raise AscomError(Code.INVALID_VALUE, f"{exc.reply}: {exc.message}") from None
         except TcsError as exc:

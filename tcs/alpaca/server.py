@@ -147,7 +147,7 @@ class AlpacaServer:
     def _find(self, request: web.Request) -> Device:
         kind = request.match_info["type"]
         number = request.match_info["number"]
-        if not number.isdigit() or len(number) > 9:
+        if not (number.isascii() and number.isdigit()) or len(number) > 9:
             raise BadRequest(f"device number {number!r} is not a non-negative integer")
         device = self._by_key.get((kind, int(number)))
         if device is None:

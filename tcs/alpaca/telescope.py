@@ -524,8 +524,10 @@ class TelescopeDevice(Device):
 
     async def put_unpark(self, r) -> None:
         job = self.ops.unpark()
-        if job is not None:
-            await job
+        if job is not None:   # shielded: a request time-out does not end the power-up
+            task = asyncio.ensure_future(job)
+            task.add_done_callback(lambda f: f.cancelled() or f.exception())
+            await asyncio.shield(task)
 
     def put_setpark(self, r) -> None:
         self.ops.set_park_here()
