@@ -143,7 +143,7 @@ class Device:
 
     async def put_commandbool(self, r: AlpacaRequest) -> bool:
         text = (await self._command(r)).strip().strip('"').lower()
-        if text in ("1", "true", "ok", "complete"):
+        if text in ("1", "true", "ok", "complete", "started"):
             return True
         if text in ("0", "false", ""):
             return False
