@@ -203,6 +203,8 @@ class Operations(ModuleHealth):
         if on and self.cabinet.power_state == -1.0:
             raise TcsError("emergency off is active", ErrorNumber.INVMODE)
         self._ready_demand = int(on)
+        if on:
+            self._parked = False   # READY=1 is OpenTSI's unpark
         return self._start("ready" if on else "park", self._ready_on() if on else self._park_off())
 
     async def _ready_on(self) -> None:
@@ -423,7 +425,8 @@ class Operations(ModuleHealth):
             self._job.cancel()
 
     def _start(self, kind: str, coro):
-        if self._job is not None and not self._job.done() and self._job_kind in ("ready", "park", "goto", "alpaca-park", "home"):
+        if self._job is not None and not self._job.done() and self._job_kind in (
+                "ready", "park", "goto", "alpaca-park", "home"):
             self._job.cancel()
         self._job = asyncio.get_running_loop().create_task(coro, name=f"TELESCOPE {kind}")
         self._job_kind = kind
@@ -460,7 +463,8 @@ class Operations(ModuleHealth):
         if not self._parked or (self._job is not None and not self._job.done()
                                 and self._job_kind in ("park", "alpaca-park")):
             return False
-        return all(abs(a.real_position - park) <= self.PARK_TOLERANCE for a, park in self.park_positions())
+        parks = self.park_positions()
+        return bool(parks) and all(abs(a.real_position - park) <= self.PARK_TOLERANCE for a, park in parks)
 
     def park(self):
         """Stop tracking and move every axis with a park position there (power stays on);
