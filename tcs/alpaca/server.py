@@ -85,8 +85,8 @@ class AlpacaServer:
         site = web.TCPSite(self._runner, host, port, reuse_address=True)
         try:
             await site.start()
-            sockets = site._server.sockets if site._server is not None else []
-            self.port = sockets[0].getsockname()[1] if sockets else port
+            addresses = self._runner.addresses
+            self.port = addresses[0][1] if addresses else port
             if discovery_port >= 0:
                 await self._start_discovery(discovery_port)
         except BaseException:
