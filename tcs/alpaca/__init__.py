@@ -2,10 +2,11 @@
 rule 0: a declaration over the same telescope model as the OpenTCI and OpenTSI trees).
 
 - ``protocol``: the wire rules without I/O; ``device``: the common members and dispatch;
-- ``telescope``: ITelescopeV4; ``equipment``: Dome, Focuser, FilterWheel, Rotator,
-  CoverCalibrator, Switch, ObservingConditions, SafetyMonitor;
+- ``telescope``: ITelescopeV4; ``equipment``: Focuser, FilterWheel, Rotator, Dome,
+  CoverCalibrator; ``site``: Switch, ObservingConditions, SafetyMonitor;
 - ``commands``: CommandBlind/Bool/String as a TPL2 GET or SET of either tree;
-- ``server``: the aiohttp server, management API, /setup pages, UDP discovery.
+- ``server``: the aiohttp server, management API, /setup pages, UDP discovery;
+- ``start``: what ``tcs-server`` (:class:`tcs.app.Service`) calls to start it.
 
 :func:`build_devices` numbers the devices of each type from 0, as the hardware file has them.
 """
@@ -17,6 +18,7 @@ from tcs.alpaca.server import AlpacaServer
 
 def build_devices(telescope, commands=None) -> list:
     """Every Alpaca device the hardware file gives ``telescope``."""
+    from tcs.alpaca.equipment import equipment_devices
     from tcs.alpaca.telescope import TelescopeDevice
 
     seed = telescope.config.cabinet.hw_id
@@ -24,10 +26,6 @@ def build_devices(telescope, commands=None) -> list:
     if telescope.pointing is not None:
         devices.append(TelescopeDevice(0, "Telescope", "the telescope mount (pointing and tracking)",
                                        telescope, commands=commands, unique_seed=seed))
-    try:
-        from tcs.alpaca.equipment import equipment_devices
-    except ImportError:   # pragma: no cover - equipment not built yet
-        return devices
     devices.extend(equipment_devices(telescope, commands, seed))
     return devices
 
