@@ -26,7 +26,7 @@ class Service:
     """One running TCS."""
 
     def __init__(self, config: HwConfig, host: str | None = None, port: int | None = None,
-                 opentsi_port: int | None = None):
+                 opentsi_port: int | None = None, alpaca_port: int | None = None):
         self.config = config
         self.host = host
         self.port = port
@@ -35,6 +35,9 @@ class Service:
         #: The OpenTSI tree's listener (``[server] opentsi_port`` ≥ 0), same users and model.
         self.opentsi_server: Tpl2Server | None = None
         self.opentsi_port = config.server.opentsi_port if opentsi_port is None else opentsi_port
+        #: The ASCOM Alpaca HTTP server (``[alpaca] port`` ≥ 0), same model.
+        self.alpaca_server = None
+        self.alpaca_port = config.alpaca.port if alpaca_port is None else alpaca_port
 
     async def start(self) -> int:
         """Start everything; returns the TPL2 port.
@@ -59,12 +62,18 @@ class Service:
                 from tcs.opentsi import build_opentsi_server
                 self.opentsi_server = build_opentsi_server(self.config, self.telescope)
                 self.opentsi_port = await self.opentsi_server.start(self.host, self.opentsi_port)
+            if self.alpaca_port >= 0:
+                from tcs.alpaca.start import start_alpaca
+                self.alpaca_server = await start_alpaca(self)
+                self.alpaca_port = self.alpaca_server.port
             return port
         except BaseException:
             await self.stop()
             raise
 
     async def stop(self) -> None:
+        if self.alpaca_server is not None:
+            await self.alpaca_server.stop()
         if self.opentsi_server is not None:
             await self.opentsi_server.stop()
         if self.server is not None:

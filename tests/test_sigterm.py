@@ -47,7 +47,7 @@ class Client:
 
 def start(port: int, env: dict) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--port", str(port),
-                             "--opentsi-port", "0"], env=env,
+                             "--opentsi-port", "0", "--alpaca-port", "0"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
 
 

@@ -2,7 +2,8 @@
 
 No arguments: the simulated telescope of ``hwconfig/sim.toml`` on 127.0.0.1:65432.
 ``--config FILE`` runs whatever the file describes; ``--host``/``--port`` override the file,
-``--opentsi-port`` the port of the OpenTSI tree (65433 in sim.toml; -1 serves none).
+``--opentsi-port`` the port of the OpenTSI tree (65433 in sim.toml; -1 serves none),
+``--alpaca-port`` the ASCOM Alpaca devices' (11111 in sim.toml; -1 serves none).
 Logs go to stderr as ``LEVEL name: message`` (journald adds the time). A bad hardware file is
 reported key by key and the exit status is 2 — also a valid file that cannot run a service: no
 ``[[users]]``, or a real telescope without ``[site]``. ``--check-config FILE`` does only that
@@ -34,6 +35,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--port", type=int, help="TCP port (overrides [server] port)")
     p.add_argument("--opentsi-port", type=int,
                    help="TCP port of the OpenTSI tree (overrides [server] opentsi_port; -1: off)")
+    p.add_argument("--alpaca-port", type=int,
+                   help="HTTP port of the ASCOM Alpaca devices (overrides [alpaca] port; -1: off)")
     p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     p.add_argument("--check-config", metavar="FILE",
                    help="validate FILE as a service's hardware file and exit (0 valid, 2 not); "
@@ -78,7 +81,8 @@ def main(argv=None) -> int:
     from tcs.app import Service, serve_until_signalled
 
     return run_until_signalled("tcs-server", lambda stop: serve_until_signalled(
-        Service(config, args.host, args.port, args.opentsi_port), stop))
+        Service(config, args.host, args.port, args.opentsi_port,
+                args.alpaca_port), stop))
 
 
 def run_until_signalled(prog: str, main_coro) -> int:

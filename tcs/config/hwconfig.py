@@ -17,6 +17,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from tcs.config.alpaca import AlpacaSection
 from tcs.config.can import CanSection, DriveSection, check_can_drives
 from tcs.config.schema import build, setting
 from tcs.config.gps import GpsSection
@@ -59,6 +60,7 @@ class HwConfig:
     switches: list[SwitchSection] = setting(factory=tuple, doc="SWITCH[] on PLC points (tcs.config.modules)")
     interlocks: InterlockSection | None = setting(None, doc="weather interlock of dome and covers (tcs.config.modules)")
     opentsi: OpenTsiSection = setting(factory=OpenTsiSection, doc="names used by the OpenTSI tree (tcs.config.opentsi)")
+    alpaca: AlpacaSection = setting(factory=AlpacaSection, doc="the ASCOM Alpaca front end (tcs.config.alpaca)")
     # Set by load_config, not by the file.
     source: Path = field(default=Path("<memory>"), init=False, compare=False)
     #: The top-level tables and keys the file itself wrote (a section left to its defaults is

@@ -113,6 +113,8 @@ class Operations(ModuleHealth):
         self._job: asyncio.Task | None = None
         self._job_kind = ""
         self._closing = False
+        self._parked = False          # parked by park() or READY=0 (at_park also checks positions)
+        self._guiding_until = 0.0     # loop time a pulse_guide() ends
 
     # -- parts of the model ----------------------------------------------------------------------
     @property
@@ -128,7 +130,14 @@ class Operations(ModuleHealth):
         return [a for a in (self.telescope.axis(n) for n in names) if a is not None]
 
     def park_positions(self) -> list[tuple[object, float]]:
-        return [(a, a.section.park) for a in self.telescope.axes if a.section.park is not None]
+        """(axis, park position): the hardware file's, replaced by a SetPark (persisted)."""
+        saved = self.telescope.store.get("park", {}) or {}
+        out = []
+        for a in self.telescope.axes:
+            park = saved.get(a.module_name, a.section.park)
+            if park is not None:
+                out.append((a, float(park)))
+        return out
 
     def filter_axis(self, port: int | None = None):
         wheels = self.telescope.axis_array("FILTER")
@@ -194,6 +203,8 @@ class Operations(ModuleHealth):
         if on and self.cabinet.power_state == -1.0:
             raise TcsError("emergency off is active", ErrorNumber.INVMODE)
         self._ready_demand = int(on)
+        if on:
+            self._parked = False   # READY=1 is OpenTSI's unpark
         return self._start("ready" if on else "park", self._ready_on() if on else self._park_off())
 
     async def _ready_on(self) -> None:
@@ -214,6 +225,7 @@ class Operations(ModuleHealth):
                 moves.append(axis.set_target(park - axis.offset))
         if moves:
             await asyncio.gather(*moves)
+        self._parked = True
         await self.cabinet.set_power(0)
 
     # -- POINTING.TRACK verbs --------------------------------------------------------------------
@@ -415,7 +427,8 @@ class Operations(ModuleHealth):
             self._job.cancel()
 
     def _start(self, kind: str, coro):
-        if self._job is not None and not self._job.done() and self._job_kind in ("ready", "park", "goto"):
+        if self._job is not None and not self._job.done() and self._job_kind in (
+                "ready", "park", "goto", "alpaca-park", "home"):
             self._job.cancel()
         self._job = asyncio.get_running_loop().create_task(coro, name=f"TELESCOPE {kind}")
         self._job_kind = kind
@@ -436,6 +449,149 @@ class Operations(ModuleHealth):
         if self._job is not None and not self._job.done():
             self._job.cancel()
             await asyncio.wait([self._job])
+
+    # -- park, home, guiding, sync (the verbs of mount-level clients: ASCOM Alpaca) ------------
+    PARK_TOLERANCE = 0.1  # degrees (user units) from the park position that still count as parked
+
+    @property
+    def running(self) -> str:
+        """The kind of the verb running now ("ready", "park", "goto", "alpaca-park", "home",
+        "track"), or "" when none runs."""
+        return self._job_kind if self._job is not None and not self._job.done() else ""
+
+    @property
+    def at_park(self) -> bool:
+        """Parked by :meth:`park` or READY=0, and every parked axis still at its park position."""
+        if not self._parked or (self._job is not None and not self._job.done()
+                                and self._job_kind in ("park", "alpaca-park")):
+            return False
+        parks = self.park_positions()
+        return bool(parks) and all(abs(a.real_position - park) <= self.PARK_TOLERANCE for a, park in parks)
+
+    def park(self):
+        """Stop tracking and move every axis with a park position there (power stays on);
+        :attr:`at_park` once arrived. Long-running; refused without a park position."""
+        parks = self.park_positions()
+        if not parks:
+            raise TcsError("no park position: set one in the hardware file or with SetPark", ErrorNumber.INVMODE)
+        for axis, _park in parks:
+            if axis.power_state != 1.0 or axis.referenced < 1.0:
+                raise TcsError(f"{axis.module_name} is not powered and referenced", ErrorNumber.INVMODE)
+        self._parked = False
+        return self._start("alpaca-park", self._park_move(parks))
+
+    async def _park_move(self, parks) -> None:
+        p = self.pointing
+        if p is not None and p.track:
+            p.set_track(0)
+            await self._until(lambda: not p.track)
+        await asyncio.gather(*(axis.set_target(park - axis.offset) for axis, park in parks))
+        self._parked = True
+
+    def unpark(self):
+        """Leave the parked state; power on and reference what is not (READY=1) when the
+        telescope is not operational. Returns the READY awaitable or None."""
+        self._parked = False
+        if self.ready_state != 1.0:
+            return self.set_ready(1)
+        return None
+
+    def set_park_here(self) -> None:
+        """SetPark: the main axes' present positions become their park positions (persisted,
+        also for OpenTSI's READY=0)."""
+        axes = self.main_axes()
+        if not axes:
+            raise TcsError("no main axes", ErrorNumber.INVMODE)
+        saved = dict(self.telescope.store.get("park", {}) or {})
+        for axis in axes:
+            if axis.referenced < 1.0:
+                raise TcsError(f"{axis.module_name} is not referenced", ErrorNumber.INVMODE)
+            saved[axis.module_name] = round(float(axis.real_position), 6)
+        self.telescope.store.update(park=saved)
+
+    def home_positions(self) -> list[tuple[object, float]]:
+        """(main axis, home position): where its drive's homing puts the reference (the home
+        offset, 0x607C — the home switch's position in user units), inside the axis limits."""
+        out = []
+        for axis in self.main_axes():
+            drive = self.telescope.config.drives.get(axis.section.drive)
+            home = float(drive.homing.offset) if drive is not None else 0.0
+            out.append((axis, min(max(home, axis.section.min), axis.section.max)))
+        return out
+
+    @property
+    def at_home(self) -> bool:
+        """The main axes, referenced, stand at their home positions (not while moving there)."""
+        if self._job is not None and not self._job.done() and self._job_kind == "home":
+            return False
+        homes = self.home_positions()
+        return bool(homes) and all(a.referenced >= 1.0 and abs(a.real_position - home) <= self.PARK_TOLERANCE
+                                   for a, home in homes)
+
+    def find_home(self):
+        """Reference the main axes that are not referenced, then move them to their home
+        positions (:meth:`home_positions`); tracking ends first. Long-running."""
+        homes = self.home_positions()
+        for axis, _home in homes:
+            if axis.power_state != 1.0:
+                raise TcsError(f"{axis.module_name} is not powered", ErrorNumber.INVMODE)
+
+        async def run() -> None:
+            p = self.pointing
+            if p is not None and p.track:
+                p.set_track(0)
+                await self._until(lambda: not p.track)
+            await asyncio.gather(*(a.reference(False) for a, _h in homes))
+            await asyncio.gather(*(a.set_target(home - a.offset) for a, home in homes))
+        return self._start("home", run())
+
+    @property
+    def pulse_guiding(self) -> bool:
+        return asyncio.get_running_loop().time() < self._guiding_until
+
+    def pulse_guide(self, direction: int, seconds: float, rate: float) -> None:
+        """Move the tracked target by ``rate`` (degrees/s on the sky) for ``seconds``: direction
+        0 north (+Dec), 1 south, 2 east (+RA), 3 west. The tracking is re-planned to the moved
+        target at once; :attr:`pulse_guiding` for ``seconds``."""
+        p = self._need_pointing()
+        if not p.track:
+            raise TcsError("pulse guiding needs tracking", ErrorNumber.INVMODE)
+        shift = rate * seconds
+        ra, dec = p.target.ra, p.target.dec
+        if direction in (0, 1):
+            dec = dec + (shift if direction == 0 else -shift)
+            if not -90.0 <= dec <= 90.0:
+                raise RangeRefused("the guided declination passes a pole")
+            p.target.set_dec(dec)
+        else:
+            cos_dec = max(math.cos(math.radians(dec)), 1e-3)
+            ra = (ra + (1 if direction == 2 else -1) * shift / 15.0 / cos_dec) % 24.0
+            p.target.set_ra(ra)
+        p.set_track(p.track)
+        loop = asyncio.get_running_loop()
+        self._guiding_until = max(self._guiding_until, loop.time()) + seconds
+
+    def sync_to(self, ra: float, dec: float) -> tuple[float, float]:
+        """Sync: the telescope points at ICRS ``ra`` (h), ``dec`` (deg) now. Done as a change of
+        the pointing model's index terms (IA/IE, or IH/ID), so that POINTING.CURRENT reads that
+        place; a running tracking is re-planned (it moves by the difference). Refused in the
+        reverse orientation and beyond 10°. Returns the index-term changes (degrees)."""
+        p = self._need_pointing()
+        if p.orientation_in_use():
+            raise TcsError("sync is only done in the normal orientation", ErrorNumber.INVMODE)
+        d = p.pipeline().demand(ra, dec, p.utc(), False)
+        d1, d2 = float(d.axis1[0]), float(d.axis2[0])
+        r1, r2 = p.axis1.real_position, p.axis2.real_position
+        e1 = (r1 - d1 + 180.0) % 360.0 - 180.0
+        e2 = r2 - d2
+        if math.hypot(e1, e2) > 10.0:
+            raise RangeRefused(f"sync by {math.hypot(e1, e2):.2f}° is beyond 10°")
+        names = ("IA", "IE") if p.mount == "AZ-ZD" else ("IH", "ID")
+        changes = (e1, -e2) if p.mount == "AZ-ZD" else (-e1, -e2)
+        params = p.params
+        for name, change in zip(names, changes):
+            params.set_coefficient(name, params.coefficient(name) + change)
+        return changes
 
     def _need_pointing(self):
         p = self.pointing

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import socket
 import uuid
 from pathlib import Path
 
@@ -22,12 +23,20 @@ def make_config(state_dir: Path, path: Path = DEFAULT_CONFIG, **server) -> HwCon
     settings.update(server)
     changes = dict(server=dataclasses.replace(config.server, **settings),
                    state=StateSection(path=str(state_dir)))
+    if config.alpaca.port >= 0:   # the Alpaca devices too: a free port, discovery on a free UDP port
+        changes["alpaca"] = dataclasses.replace(config.alpaca, port=0, discovery_port=free_udp_port())
     if config.can is not None and config.can.interface == "virtual":
         # a bus of its own: services of different tests must not hear each other
         changes["can"] = dataclasses.replace(config.can, channel=f"tcs-test-{uuid.uuid4().hex[:12]}")
     new = dataclasses.replace(config, **changes)
     object.__setattr__(new, "source", config.source)
     return new
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("0.0.0.0", 0))
+        return s.getsockname()[1]
 
 
 async def start_service(state_dir: Path, path: Path = DEFAULT_CONFIG, **server) -> tuple[Service, int]:

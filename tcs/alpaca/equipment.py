@@ -1,0 +1,436 @@
+"""Focuser, FilterWheel, Rotator, Dome and CoverCalibrator devices over the model's axes.
+
+What maps to what
+-----------------
+* **Focuser** (IFocuserV4): the ``FOCUS`` axis. Absolute; one step = 1 µm of the axis's user
+  unit (mm): ``Position`` = round(CURRPOS × 1000), ``MaxStep`` = its upper limit in µm,
+  ``Move(Position)`` = TARGETPOS. No temperature compensation (``TempComp`` False, setting it
+  True is InvalidValue); ``Temperature`` is not implemented.
+* **FilterWheel** (IFilterWheelV3), one per ``FILTER[]`` wheel: slot i = the i-th position of
+  the hardware file's ``positions`` (sorted as OpenTSI sorts them), ``Names`` from ``names``;
+  ``Position`` is -1 while the wheel moves. Focus offsets are all 0 (none configured).
+* **Rotator** (IRotatorV4), one per ``DEROTATOR[]``: ``MechanicalPosition`` = REALPOS folded
+  into 0…360; ``Position`` is the same (no rotator sync state: ``Sync`` is not implemented);
+  a move goes to the turn of the cyclic axis nearest to where it stands, inside the limits.
+  ``CanReverse`` False.
+* **Dome** (IDomeV3) for ``DOME[]``: ``Azimuth``/``SlewToAzimuth``/``SyncToAzimuth``… on the
+  rotation (DOME[0]) when there is one; the shutter is every opening part (slit, flap, roof,
+  fold, shells): open when all are at their open end, closed when all are closed. No park or
+  home position for a dome in the hardware file: ``CanPark``/``CanFindHome`` False. The dome
+  follows the telescope through the tracking (POINTING.TRACK +128), not through ``Slaved``.
+* **CoverCalibrator** (ICoverCalibratorV2), one per cover: the cover's axis (closed 0, open at
+  its max); no calibrator (``CalibratorState`` NotPresent).
+
+PLC modules (dome parts, covers) need their POWER on to move: an Alpaca move switches it on
+first (it fails, as InvalidOperation, while CABINET.POWER is off). The weather interlock refuses
+opening in bad weather (InvalidOperation, with the interlock's reason).
+"""
+
+from __future__ import annotations
+
+import asyncio
+
+from tcs.alpaca.device import Device, axis_ready, need
+from tcs.alpaca.protocol import AlpacaRequest, AscomError, Code, not_implemented
+
+MOVING = 1
+
+
+def _quiet(fut) -> None:
+    """Run a long SET in the background; its outcome shows in the device's state."""
+    if fut is not None:
+        asyncio.ensure_future(fut).add_done_callback(lambda f: f.cancelled() or f.exception())
+
+
+# ------------------------------------------------------------------------------------ Focuser
+
+class FocuserDevice(Device):
+    TYPE = "focuser"
+    NAME = "Focuser"
+    INTERFACE_VERSION = 4
+    MEMBERS = ("absolute", "ismoving", "maxincrement", "maxstep", "position", "stepsize", "tempcomp",
+               "tempcompavailable", "temperature", "halt", "move")
+    STATE = ("ismoving", "position", "temperature")
+    STATE_NAMES = {"ismoving": "IsMoving", "position": "Position", "temperature": "Temperature"}
+    STEP = 1000.0   # steps per user unit (µm per mm)
+
+    def __init__(self, number, name, description, telescope, axis, **kw):
+        super().__init__(number, name, description, telescope, **kw)
+        self.axis = axis
+
+    def get_absolute(self, r) -> bool:
+        return True
+
+    def get_ismoving(self, r) -> bool:
+        return bool(self.axis.motion_state & MOVING)
+
+    def get_maxstep(self, r) -> int:
+        return int(round(self.axis.section.max * self.STEP))
+
+    def get_maxincrement(self, r) -> int:
+        return self.get_maxstep(r)
+
+    def get_position(self, r) -> int:
+        return int(round(self.axis.current_position * self.STEP))
+
+    def get_stepsize(self, r) -> float:
+        return 1000.0 / self.STEP   # microns
+
+    def get_tempcomp(self, r) -> bool:
+        return False
+
+    def put_tempcomp(self, r) -> None:
+        if r.bool("TempComp"):
+            raise AscomError(Code.INVALID_VALUE, "no temperature compensation (TempCompAvailable is False)")
+
+    def get_tempcompavailable(self, r) -> bool:
+        return False
+
+    def put_halt(self, r) -> None:
+        self.axis.stop()
+
+    def put_move(self, r) -> None:
+        steps = r.int("Position")
+        section = self.axis.section
+        lo, hi = int(round(section.min * self.STEP)), int(round(section.max * self.STEP))
+        need(lo <= steps <= hi, Code.INVALID_VALUE, f"Position {steps} is outside {lo}…{hi}")
+        axis_ready(self.axis, "Move")
+        _quiet(self.axis.set_target(steps / self.STEP))
+
+
+# -------------------------------------------------------------------------------- FilterWheel
+
+class FilterWheelDevice(Device):
+    TYPE = "filterwheel"
+    NAME = "FilterWheel"
+    INTERFACE_VERSION = 3
+    MEMBERS = ("focusoffsets", "names", "position")
+    STATE = ("position",)
+    STATE_NAMES = {"position": "Position"}
+
+    def __init__(self, number, name, description, telescope, axis, **kw):
+        super().__init__(number, name, description, telescope, **kw)
+        self.axis = axis
+
+    def _keys(self) -> list:
+        return sorted(self.axis.positions)
+
+    def get_names(self, r) -> list[str]:
+        names = self.axis.section.names
+        return [str(names.get(str(k), str(k))) for k in self._keys()]
+
+    def get_focusoffsets(self, r) -> list[int]:
+        return [0 for _ in self._keys()]
+
+    def get_position(self, r) -> int:
+        axis = self.axis
+        if axis.motion_state & MOVING or axis.referenced < 1.0:
+            return -1
+        here = axis.real_position   # a discrete axis reads the key of the position it is at
+        for i, key in enumerate(self._keys()):
+            if abs(float(key) - here) < 1e-6:
+                return i
+        return -1
+
+    def put_position(self, r) -> None:
+        slot = r.int("Position")
+        keys = self._keys()
+        need(0 <= slot < len(keys), Code.INVALID_VALUE, f"Position {slot} is outside 0…{len(keys) - 1}")
+        axis_ready(self.axis, "Position")
+        _quiet(self.axis.set_target(keys[slot]))
+
+
+# ------------------------------------------------------------------------------------ Rotator
+
+class RotatorDevice(Device):
+    TYPE = "rotator"
+    NAME = "Rotator"
+    INTERFACE_VERSION = 4
+    MEMBERS = ("canreverse", "ismoving", "mechanicalposition", "position", "reverse", "stepsize",
+               "targetposition", "halt", "move", "moveabsolute", "movemechanical", "sync")
+    STATE = ("ismoving", "mechanicalposition", "position")
+    STATE_NAMES = {"ismoving": "IsMoving", "mechanicalposition": "MechanicalPosition", "position": "Position"}
+
+    def __init__(self, number, name, description, telescope, axis, **kw):
+        super().__init__(number, name, description, telescope, **kw)
+        self.axis = axis
+
+    def get_canreverse(self, r) -> bool:
+        return False
+
+    def get_reverse(self, r) -> bool:
+        return False
+
+    def put_reverse(self, r) -> None:
+        if r.bool("Reverse"):
+            raise not_implemented("Reverse (CanReverse is False)")
+
+    def get_ismoving(self, r) -> bool:
+        return bool(self.axis.motion_state & MOVING)
+
+    def get_mechanicalposition(self, r) -> float:
+        return float(self.axis.real_position % 360.0)
+
+    def get_position(self, r) -> float:
+        return self.get_mechanicalposition(r)
+
+    def get_targetposition(self, r) -> float:
+        return float((self.axis.target_position + self.axis.offset) % 360.0)
+
+    def put_halt(self, r) -> None:
+        self.axis.stop()
+
+    def _go(self, angle: float) -> None:
+        axis = self.axis
+        axis_ready(axis, "Move")
+        here = axis.real_position
+        base = here + ((angle - here) % 360.0 + 180.0) % 360.0 - 180.0   # nearest turn
+        turns = sorted((base + k * 360.0 for k in range(-2, 3)), key=lambda t: abs(t - here))
+        for goal in turns:
+            if axis.limits.contains(goal):
+                _quiet(axis.set_target(goal - axis.offset))
+                return
+        raise AscomError(Code.INVALID_VALUE, f"{angle}° cannot be reached inside the limits")
+
+    def put_move(self, r) -> None:
+        delta = r.float("Position")
+        need(abs(delta) <= 3600.0, Code.INVALID_VALUE, f"relative move {delta}° is beyond ±3600")
+        self._go((self.get_mechanicalposition(r) + delta) % 360.0)
+
+    def put_moveabsolute(self, r) -> None:
+        angle = r.float("Position")
+        need(0.0 <= angle < 360.0, Code.INVALID_VALUE, f"Position {angle} is outside 0…360")
+        self._go(angle)
+
+    def put_movemechanical(self, r) -> None:
+        angle = r.float("Position")
+        need(0.0 <= angle < 360.0, Code.INVALID_VALUE, f"Position {angle} is outside 0…360")
+        self._go(angle)
+
+
+# --------------------------------------------------------------------------------------- Dome
+
+SHUTTER_OPEN, SHUTTER_CLOSED, SHUTTER_OPENING, SHUTTER_CLOSING, SHUTTER_ERROR = 0, 1, 2, 3, 4
+
+
+def _power_up(module, what: str) -> None:
+    if module.power_state != 1.0:
+        module.power(True)
+
+
+def _at_min(module) -> bool:
+    return module.real_position <= module.section.min + max(module.section.tolerance, 1e-6)
+
+
+def _at_max(module) -> bool:
+    return module.real_position >= module.section.max - max(module.section.tolerance, 1e-6)
+
+
+def _opening_state(parts: list) -> int:
+    """ShutterState / CoverStatus-like summary of PLC parts: open, closed, opening, closing, error."""
+    if any(p.motion_state & 4 for p in parts) or any(p.link_error() is not None for p in parts):
+        return SHUTTER_ERROR
+    moving = [p for p in parts if p.motion_state & MOVING]
+    if moving:
+        return SHUTTER_OPENING if any(p.target_position > p.current_position for p in moving) else SHUTTER_CLOSING
+    if all(_at_max(p) for p in parts):
+        return SHUTTER_OPEN
+    if all(_at_min(p) for p in parts):
+        return SHUTTER_CLOSED
+    return SHUTTER_ERROR   # stopped half-way: neither open nor closed
+
+
+class DomeDevice(Device):
+    TYPE = "dome"
+    NAME = "Dome"
+    INTERFACE_VERSION = 3
+    MEMBERS = ("altitude", "athome", "atpark", "azimuth", "canfindhome", "canpark", "cansetaltitude",
+               "cansetazimuth", "cansetpark", "cansetshutter", "canslave", "cansyncazimuth",
+               "shutterstatus", "slaved", "slewing", "abortslew", "closeshutter", "findhome",
+               "openshutter", "park", "setpark", "slewtoaltitude", "slewtoazimuth", "synctoazimuth")
+    STATE = ("athome", "atpark", "azimuth", "shutterstatus", "slewing")
+    STATE_NAMES = {"athome": "AtHome", "atpark": "AtPark", "azimuth": "Azimuth",
+                   "shutterstatus": "ShutterStatus", "slewing": "Slewing"}
+
+    def __init__(self, number, name, description, telescope, rotation, shutters, **kw):
+        super().__init__(number, name, description, telescope, **kw)
+        self.rotation = rotation
+        self.shutters = shutters
+
+    def _parts(self) -> list:
+        return ([self.rotation] if self.rotation is not None else []) + list(self.shutters)
+
+    def get_canfindhome(self, r) -> bool:
+        return False
+
+    def get_canpark(self, r) -> bool:
+        return False
+
+    def get_cansetpark(self, r) -> bool:
+        return False
+
+    def get_cansetaltitude(self, r) -> bool:
+        return False
+
+    def get_cansetazimuth(self, r) -> bool:
+        return self.rotation is not None
+
+    def get_cansyncazimuth(self, r) -> bool:
+        return False
+
+    def get_cansetshutter(self, r) -> bool:
+        return bool(self.shutters)
+
+    def get_canslave(self, r) -> bool:
+        return False
+
+    def get_slaved(self, r) -> bool:
+        return False
+
+    def put_slaved(self, r) -> None:
+        if r.bool("Slaved"):
+            raise not_implemented("Slaved (the dome follows through the telescope's tracking)")
+
+    def get_athome(self, r) -> bool:
+        return False
+
+    def get_atpark(self, r) -> bool:
+        return False
+
+    def get_azimuth(self, r) -> float:
+        if self.rotation is None:
+            raise not_implemented("Azimuth (this enclosure does not rotate)")
+        return float(self.rotation.current_position % 360.0)
+
+    def get_shutterstatus(self, r) -> int:
+        if not self.shutters:
+            raise not_implemented("ShutterStatus (no shutter)")
+        return _opening_state(self.shutters)
+
+    def get_slewing(self, r) -> bool:
+        return any(p.motion_state & MOVING for p in self._parts())
+
+    def put_abortslew(self, r) -> None:
+        for part in self._parts():
+            part.stop()
+
+    def _shutter(self, open_: bool) -> None:
+        if not self.shutters:
+            raise not_implemented("OpenShutter/CloseShutter (no shutter)")
+        for part in self.shutters:
+            _power_up(part, "shutter")
+        for part in self.shutters:   # the interlock refuses before anything moves
+            goal = part.section.max if open_ else part.section.min
+            _quiet(part.set_target(goal))
+
+    def put_openshutter(self, r) -> None:
+        self._shutter(True)
+
+    def put_closeshutter(self, r) -> None:
+        self._shutter(False)
+
+    def put_slewtoazimuth(self, r) -> None:
+        az = r.float("Azimuth")
+        need(0.0 <= az < 360.0, Code.INVALID_VALUE, f"Azimuth {az} is outside 0…360")
+        if self.rotation is None:
+            raise not_implemented("SlewToAzimuth (this enclosure does not rotate)")
+        _power_up(self.rotation, "rotation")
+        _quiet(self.rotation.set_target(az))
+
+    def put_slewtoaltitude(self, r) -> None:
+        alt = r.float("Altitude")
+        need(0.0 <= alt <= 90.0, Code.INVALID_VALUE, f"Altitude {alt} is outside 0…90")
+        raise not_implemented("SlewToAltitude")
+
+    def put_synctoazimuth(self, r) -> None:
+        az = r.float("Azimuth")
+        need(0.0 <= az < 360.0, Code.INVALID_VALUE, f"Azimuth {az} is outside 0…360")
+        raise not_implemented("SyncToAzimuth")
+
+
+# ---------------------------------------------------------------------------- CoverCalibrator
+
+COVER_NOT_PRESENT, COVER_CLOSED, COVER_MOVING, COVER_OPEN, COVER_UNKNOWN, COVER_ERROR = 0, 1, 2, 3, 4, 5
+
+
+class CoverCalibratorDevice(Device):
+    TYPE = "covercalibrator"
+    NAME = "CoverCalibrator"
+    INTERFACE_VERSION = 2
+    MEMBERS = ("brightness", "calibratorchanging", "calibratorstate", "covermoving", "coverstate",
+               "maxbrightness", "calibratoroff", "calibratoron", "closecover", "haltcover", "opencover")
+    STATE = ("brightness", "calibratorchanging", "calibratorstate", "covermoving", "coverstate")
+    STATE_NAMES = {"brightness": "Brightness", "calibratorchanging": "CalibratorChanging",
+                   "calibratorstate": "CalibratorState", "covermoving": "CoverMoving",
+                   "coverstate": "CoverState"}
+
+    def __init__(self, number, name, description, telescope, cover, **kw):
+        super().__init__(number, name, description, telescope, **kw)
+        self.cover = cover
+
+    def get_calibratorstate(self, r) -> int:
+        return 0   # NotPresent
+
+    def get_calibratorchanging(self, r) -> bool:
+        return False
+
+    def get_covermoving(self, r) -> bool:
+        return bool(self.cover.motion_state & MOVING)
+
+    def get_coverstate(self, r) -> int:
+        state = _opening_state([self.cover])
+        return {SHUTTER_OPEN: COVER_OPEN, SHUTTER_CLOSED: COVER_CLOSED, SHUTTER_OPENING: COVER_MOVING,
+                SHUTTER_CLOSING: COVER_MOVING}.get(state, COVER_ERROR if self.cover.motion_state & 4
+                                                   or self.cover.link_error() is not None else COVER_UNKNOWN)
+
+    def _move(self, open_: bool) -> None:
+        _power_up(self.cover, "cover")
+        _quiet(self.cover.set_target(self.cover.section.max if open_ else self.cover.section.min))
+
+    def put_opencover(self, r) -> None:
+        self._move(True)
+
+    def put_closecover(self, r) -> None:
+        self._move(False)
+
+    def put_haltcover(self, r) -> None:
+        self.cover.stop()
+
+    def put_calibratoron(self, r) -> None:
+        r.int("Brightness")
+        raise not_implemented("CalibratorOn (no calibrator)")
+
+    def put_calibratoroff(self, r) -> None:
+        raise not_implemented("CalibratorOff (no calibrator)")
+
+
+# ------------------------------------------------------------------------------------ builder
+
+def equipment_devices(telescope, commands, seed: str) -> list[Device]:
+    """The devices of everything but the mount, numbered from 0 per type in file order."""
+    from tcs.alpaca.site import site_devices
+    from tcs.config.modules import OPENING_PARTS
+
+    kw = dict(commands=commands, unique_seed=seed)
+    out: list[Device] = []
+    focus = telescope.axis("FOCUS")
+    if focus is not None:
+        out.append(FocuserDevice(0, "FOCUS", "the focus axis (1 step = 1 µm)", telescope, focus, **kw))
+    for i, wheel in enumerate(w for w in telescope.axis_array("FILTER") if w is not None):
+        out.append(FilterWheelDevice(i, wheel.module_name, f"filter wheel {wheel.module_name}",
+                                     telescope, wheel, **kw))
+    for i, rot in enumerate(d for d in telescope.axis_array("DEROTATOR") if d is not None):
+        out.append(RotatorDevice(i, rot.module_name, f"derotator {rot.module_name}", telescope, rot, **kw))
+    dome = telescope.peripherals.dome or []
+    if dome and telescope.config.dome is not None:
+        kinds = {index: part for index, (part, _section) in telescope.config.dome.parts().items()}
+        rotation = dome[0] if kinds.get(0) == "rotation" else None
+        shutters = [m for i, m in enumerate(dome) if m is not None and kinds.get(i) in OPENING_PARTS]
+        out.append(DomeDevice(0, "DOME", f"{telescope.config.dome.type} dome", telescope, rotation,
+                              shutters, **kw))
+    for i, cover in enumerate(telescope.peripherals.covers):
+        section = telescope.config.covers[i]
+        out.append(CoverCalibratorDevice(i, cover.module_name, section.name or cover.module_name,
+                                         telescope, cover, **kw))
+    out.extend(site_devices(telescope, commands, seed))
+    return out

@@ -1,0 +1,249 @@
+"""The Alpaca HTTP server (aiohttp) and its UDP discovery responder.
+
+How it works
+------------
+:class:`AlpacaServer` is a thin adapter: it turns each HTTP request into an
+:class:`~tcs.alpaca.protocol.AlpacaRequest`, asks the device (:mod:`tcs.alpaca.device`) for
+the value, and writes the reply — JSON with the transaction ids for a device answer or a device
+error, plain text with HTTP 400 for a malformed request. Routes:
+
+* ``/management/apiversions``, ``/management/v1/description``,
+  ``/management/v1/configureddevices`` (GET);
+* ``/api/v1/{device_type}/{device_number}/{member}`` (GET and PUT);
+* ``/setup`` and ``/setup/v1/{device_type}/{device_number}/setup``: small HTML pages with
+  each device's live state (no framework: the page is written here).
+
+Any exception a handler lets through becomes an ASCOM driver error (0x500) in an HTTP 200 —
+never a 500 — and every request is bounded by a time-out (``request_timeout``), so a client
+never hangs. All of it runs on the service's event loop; the control loop runs in its own
+thread and is not disturbed by HTTP load (``tools/bench/alpaca_load.py`` measures it).
+
+Discovery (:class:`DiscoveryProtocol`): a UDP socket on ``discovery_port`` (0.0.0.0, to hear
+broadcasts; ``SO_REUSEPORT`` so that several Alpaca servers on one host can all answer)
+answers ``alpacadiscovery1`` with ``{"AlpacaPort": N}``. When the HTTP server listens on a
+loopback address only, only loopback senders get an answer.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import html
+import ipaddress
+import json
+import logging
+import socket
+from typing import Any
+
+from aiohttp import web
+
+from tcs import __version__ as TCS_VERSION
+from tcs.alpaca.device import Device
+from tcs.alpaca.protocol import AlpacaRequest, AscomError, BadRequest, Code, TransactionCounter, reply
+
+log = logging.getLogger(__name__)
+
+DISCOVERY_QUERY = b"alpacadiscovery1"
+MAX_BODY = 64 * 1024
+
+
+class AlpacaServer:
+    """The HTTP listener and discovery responder for a list of devices."""
+
+    def __init__(self, devices: list[Device], *, manufacturer: str = "tcs project",
+                 server_name: str = "tcs Alpaca server", location: str = "",
+                 request_timeout: float = 30.0):
+        self.devices = devices
+        self._by_key = {(d.TYPE, d.number): d for d in devices}
+        self.manufacturer = manufacturer
+        self.server_name = server_name
+        self.location = location
+        self.request_timeout = request_timeout
+        self.next_id = TransactionCounter()
+        self.port = 0
+        self.discovery_port = -1
+        self.host = "127.0.0.1"
+        self._runner: web.AppRunner | None = None
+        self._discovery: asyncio.DatagramTransport | None = None
+
+    # -- life cycle --------------------------------------------------------------------------------
+    def app(self) -> web.Application:
+        app = web.Application(client_max_size=MAX_BODY)
+        app.router.add_get("/management/apiversions", self._apiversions)
+        app.router.add_get("/management/v1/description", self._description)
+        app.router.add_get("/management/v1/configureddevices", self._configured)
+        app.router.add_route("*", "/api/v1/{type}/{number}/{member}", self._device)
+        app.router.add_get("/setup", self._setup_index)
+        app.router.add_get("/setup/v1/{type}/{number}/setup", self._setup_device)
+        return app
+
+    async def start(self, host: str, port: int, discovery_port: int = -1) -> int:
+        """Listen on ``host``:``port`` (0: a free port) and, when ``discovery_port`` ≥ 0, answer
+        discovery there; returns the HTTP port."""
+        self.host = host
+        self._runner = web.AppRunner(self.app(), access_log=None, handle_signals=False)
+        await self._runner.setup()
+        site = web.TCPSite(self._runner, host, port, reuse_address=True)
+        try:
+            await site.start()
+            addresses = self._runner.addresses
+            self.port = addresses[0][1] if addresses else port
+            if discovery_port >= 0:
+                await self._start_discovery(discovery_port)
+        except BaseException:
+            await self.stop()
+            raise
+        log.info("Alpaca devices on http://%s:%d (discovery: %s)", host, self.port,
+                 self.discovery_port if self.discovery_port >= 0 else "off")
+        return self.port
+
+    async def _start_discovery(self, port: int) -> None:
+        loop = asyncio.get_running_loop()
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if hasattr(socket, "SO_REUSEPORT"):
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+            sock.bind(("0.0.0.0", port))
+        except OSError:
+            sock.close()
+            raise
+        transport, _ = await loop.create_datagram_endpoint(
+            lambda: DiscoveryProtocol(lambda: self.port, loopback_only=_is_loopback(self.host)), sock=sock)
+        self._discovery = transport
+        self.discovery_port = sock.getsockname()[1]
+
+    async def stop(self) -> None:
+        if self._discovery is not None:
+            self._discovery.close()
+            self._discovery = None
+        if self._runner is not None:
+            await self._runner.cleanup()
+            self._runner = None
+
+    # -- replies ---------------------------------------------------------------------------------
+    def _json(self, body: dict[str, Any]) -> web.Response:
+        return web.Response(text=json.dumps(body), content_type="application/json")
+
+    @staticmethod
+    def _bad(message: str) -> web.Response:
+        return web.Response(status=400, text=message, content_type="text/plain")
+
+    async def _management(self, request: web.Request, value: Any) -> web.Response:
+        req = AlpacaRequest("GET", dict(request.query))
+        return self._json(reply(req, self.next_id(), value))
+
+    async def _apiversions(self, request: web.Request) -> web.Response:
+        return await self._management(request, [1])
+
+    async def _description(self, request: web.Request) -> web.Response:
+        return await self._management(request, {
+            "ServerName": self.server_name, "Manufacturer": self.manufacturer,
+            "ManufacturerVersion": str(TCS_VERSION), "Location": self.location})
+
+    async def _configured(self, request: web.Request) -> web.Response:
+        return await self._management(request, [d.configured() for d in self.devices])
+
+    def _find(self, request: web.Request) -> Device:
+        kind = request.match_info["type"]
+        number = request.match_info["number"]
+        if not (number.isascii() and number.isdigit()) or len(number) > 9:
+            raise BadRequest(f"device number {number!r} is not a non-negative integer")
+        device = self._by_key.get((kind, int(number)))
+        if device is None:
+            raise BadRequest(f"no {kind} device number {number}")
+        return device
+
+    async def _device(self, request: web.Request) -> web.Response:
+        method = request.method
+        if method not in ("GET", "PUT"):
+            return self._bad(f"method {method} is not allowed (GET or PUT)")
+        try:
+            device = self._find(request)
+            if method == "GET":
+                params = dict(request.query)
+            else:
+                if request.content_type not in ("application/x-www-form-urlencoded", "multipart/form-data",
+                                                "application/octet-stream", ""):
+                    raise BadRequest(f"PUT needs a form body (application/x-www-form-urlencoded), "
+                                     f"not {request.content_type}")
+                try:
+                    form = await request.post()
+                except (ValueError, UnicodeDecodeError) as exc:
+                    raise BadRequest(f"the form body cannot be read: {exc}") from None
+                params = {k: v for k, v in form.items() if isinstance(v, str)}
+            req = AlpacaRequest(method, params)
+            member = request.match_info["member"]
+            if member != member.lower():
+                raise BadRequest(f"member names are lower case in the URL: {member!r}")
+            try:
+                value = await asyncio.wait_for(device.call(method, member, req), self.request_timeout)
+                body = reply(req, self.next_id(), value, has_value=(method == "GET" or value is not None))
+            except AscomError as exc:
+                body = reply(req, self.next_id(), error=exc)
+            except asyncio.TimeoutError:
+                body = reply(req, self.next_id(), error=AscomError(
+                    Code.DRIVER_ERROR, f"{member} did not finish within {self.request_timeout:g} s"))
+        except BadRequest as exc:
+            return self._bad(str(exc))
+        except web.HTTPException:
+            raise
+        except Exception as exc:  # never a 500: a driver error the client can read
+            log.exception("Alpaca %s %s failed", method, request.path)
+            req = AlpacaRequest(method, dict(request.query))
+            body = reply(req, self.next_id(), error=AscomError(Code.DRIVER_ERROR, f"internal error: {exc}"))
+        return self._json(body)
+
+    # -- setup pages -----------------------------------------------------------------------------
+    async def _setup_index(self, request: web.Request) -> web.Response:
+        items = "".join(
+            f'<li><a href="/setup/v1/{d.TYPE}/{d.number}/setup">{html.escape(d.NAME)} {d.number}: '
+            f'{html.escape(d.name)}</a></li>' for d in self.devices)
+        return self._page(self.server_name, f"<ul>{items}</ul>")
+
+    async def _setup_device(self, request: web.Request) -> web.Response:
+        try:
+            device = self._find(request)
+        except BadRequest as exc:
+            return self._bad(str(exc))
+        rows = [("Connected", str(device.connected))] + device.setup_rows()
+        table = "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows)
+        body = (f"<p>{html.escape(device.description)}</p><table>{table}</table>"
+                f'<p>Settings live in the hardware file. <a href="/setup">All devices</a></p>')
+        return self._page(f"{device.NAME} {device.number}: {device.name}", body, refresh=True)
+
+    @staticmethod
+    def _page(title: str, body: str, refresh: bool = False) -> web.Response:
+        meta = '<meta http-equiv="refresh" content="2">' if refresh else ""
+        text = (f"<!DOCTYPE html><html><head><meta charset=\"utf-8\">{meta}<title>{html.escape(title)}</title>"
+                f"</head><body><h1>{html.escape(title)}</h1>{body}</body></html>")
+        return web.Response(text=text, content_type="text/html")
+
+
+def _is_loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return host == "localhost"
+
+
+class DiscoveryProtocol(asyncio.DatagramProtocol):
+    """Answers ``alpacadiscovery1`` datagrams with ``{"AlpacaPort": N}``."""
+
+    def __init__(self, port, loopback_only: bool):
+        self._port = port
+        self._loopback_only = loopback_only
+        self.transport: asyncio.DatagramTransport | None = None
+
+    def connection_made(self, transport) -> None:
+        self.transport = transport
+
+    def datagram_received(self, data: bytes, addr) -> None:
+        if not data.startswith(DISCOVERY_QUERY) or self.transport is None:
+            return
+        if self._loopback_only and not _is_loopback(addr[0]):
+            return
+        self.transport.sendto(json.dumps({"AlpacaPort": self._port()}).encode(), addr)
+
+    def error_received(self, exc: Exception) -> None:  # pragma: no cover - ICMP noise
+        log.debug("discovery: %s", exc)

@@ -1,0 +1,572 @@
+"""Telescope device (ASCOM ITelescopeV4) over the POINTING module and the telescope's operations.
+
+What maps to what
+-----------------
+* Coordinates are ICRS J2000 (``EquatorialSystem`` = 2, equJ2000): ``RightAscension`` /
+  ``Declination`` are POINTING.CURRENT (the encoders through the inverse pipeline);
+  ``Altitude``/``Azimuth`` the observed place of the same encoders with the pointing model
+  removed; ``Target…`` are POINTING.TARGET.
+* ``SlewToCoordinatesAsync`` / ``SlewToTargetAsync``: POINTING.TARGET, then POINTING.TRACK in
+  the orientation that stays inside the limits (normal preferred) — the tracker plans the slew
+  and the tracking as one path, so the target is checked against the horizon
+  (``[pointing] min_altitude``) and the axis limits before anything moves. As ITelescopeV4
+  asks, they need ``Tracking`` True. ``Slewing`` is True until the main axes are on target.
+* ``Tracking`` True at rest tracks the place the telescope points at; False is TRACK=0.
+* ``SlewToAltAzAsync``: the catalogue object's horizontal position (OpenTSI's
+  OBJECT.HORIZONTAL) and the operations' goto; needs ``Tracking`` False.
+* ``Park``/``Unpark``/``AtPark``/``SetPark``: the operations' park (the park positions of the
+  hardware file, or the ones SetPark saved — shared with OpenTSI's READY=0). Park keeps the
+  power on; Unpark powers on and references (READY=1) when the telescope is not operational.
+* ``FindHome``: the main axes referenced again on their home switches; ``AtHome`` until they move.
+* ``PulseGuide``: moves the tracked target by GuideRate × Duration (re-planned at once);
+  ``IsPulseGuiding`` for Duration. Guide rates are fixed at half the sidereal rate.
+* ``SyncToCoordinates`` / ``SyncToTarget``: a pointing offset — the pointing model's index
+  terms (IA/IE, or IH/ID) change so that the current encoders read the given place
+  (:meth:`~tcs.model.operations.Operations.sync_to`); refused beyond 10°.
+* ``MoveAxis``: axis 0/1 = the main axes, 2 = the derotator at the active port; a rate moves the
+  axis towards its limit at |rate| deg/s (tracking ends first), 0 stops it.
+* ``SideOfPier``: pierEast (0) in the normal orientation, pierWest (1) in the reverse one.
+* ``RightAscensionRate``/``DeclinationRate``: POINTING.TARGET.RA_V/DEC_V (a differential
+  rate, from the next slew or tracking start on).
+
+Refusals: parked → InvalidWhileParked (0x408); outside the limits or below the horizon, or a
+value out of range → InvalidValue (0x401); axes not powered/referenced, an interlock, tracking
+in the wrong state → InvalidOperation (0x40B); not connected → NotConnected (0x407).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+
+import erfa
+
+from tcs.alpaca.device import Device, axis_ready, need, utc_iso
+from tcs.alpaca.protocol import AlpacaRequest, AscomError, Code, not_implemented
+from tcs.pointing.orientation import to_normal
+
+SIDEREAL_DEG_S = 360.0 / 86164.0905   # degrees per SI second
+GUIDE_RATE = 0.5 * SIDEREAL_DEG_S
+SOLAR_TO_SIDEREAL = 1.00273790935
+TRACK_INSIDE_LIMITS = 2               # POINTING.TRACK mode: the orientation that stays inside
+ON_TARGET = 8
+
+
+class TelescopeDevice(Device):
+    TYPE = "telescope"
+    NAME = "Telescope"
+    INTERFACE_VERSION = 4
+    MEMBERS = (
+        "alignmentmode", "altitude", "aperturearea", "aperturediameter", "athome", "atpark",
+        "azimuth", "canfindhome", "canpark", "canpulseguide", "cansetdeclinationrate",
+        "cansetguiderates", "cansetpark", "cansetpierside", "cansetrightascensionrate",
+        "cansettracking", "canslew", "canslewaltaz", "canslewaltazasync", "canslewasync",
+        "cansync", "cansyncaltaz", "canunpark", "declination", "declinationrate",
+        "doesrefraction", "equatorialsystem", "focallength", "guideratedeclination",
+        "guideraterightascension", "ispulseguiding", "rightascension", "rightascensionrate",
+        "sideofpier", "siderealtime", "siteelevation", "sitelatitude", "sitelongitude",
+        "slewing", "slewsettletime", "targetdeclination", "targetrightascension", "tracking",
+        "trackingrate", "trackingrates", "utcdate", "axisrates", "canmoveaxis",
+        "destinationsideofpier", "abortslew", "findhome", "moveaxis", "park", "pulseguide",
+        "setpark", "slewtoaltaz", "slewtoaltazasync", "slewtocoordinates",
+        "slewtocoordinatesasync", "slewtotarget", "slewtotargetasync", "synctoaltaz",
+        "synctocoordinates", "synctotarget", "unpark")
+    STATE = ("altitude", "athome", "atpark", "azimuth", "declination", "ispulseguiding",
+             "rightascension", "sideofpier", "siderealtime", "slewing", "tracking", "utcdate")
+    STATE_NAMES = {"altitude": "Altitude", "athome": "AtHome", "atpark": "AtPark", "azimuth": "Azimuth",
+                   "declination": "Declination", "ispulseguiding": "IsPulseGuiding",
+                   "rightascension": "RightAscension", "sideofpier": "SideOfPier",
+                   "siderealtime": "SiderealTime", "slewing": "Slewing", "tracking": "Tracking",
+                   "utcdate": "UTCDate"}
+
+    def __init__(self, *args, **kw):
+        super().__init__(*args, **kw)
+        self._moving_axes: set = set()   # axes a MoveAxis sent towards a limit (speed to restore)
+
+    # -- parts of the model ----------------------------------------------------------------------
+    @property
+    def ops(self):
+        return self.telescope.operations
+
+    @property
+    def p(self):
+        p = self.telescope.pointing
+        if p is None:
+            raise AscomError(Code.INVALID_OPERATION, "this telescope has no POINTING module")
+        return p
+
+    def _not_parked(self, what: str) -> None:
+        if self.ops.at_park:
+            raise AscomError(Code.INVALID_WHILE_PARKED, f"{what}: the telescope is parked (Unpark first)")
+
+    # -- capabilities ----------------------------------------------------------------------------
+    def get_alignmentmode(self, r) -> int:
+        return 0 if self.telescope.config.mount.type == "AZ-ZD" else 1   # algAltAz / algPolar
+
+    def get_canfindhome(self, r) -> bool:
+        return True
+
+    def get_canpark(self, r) -> bool:
+        return True
+
+    def get_canunpark(self, r) -> bool:
+        return True
+
+    def get_cansetpark(self, r) -> bool:
+        return True
+
+    def get_canpulseguide(self, r) -> bool:
+        return True
+
+    def get_cansetdeclinationrate(self, r) -> bool:
+        return True
+
+    def get_cansetrightascensionrate(self, r) -> bool:
+        return True
+
+    def get_cansetguiderates(self, r) -> bool:
+        return False
+
+    def get_cansetpierside(self, r) -> bool:
+        return False
+
+    def get_cansettracking(self, r) -> bool:
+        return True
+
+    def get_canslew(self, r) -> bool:
+        return True
+
+    def get_canslewasync(self, r) -> bool:
+        return True
+
+    def get_canslewaltaz(self, r) -> bool:
+        return True
+
+    def get_canslewaltazasync(self, r) -> bool:
+        return True
+
+    def get_cansync(self, r) -> bool:
+        return True
+
+    def get_cansyncaltaz(self, r) -> bool:
+        return False
+
+    def _move_axes(self) -> list:
+        p = self.telescope.pointing
+        axes = [p.axis1, p.axis2] if p is not None else []
+        if p is not None:
+            try:
+                axes.append(p.active_derotator()[0])
+            except Exception:   # no derotator: no tertiary axis
+                pass
+        return axes
+
+    def _axis_number(self, r) -> int:
+        n = r.int("Axis")
+        if not 0 <= n <= 2:
+            raise AscomError(Code.INVALID_VALUE, f"Axis {n} is not 0, 1 or 2")
+        return n
+
+    def get_canmoveaxis(self, r) -> bool:
+        return self._axis_number(r) < len(self._move_axes())
+
+    def get_axisrates(self, r) -> list[dict]:
+        n = self._axis_number(r)
+        axes = self._move_axes()
+        if n >= len(axes):
+            return []
+        return [{"Minimum": 0.0, "Maximum": float(axes[n].section.max_velocity)}]
+
+    # -- where it points --------------------------------------------------------------------------
+    def get_rightascension(self, r) -> float:
+        return float(self.p.current.ra)
+
+    def get_declination(self, r) -> float:
+        return float(self.p.current.dec)
+
+    def _altaz(self) -> tuple[float, float]:
+        p = self.p
+        place = p.place()
+        n1, n2, _rev = to_normal(place.ideal1, place.ideal2, p.mount)
+        if p.mount == "AZ-ZD":
+            return float(n1) % 360.0, 90.0 - float(n2)
+        az, alt = erfa.hd2ae(math.radians(float(n1)), math.radians(float(n2)), math.radians(p.latitude))
+        return math.degrees(float(az)) % 360.0, math.degrees(float(alt))
+
+    def get_altitude(self, r) -> float:
+        return self._altaz()[1]
+
+    def get_azimuth(self, r) -> float:
+        return self._altaz()[0]
+
+    def get_siderealtime(self, r) -> float:
+        return float(self.p.sidereal_time)
+
+    def get_equatorialsystem(self, r) -> int:
+        return 2   # equJ2000 (ICRS)
+
+    def get_sideofpier(self, r) -> int:
+        return 1 if self.p.orientation_in_use() else 0
+
+    def put_sideofpier(self, r) -> None:
+        r.int("SideOfPier")
+        raise not_implemented("setting SideOfPier")
+
+    def get_destinationsideofpier(self, r) -> int:
+        ra, dec = self._radec(r, "RightAscension", "Declination")
+        p = self.p
+        d_utc = p.utc()
+        pipe = p.pipeline()
+        for reverse in (False, True):
+            d = pipe.demand(ra, dec, d_utc, reverse)
+            if (p.axis2.limits.contains(float(d.axis2[0])) and 90.0 - float(d.observed.zd[0]) >= p.config.min_altitude
+                    and self._axis1_reachable(p.axis1, float(d.axis1[0]))):
+                return 1 if reverse else 0
+        return -1   # pierUnknown: unreachable
+
+    @staticmethod
+    def _axis1_reachable(axis, value: float) -> bool:
+        cycle = axis.section.cyclic
+        if not cycle:
+            return axis.limits.contains(value)
+        return any(axis.limits.contains(value + k * cycle) for k in range(-3, 4))
+
+    # -- site and time ----------------------------------------------------------------------------
+    def get_sitelatitude(self, r) -> float:
+        return float(self.telescope.local.latitude)
+
+    def get_sitelongitude(self, r) -> float:
+        return float(self.telescope.local.longitude)
+
+    def get_siteelevation(self, r) -> float:
+        return float(self.telescope.local.height)
+
+    def put_sitelatitude(self, r) -> None:
+        r.float("SiteLatitude")
+        raise not_implemented("setting SiteLatitude (the site is the hardware file's and the GPS's)")
+
+    def put_sitelongitude(self, r) -> None:
+        r.float("SiteLongitude")
+        raise not_implemented("setting SiteLongitude (the site is the hardware file's and the GPS's)")
+
+    def put_siteelevation(self, r) -> None:
+        r.float("SiteElevation")
+        raise not_implemented("setting SiteElevation (the site is the hardware file's and the GPS's)")
+
+    def get_utcdate(self, r) -> str:
+        return utc_iso(self.telescope.local.utc())
+
+    def put_utcdate(self, r) -> None:
+        r.text("UTCDate")
+        raise not_implemented("setting UTCDate (the time comes from the cabinet clock and GPS)")
+
+    def get_doesrefraction(self, r) -> bool:
+        return self.p.refraction.mode != 0
+
+    def put_doesrefraction(self, r) -> None:
+        on = r.bool("DoesRefraction")
+        refraction = self.p.refraction
+        if on != (refraction.mode != 0):
+            refraction.set_mode(1 if on else 0)
+
+    # -- rates ------------------------------------------------------------------------------------
+    def get_tracking(self, r) -> bool:
+        return bool(self.p.track)
+
+    def put_tracking(self, r) -> None:
+        on = r.bool("Tracking")
+        p = self.p
+        if not on:
+            if p.track:
+                self.ops.stop_tracking()
+            return
+        self._not_parked("Tracking")
+        if p.track:
+            return
+        place = p.place()
+        self._track(place.ra, place.dec, 3 if place.reverse else 1)
+
+    def get_trackingrate(self, r) -> int:
+        return 0   # driveSidereal
+
+    def put_trackingrate(self, r) -> None:
+        rate = r.int("TrackingRate")
+        if rate != 0:
+            raise AscomError(Code.INVALID_VALUE, f"TrackingRate {rate}: only sidereal (0) is supported")
+
+    def get_trackingrates(self, r) -> list[int]:
+        return [0]
+
+    def get_rightascensionrate(self, r) -> float:
+        # RA_V: arcsec of RA per SI second → seconds of RA per sidereal second
+        return float(self.p.target.ra_v) / 15.0 * SOLAR_TO_SIDEREAL
+
+    def put_rightascensionrate(self, r) -> None:
+        value = r.float("RightAscensionRate")
+        if abs(value) > 1000.0:
+            raise AscomError(Code.INVALID_VALUE, f"RightAscensionRate {value} is beyond ±1000 s/sidereal s")
+        self.p.target.set_ra_v(value * 15.0 / SOLAR_TO_SIDEREAL)
+
+    def get_declinationrate(self, r) -> float:
+        return float(self.p.target.dec_v)
+
+    def put_declinationrate(self, r) -> None:
+        value = r.float("DeclinationRate")
+        if abs(value) > 15000.0:
+            raise AscomError(Code.INVALID_VALUE, f"DeclinationRate {value} is beyond ±15000 arcsec/s")
+        self.p.target.set_dec_v(value)
+
+    def get_guideraterightascension(self, r) -> float:
+        return GUIDE_RATE
+
+    def get_guideratedeclination(self, r) -> float:
+        return GUIDE_RATE
+
+    def put_guideraterightascension(self, r) -> None:
+        r.float("GuideRateRightAscension")
+        raise not_implemented("setting GuideRateRightAscension")
+
+    def put_guideratedeclination(self, r) -> None:
+        r.float("GuideRateDeclination")
+        raise not_implemented("setting GuideRateDeclination")
+
+    def get_slewsettletime(self, r) -> int:
+        return 0
+
+    def put_slewsettletime(self, r) -> None:
+        value = r.int("SlewSettleTime")
+        if value < 0:
+            raise AscomError(Code.INVALID_VALUE, f"SlewSettleTime {value} is negative")
+        raise not_implemented("setting SlewSettleTime (the tracker reports on target itself)")
+
+    # -- state ------------------------------------------------------------------------------------
+    def get_atpark(self, r) -> bool:
+        return bool(self.ops.at_park)
+
+    def get_athome(self, r) -> bool:
+        return bool(self.ops.at_home)
+
+    def get_ispulseguiding(self, r) -> bool:
+        return bool(self.ops.pulse_guiding)
+
+    def get_slewing(self, r) -> bool:
+        p = self.telescope.pointing
+        ops = self.ops
+        if p is not None and p.track:
+            # on target: every main axis in its window on the current path (the axes' bits can
+            # lag a re-plan by a cycle, so the distance to the demand is checked too)
+            window = max(p.axis1.section.tolerance, p.axis2.section.tolerance)
+            return not (ops.motion_state & ON_TARGET) or p.targetdistance > window
+        if ops.running in ("goto", "alpaca-park", "park", "home"):
+            return True
+        if any(a.motion_state & 1 for a in self._move_axes()):
+            return True
+        return False
+
+    # -- targets ----------------------------------------------------------------------------------
+    def _radec(self, r, ra_name: str, dec_name: str) -> tuple[float, float]:
+        ra, dec = r.float(ra_name), r.float(dec_name)
+        need(0.0 <= ra < 24.0, Code.INVALID_VALUE, f"{ra_name} {ra} is outside 0 <= RA < 24")
+        need(-90.0 <= dec <= 90.0, Code.INVALID_VALUE, f"{dec_name} {dec} is outside -90…90")
+        return ra, dec
+
+    def get_targetrightascension(self, r) -> float:
+        t = self.p.target
+        need(t.complete, Code.VALUE_NOT_SET, "TargetRightAscension has not been set")
+        return float(t.ra)
+
+    def get_targetdeclination(self, r) -> float:
+        t = self.p.target
+        need(t.complete, Code.VALUE_NOT_SET, "TargetDeclination has not been set")
+        return float(t.dec)
+
+    def put_targetrightascension(self, r) -> None:
+        value = r.float("TargetRightAscension")
+        need(0.0 <= value < 24.0, Code.INVALID_VALUE, f"TargetRightAscension {value} is outside 0…24")
+        self.p.target.set_ra(value)
+
+    def put_targetdeclination(self, r) -> None:
+        value = r.float("TargetDeclination")
+        need(-90.0 <= value <= 90.0, Code.INVALID_VALUE, f"TargetDeclination {value} is outside -90…90")
+        self.p.target.set_dec(value)
+
+    # -- slews ------------------------------------------------------------------------------------
+    def _track(self, ra: float, dec: float, mode: int) -> None:
+        """Point POINTING.TARGET at (ra, dec) and track it; the old target comes back if refused."""
+        p = self.p
+        target = p.target
+        old = (target.ra, target.dec) if target.complete else None
+        self._end_moves()
+        target.set_ra(ra)
+        target.set_dec(dec)
+        try:
+            result = p.set_track(mode)
+        except Exception:
+            if old is not None:
+                target.set_ra(old[0])
+                target.set_dec(old[1])
+            raise
+        if result is not None:
+            result.add_done_callback(lambda f: f.cancelled() or f.exception())
+
+    def _slew_checks(self, what: str) -> None:
+        self._not_parked(what)
+        if not self.p.track:
+            raise AscomError(Code.INVALID_OPERATION, f"{what} needs Tracking True")
+
+    def put_slewtocoordinatesasync(self, r) -> None:
+        ra, dec = self._radec(r, "RightAscension", "Declination")
+        self._slew_checks("SlewToCoordinatesAsync")
+        self._track(ra, dec, TRACK_INSIDE_LIMITS)
+
+    async def put_slewtocoordinates(self, r) -> None:
+        self.put_slewtocoordinatesasync(r)
+        await self._until_slewed(r)
+
+    def put_slewtotargetasync(self, r) -> None:
+        t = self.p.target
+        need(t.complete, Code.INVALID_OPERATION, "no target: set TargetRightAscension and TargetDeclination")
+        self._slew_checks("SlewToTargetAsync")
+        self._track(t.ra, t.dec, TRACK_INSIDE_LIMITS)
+
+    async def put_slewtotarget(self, r) -> None:
+        self.put_slewtotargetasync(r)
+        await self._until_slewed(r)
+
+    def put_slewtoaltazasync(self, r) -> None:
+        az, alt = r.float("Azimuth"), r.float("Altitude")
+        need(0.0 <= az < 360.0, Code.INVALID_VALUE, f"Azimuth {az} is outside 0…360")
+        need(-90.0 <= alt <= 90.0, Code.INVALID_VALUE, f"Altitude {alt} is outside -90…90")
+        self._not_parked("SlewToAltAzAsync")
+        if self.p.track:
+            raise AscomError(Code.INVALID_OPERATION, "SlewToAltAzAsync needs Tracking False")
+        self.ops.horizontal_demand(az, alt)   # refuses below the horizon / outside the limits
+        self._end_moves()
+        obj = self.ops.object
+        obj.set_az(az)
+        obj.set_alt(alt)
+        job = self.ops.goto_horizontal()
+        asyncio.ensure_future(job).add_done_callback(lambda f: f.cancelled() or f.exception())
+
+    async def put_slewtoaltaz(self, r) -> None:
+        self.put_slewtoaltazasync(r)
+        await self._until_slewed(r)
+
+    async def _until_slewed(self, r, timeout: float = 600.0) -> None:
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        await asyncio.sleep(0.05)
+        while self.get_slewing(r):
+            if loop.time() > deadline:
+                raise AscomError(Code.DRIVER_ERROR, "the slew did not end in time")
+            await asyncio.sleep(0.05)
+
+    def put_abortslew(self, r) -> None:
+        self._not_parked("AbortSlew")
+        ops = self.ops
+        p = self.telescope.pointing
+        self._end_moves()
+        if p is not None and p.track:
+            ops.stop_tracking()
+        ops.halt()
+        axes = self._move_axes()
+        for axis in axes[:2]:   # also a move commanded an instant ago, not yet seen moving
+            axis.stop()
+        for axis in axes[2:]:
+            if axis.motion_state & 1:
+                axis.stop()
+
+    def put_moveaxis(self, r) -> None:
+        n = self._axis_number(r)
+        rate = r.float("Rate")
+        self._not_parked("MoveAxis")
+        axes = self._move_axes()
+        if n >= len(axes):
+            raise AscomError(Code.INVALID_VALUE, f"axis {n} cannot be moved")
+        axis = axes[n]
+        top = float(axis.section.max_velocity)
+        need(abs(rate) <= top, Code.INVALID_VALUE, f"Rate {rate} is outside ±{top} deg/s (AxisRates)")
+        p = self.telescope.pointing
+        if p is not None and p.track and n < 2:
+            self.ops.stop_tracking()
+        if rate == 0.0:
+            axis.stop()
+            self._restore_speed(axis)
+            return
+        axis_ready(axis, "MoveAxis")
+        goal = (axis.section.max if rate > 0 else axis.section.min) - axis.offset
+        axis.set_speed(abs(rate))
+        self._moving_axes.add(axis)
+        try:
+            fut = axis.set_target(goal)
+        except Exception:
+            self._restore_speed(axis)
+            raise
+        fut.add_done_callback(lambda f, a=axis: (self._restore_speed(a), f.cancelled() or f.exception()))
+
+    def _restore_speed(self, axis) -> None:
+        if axis in self._moving_axes:
+            self._moving_axes.discard(axis)
+            axis.set_speed(float(axis.section.max_velocity))
+
+    def _end_moves(self) -> None:
+        for axis in list(self._moving_axes):
+            axis.stop()
+            self._restore_speed(axis)
+
+    # -- park, home -------------------------------------------------------------------------------
+    def put_park(self, r) -> None:
+        if self.ops.at_park:
+            return
+        self._end_moves()
+        job = self.ops.park()
+        asyncio.ensure_future(job).add_done_callback(lambda f: f.cancelled() or f.exception())
+
+    async def put_unpark(self, r) -> None:
+        job = self.ops.unpark()
+        if job is not None:   # shielded: a request time-out does not end the power-up
+            task = asyncio.ensure_future(job)
+            task.add_done_callback(lambda f: f.cancelled() or f.exception())
+            await asyncio.shield(task)
+
+    def put_setpark(self, r) -> None:
+        self.ops.set_park_here()
+
+    def put_findhome(self, r) -> None:
+        self._not_parked("FindHome")
+        self._end_moves()
+        job = self.ops.find_home()
+        asyncio.ensure_future(job).add_done_callback(lambda f: f.cancelled() or f.exception())
+
+    # -- guiding, sync ----------------------------------------------------------------------------
+    def put_pulseguide(self, r) -> None:
+        direction = r.int("Direction")
+        duration = r.int("Duration")
+        need(0 <= direction <= 3, Code.INVALID_VALUE, f"Direction {direction} is not 0…3")
+        need(0 <= duration <= 3_600_000, Code.INVALID_VALUE, f"Duration {duration} ms is outside 0…3600000")
+        self._not_parked("PulseGuide")
+        if not self.p.track:
+            raise AscomError(Code.INVALID_OPERATION, "PulseGuide needs Tracking True")
+        self.ops.pulse_guide(direction, duration / 1000.0, GUIDE_RATE)
+
+    def put_synctocoordinates(self, r) -> None:
+        ra, dec = self._radec(r, "RightAscension", "Declination")
+        self._not_parked("SyncToCoordinates")
+        self._sync(ra, dec)
+
+    def put_synctotarget(self, r) -> None:
+        t = self.p.target
+        need(t.complete, Code.INVALID_OPERATION, "no target: set TargetRightAscension and TargetDeclination")
+        self._not_parked("SyncToTarget")
+        self._sync(t.ra, t.dec)
+
+    def _sync(self, ra: float, dec: float) -> None:
+        p = self.p
+        for axis in (p.axis1, p.axis2):
+            if axis.referenced < 1.0:
+                raise AscomError(Code.INVALID_OPERATION, f"Sync: {axis.module_name} is not referenced")
+        self.ops.sync_to(ra, dec)
+        if p.track:   # go on tracking the synced place from where the telescope stands
+            p.target.set_ra(ra)
+            p.target.set_dec(dec)
+            p.set_track(p.track)

@@ -1,0 +1,82 @@
+"""The Alpaca Telescope on an equatorial (RA-DEC) mount: alt/az from HA/Dec, sync as the index
+terms IH/ID, pulse guiding east, driven by alpyca against ``tests/hw_pointing_eq.toml``.
+
+The hardware file is the pointing tests' fast equatorial telescope with an ``[alpaca]`` section
+added (written next to the state directory: the file has no relative paths).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("alpaca", reason="alpyca (the 'dev' extra) is not installed")
+from alpaca.telescope import GuideDirections, Telescope  # noqa: E402
+
+from support.live import LiveService  # noqa: E402
+
+ARCSEC = 1.0 / 3600.0
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory):
+    base = tmp_path_factory.mktemp("alpaca-eq")
+    hw = base / "hw_alpaca_eq.toml"
+    hw.write_text(Path(__file__).with_name("hw_pointing_eq.toml").read_text() + "\n[alpaca]\nport = 0\n")
+    service = LiveService(hw, base / "state").start()
+    try:
+        yield service
+    finally:
+        service.stop()
+
+
+@pytest.fixture(autouse=True)
+def _no_leaked_threads():  # the module's service thread is expected; LiveService.stop checks
+    yield
+
+
+def until(condition, what: str, timeout: float = 60.0):
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.1)
+
+
+def test_equatorial_slew_altaz_sync_and_guiding(live):
+    t = Telescope(f"127.0.0.1:{live.service.alpaca_port}", 0)
+    t.Connect()
+    assert t.AlignmentMode.value == 1   # algPolar
+    t.Unpark()
+    t.Tracking = True
+    until(lambda: not t.Slewing, "tracking where it points")
+    ra, dec = (t.SiderealTime + 1.5) % 24.0, 20.0
+    t.SlewToCoordinatesAsync(ra, dec)
+    until(lambda: not t.Slewing, "on the star")
+    until(lambda: abs(t.RightAscension - ra) * 15.0 < ARCSEC and abs(t.Declination - dec) < ARCSEC,
+          "the star within 1″", timeout=10.0)
+    p = live.telescope.pointing
+    obs = p.astrometry().observed(ra, dec, p.utc())
+    assert abs(t.Altitude - (90.0 - float(obs.zd))) < 3 * ARCSEC
+    assert abs((t.Azimuth - float(obs.az) % 360.0 + 180.0) % 360.0 - 180.0) < 3 * ARCSEC / math.cos(math.radians(t.Altitude))
+    params = p.params
+    before = {n: params.coefficient(n) for n in ("IH", "ID")}
+    try:
+        t.SyncToCoordinates(ra + 0.001, dec + 0.01)
+        until(lambda: not t.Slewing, "tracking after the sync")
+        until(lambda: abs(t.Declination - (dec + 0.01)) < ARCSEC
+              and abs(t.RightAscension - (ra + 0.001)) * 15.0 < ARCSEC, "reading the synced place", timeout=10.0)
+        assert params.coefficient("IH") != before["IH"] and params.coefficient("ID") != before["ID"]
+        ra0 = t.RightAscension
+        t.PulseGuide(GuideDirections.guideEast, 2000)
+        until(lambda: not t.IsPulseGuiding, "the pulse to end")
+        until(lambda: not t.Slewing, "on target after the pulse")
+        moved = (t.RightAscension - ra0) * 15.0 * math.cos(math.radians(t.Declination))
+        assert abs(moved / (2.0 * t.GuideRateRightAscension) - 1.0) < 0.05
+    finally:
+        for name, value in before.items():
+            params.set_coefficient(name, value)
+        t.Tracking = False
+        t.Disconnect()

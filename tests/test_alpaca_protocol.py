@@ -1,0 +1,100 @@
+"""The Alpaca wire rules without a telescope: the pure request/reply core and the UDP
+discovery responder of an (empty) Alpaca server on loopback."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+
+import pytest
+
+from tcs.alpaca.protocol import (AlpacaRequest, AscomError, BadRequest, Code, TransactionCounter,
+                                 from_tcs_error, reply)
+from tcs.alpaca.server import AlpacaServer
+from tcs.errors import ErrorNumber, RangeRefused, TcsError
+
+
+@pytest.mark.parametrize("method, params, name, expected", [
+    ("GET", {"clienttransactionid": "5"}, "ClientTransactionID", "5"),
+    ("GET", {"AXIS": "1"}, "Axis", "1"),
+    ("PUT", {"Axis": "1"}, "Axis", "1"),
+    ("PUT", {"axis": "1"}, "Axis", None),          # PUT form fields: exact spelling only
+])
+def test_parameter_names(method, params, name, expected):
+    assert AlpacaRequest(method, params).raw(name) == expected
+
+
+@pytest.mark.parametrize("text, value", [("5", 5), ("4294967295", 4294967295), ("4294967296", 0),
+                                         ("-1", 0), ("x", 0), (" 7 ", 7), (None, 0)])
+def test_transaction_ids_are_uint32_or_zero(text, value):
+    params = {} if text is None else {"ClientTransactionID": text}
+    assert AlpacaRequest("GET", params).client_transaction_id == value
+
+
+@pytest.mark.parametrize("kind, text, value", [
+    ("bool", "True", True), ("bool", "false", False), ("bool", "yes", BadRequest),
+    ("float", "1.5", 1.5), ("float", "1e3", 1000.0), ("float", "nan", BadRequest),
+    ("float", "1e400", BadRequest), ("float", "", BadRequest), ("int", "12", 12),
+    ("int", "1.5", BadRequest), ("int", "x", BadRequest),
+])
+def test_typed_parameters(kind, text, value):
+    r = AlpacaRequest("GET", {"P": text})
+    if value is BadRequest:
+        with pytest.raises(BadRequest):
+            getattr(r, kind)("P")
+    else:
+        assert getattr(r, kind)("P") == value
+    with pytest.raises(BadRequest):
+        getattr(AlpacaRequest("GET", {}), kind)("P")
+
+
+def test_replies_and_error_mapping():
+    r = AlpacaRequest("GET", {"ClientTransactionID": "9"})
+    ids = TransactionCounter()
+    first, second = ids(), ids()
+    assert second == first + 1
+    assert reply(r, first, 1.5) == {"Value": 1.5, "ClientTransactionID": 9, "ServerTransactionID": first,
+                                    "ErrorNumber": 0, "ErrorMessage": ""}
+    body = reply(r, second, error=AscomError(Code.INVALID_VALUE, "no"))
+    assert "Value" not in body and body["ErrorNumber"] == 0x401 and body["ErrorMessage"] == "no"
+    assert from_tcs_error(RangeRefused("x")).code == Code.INVALID_VALUE
+    assert from_tcs_error(TcsError("below the horizon", ErrorNumber.SOFTLIMIT)).code == Code.INVALID_VALUE
+    assert from_tcs_error(TcsError("not powered", ErrorNumber.INVMODE)).code == Code.INVALID_OPERATION
+    assert from_tcs_error(TcsError("opening refused: rain", 1020)).code == Code.INVALID_OPERATION
+    assert from_tcs_error(TcsError("PLC lost", ErrorNumber.NOCON)).code == Code.DRIVER_ERROR
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("0.0.0.0", 0))
+        return s.getsockname()[1]
+
+
+async def _ask(port: int, data: bytes, timeout: float = 1.0) -> bytes | None:
+    loop = asyncio.get_running_loop()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.setblocking(False)
+        s.bind(("127.0.0.1", 0))
+        s.sendto(data, ("127.0.0.1", port))
+        try:
+            return await asyncio.wait_for(loop.sock_recv(s, 1024), timeout)
+        except asyncio.TimeoutError:
+            return None
+
+
+async def test_discovery_answers_the_http_port_and_can_be_off():
+    server = AlpacaServer([])
+    port = await server.start("127.0.0.1", 0, _free_udp_port())
+    try:
+        answer = await _ask(server.discovery_port, b"alpacadiscovery1")
+        assert json.loads(answer) == {"AlpacaPort": port}
+        assert await _ask(server.discovery_port, b"something else", timeout=0.3) is None
+    finally:
+        await server.stop()
+    off = AlpacaServer([])
+    await off.start("127.0.0.1", 0, -1)
+    try:
+        assert off.discovery_port == -1 and off._discovery is None
+    finally:
+        await off.stop()
