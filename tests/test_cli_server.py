@@ -39,7 +39,7 @@ def connect(port: int, timeout: float = 30.0) -> socket.socket:
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_serves_the_simulated_telescope_and_stops_cleanly(tmp_path, sig):
     port = free_port()
-    proc = start(tmp_path, "--port", str(port), "--opentsi-port", "0", "--alpaca-port", "0")
+    proc = start(tmp_path, "--port", str(port), "--opentsi-port", "0", "--alpaca-port", "-1")
     try:
         s = connect(port)
         f = s.makefile("rb")
@@ -77,7 +77,7 @@ def test_port_in_use_is_a_clear_error(tmp_path):
         blocker.bind(("127.0.0.1", 0))
         blocker.listen()
         port = blocker.getsockname()[1]
-        proc = start(tmp_path, "--port", str(port), "--opentsi-port", "0", "--alpaca-port", "0")
+        proc = start(tmp_path, "--port", str(port), "--opentsi-port", "0", "--alpaca-port", "-1")
         out, err = proc.communicate(timeout=60)
     assert proc.returncode == 1
     assert "Traceback" not in err and "address already in use" in err.lower()

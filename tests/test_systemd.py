@@ -47,7 +47,7 @@ def test_notify_sequence_and_watchdog(tmp_path):
                XDG_STATE_HOME=str(tmp_path / "state"))
     env.pop("WATCHDOG_PID", None)
     proc = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--port", str(port),
-                             "--opentsi-port", "0", "--alpaca-port", "0"], env=env,
+                             "--opentsi-port", "0", "--alpaca-port", "-1"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         before_ready = receive_all(sock, "READY=1")

@@ -71,7 +71,8 @@ def test_server_drives_the_simulator_in_another_process(tmp_path):
             line = sim.stderr.readline()
         assert "tcs-sim: ready" in line, line
         server = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--config", str(hwfile),
-                                   "--port", str(tpl2_port), "--opentsi-port", "0"], env=env,
+                                   "--port", str(tpl2_port), "--opentsi-port", "0",
+                                   "--alpaca-port", "-1"], env=env,
                                   stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         s = connect(tpl2_port, timeout=60)
         f = s.makefile("rb")
@@ -104,7 +105,7 @@ def test_server_drives_the_simulator_in_another_process(tmp_path):
         for port in (free_port(), tpl2_port):
             others.append(subprocess.Popen(
                 [sys.executable, "-m", "tcs.cli.server", "--config", str(hwfile), "--port",
-                 str(port)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
+                 str(port), "--opentsi-port", "-1", "--alpaca-port", "-1"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
         fastest, replies, n = 0.0, [], 10
         deadline = time.monotonic() + 120
         while not (replies and replies[-1].startswith(b"9 COMMAND COMPLETE")):
