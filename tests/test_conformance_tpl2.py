@@ -28,7 +28,7 @@ async def test_members_is_the_number_of_members_and_walks_the_tree(service):
     assert names[:3] == ['"SERVER"', '"LOCAL"', '"CONFIG"']
     local = await c.members("LOCAL")
     assert local[0] == "VERSION" and "LATITUDE" in local
-    assert await c.get("CABINET.STATUS!MEMBERS") == "4"
+    assert await c.get("CABINET.STATUS!MEMBERS") == "5"  # GLOBAL, LIST, CLEAR, LOG, TEXT
     await c.close()
 
 

@@ -105,6 +105,7 @@ class CanDrives:
         self.bus.add_reconnect_callback(self._on_reconnect)
         self._supervisor: threading.Thread | None = None
         self._supervising = threading.Event()
+        self._supervisor_stop = threading.Event()  # wakes the supervisor to end it
         self._retry: dict[str, tuple[float, float]] = {}  # name -> (next attempt, back-off)
         self._recovering: set[str] = set()
         self._pool: ThreadPoolExecutor | None = None
@@ -161,6 +162,7 @@ class CanDrives:
         self.cycle.start()
         if self._supervisor is None:
             self._supervising.set()
+            self._supervisor_stop.clear()
             self._pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="tcs-reboot")
             self._supervisor = threading.Thread(target=self._supervise, name="tcs-recovery",
                                                 daemon=True)
@@ -173,6 +175,7 @@ class CanDrives:
 
     def _stop_supervisor(self) -> None:
         self._supervising.clear()
+        self._supervisor_stop.set()
         thread, self._supervisor = self._supervisor, None
         if thread is not None and thread is not threading.current_thread():
             thread.join(timeout=10.0)
@@ -193,7 +196,8 @@ class CanDrives:
                         self._pool.submit(self._recover, name, drive)
                 except Exception:  # the supervisor must outlive any one drive's trouble
                     log.exception("%s: recovery failed", drive.device)
-            time.sleep(0.1)
+            if self._supervisor_stop.wait(0.1):
+                return
 
     def _recover(self, name: str, drive: Cia402Drive) -> None:
         try:
@@ -244,17 +248,23 @@ class CanDrives:
         from tcs.drivers.drive import DriveState
 
         self._stop_supervisor()
-        for drive in self.drives.values():
+
+        def release(drive: Cia402Drive) -> None:
             status = drive.status()
             if not status.booted or status.state in (DriveState.OPERATION_ENABLED,
                                                       DriveState.QUICK_STOP_ACTIVE,
                                                       DriveState.OFFLINE):
-                continue
+                return
             try:
                 drive.release()
                 send_nmt(self.bus.network, NMT_PRE_OPERATIONAL, drive.node_id)
             except Exception as exc:
                 log.warning("%s: could not switch its heartbeat consumer off: %s", drive.device, exc)
+
+        drives = list(self.drives.values())
+        if drives:  # one SDO exchange per drive, all drives at once (as the boot)
+            with ThreadPoolExecutor(max_workers=len(drives), thread_name_prefix="tcs-release") as pool:
+                list(pool.map(release, drives))
 
     def close(self) -> None:
         """Stop everything this object started (idempotent)."""

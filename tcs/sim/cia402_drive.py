@@ -176,14 +176,16 @@ class SimDrive:
         self.logic = DriveLogic(self.store, params, self.clock(), self._on_logic_emcy)
 
     # -- life cycle --------------------------------------------------------------------------
-    def start(self) -> None:
-        """Boot: the boot-up message after ``boot_delay``, then heartbeats per 0x1017."""
+    def start(self, powered: bool = False) -> None:
+        """Boot: the boot-up message after ``boot_delay``, then heartbeats per 0x1017.
+        ``powered``: the drive was powered before (a cabinet switched on before the software
+        started): the boot-up message at once."""
         with self.lock:
             if self._started:
                 return
             self._started = True
             self._port.add_poller(self._poll)
-            if self.params.boot_delay > 0:
+            if self.params.boot_delay > 0 and not powered:
                 self._timers.append(self._port.call_later(self.params.boot_delay, self._boot))
             else:
                 self._boot()

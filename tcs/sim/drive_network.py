@@ -46,11 +46,11 @@ class SimDriveNetwork(Mapping[int, SimDrive]):
             raise
 
     def start(self, wait: bool = True) -> None:
-        """Power the drives up; with ``wait``, return once each has sent its boot-up (their
-        ``boot_delay`` — a cabinet powered before the software starts). NMT resets later
-        take ``boot_delay`` again, as real drives do."""
+        """Power the drives up; with ``wait``, as a cabinet powered before the software starts:
+        each sends its boot-up at once (this returns once they have). Without ``wait`` each
+        takes its ``boot_delay``, as NMT resets later do, as real drives do."""
         for drive in self._drives.values():
-            drive.start()
+            drive.start(powered=wait)
         if wait:
             deadline = time.monotonic() + max((d.params.boot_delay for d in self._drives.values()),
                                               default=0.0) + 2.0
