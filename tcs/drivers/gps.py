@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import socket
 import threading
 import time
 from collections.abc import Callable
@@ -48,6 +49,26 @@ __all__ = ["GpsReader", "GpsStatus", "GpsEvent"]
 log = logging.getLogger(__name__)
 MAX_LINE = 120      # NMEA allows 82 characters; anything much longer is noise
 MAX_BUFFER = 4096
+
+
+def close_port(ser) -> None:
+    """Close a pyserial port without blocking. pyserial's ``socket://`` handler sleeps 0.3 s in
+    ``close()`` ("give the server some time"), which in the event loop would stall every TPL2
+    client and the control loop's event delivery: close its socket here instead."""
+    sock = getattr(ser, "_socket", None)
+    try:
+        if isinstance(sock, socket.socket):
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            sock.close()
+            ser._socket = None
+            ser.is_open = False
+        else:
+            ser.close()
+    except (OSError, serial.SerialException):
+        pass
 
 
 @dataclass(frozen=True)
@@ -206,7 +227,7 @@ class GpsReader:
         while True:
             try:
                 ser = await _in_thread(lambda: serial.serial_for_url(s.url, baudrate=s.baudrate, timeout=0),
-                                       cleanup=lambda port: port.close())
+                                       cleanup=close_port)
             except (serial.SerialException, OSError, ValueError) as exc:
                 self._port_error = f"cannot open {s.url}: {exc}"
                 log.debug("%s: %s", self.name, self._port_error)
@@ -242,10 +263,7 @@ class GpsReader:
             asyncio.get_running_loop().remove_reader(ser.fileno())
         except (OSError, ValueError, serial.SerialException):
             pass
-        try:
-            ser.close()
-        except (OSError, serial.SerialException):
-            pass
+        close_port(ser)
 
     def _on_readable(self) -> None:
         ser = self._serial
