@@ -12,9 +12,6 @@ replaced atomically (temporary file, fsync, rename) keeping the old file's mode,
 
 from __future__ import annotations
 
-import os
-import stat
-import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -23,6 +20,7 @@ from tomlkit.exceptions import TOMLKitError
 
 from tcs.config import parse_config
 from tcs.errors import ConfigErrors
+from tcs.pointing.storage import atomic_write_text
 
 from tcs.commission.common import CommissionError, ExitCode
 
@@ -56,35 +54,5 @@ def update_values(path: str | Path, values: Mapping[tuple[str, ...], float]) -> 
     except ConfigErrors as exc:
         raise CommissionError(f"not written: the new values would make the hardware file "
                               f"invalid:\n{exc.message}") from None
-    replace_keeping_mode(path, text)
+    atomic_write_text(path, text, keep_mode=True)  # /etc/tcs stays readable by the service
     return text
-
-
-def replace_keeping_mode(path: Path, text: str) -> None:
-    """Replace ``path`` with ``text`` atomically; the new file gets the old one's permission
-    bits, and its owner and group when the process may set them (root)."""
-    old = path.stat()
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fchmod(f.fileno(), stat.S_IMODE(old.st_mode))
-            if (old.st_uid, old.st_gid) != (os.geteuid(), os.getegid()):
-                try:
-                    os.fchown(f.fileno(), old.st_uid, old.st_gid)
-                except PermissionError:
-                    pass  # not root: the file becomes ours, the mode is kept
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-    dfd = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(dfd)
-    finally:
-        os.close(dfd)

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import stat
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,15 +53,27 @@ _NAME = re.compile(r"[A-Za-z0-9_+\-][A-Za-z0-9_+.\-]{0,63}")
 _SUFFIX = ".model"
 
 
-def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Replace ``path`` with ``text`` atomically (temp file, fsync, rename, fsync dir)."""
+def atomic_write_text(path: str | os.PathLike, text: str, *, keep_mode: bool = False) -> None:
+    """Replace ``path`` with ``text`` atomically (temp file, fsync, rename, fsync dir).
+
+    ``keep_mode``: the new file gets the old one's permission bits, and its owner and group
+    when the process may set them (root) — for files other users read (``/etc/tcs``).
+    """
     path = Path(path)
     directory = path.parent
+    old = path.stat() if keep_mode else None
     fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(text)
             f.flush()
+            if old is not None:
+                os.fchmod(f.fileno(), stat.S_IMODE(old.st_mode))
+                if (old.st_uid, old.st_gid) != (os.geteuid(), os.getegid()):
+                    try:
+                        os.fchown(f.fileno(), old.st_uid, old.st_gid)
+                    except PermissionError:
+                        pass  # not root: the file becomes ours, the mode is kept
             os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
