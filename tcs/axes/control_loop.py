@@ -97,6 +97,17 @@ class ControlLoop:
                 "max_step_ms": self.max_step * 1e3, "max_lateness": self.source.max_lateness,
                 "realtime": int(self.source.realtime)}
 
+    def samples(self, clear: bool = False):
+        """(lateness list, loop time list, cycle counters as a dict) of the cycle source, for
+        the benchmarks; ``clear`` empties the bounded histories (same as in the control
+        process: :meth:`tcs.axes.control_process.RemoteLoop.samples`)."""
+        source = self.source
+        lateness, loop = list(source.lateness), list(source.callback_time)
+        if clear:
+            source.lateness.clear()
+            source.callback_time.clear()
+        return lateness, loop, dict(source.stats().__dict__)
+
     def healthy(self, max_age_periods: float = 10.0) -> bool:
         """True when the loop ran within the last ``max_age_periods`` SYNC periods."""
         return self.cycles > 0 and self.clock() - self.last_cycle < max_age_periods * self.source.period

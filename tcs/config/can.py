@@ -169,6 +169,10 @@ class CanSection:
     boot_timeout: float = setting(5.0, min=0.1, max=120.0,
                                   doc="seconds a drive may take to answer at boot")
     sdo_timeout: float = setting(0.5, min=0.05, max=10.0, doc="seconds per SDO response")
+    control_process: bool = setting(
+        False, doc="run the control loop, the drivers and (on a virtual bus) the simulated drives "
+                   "in a process of their own, so that no client load can delay a cycle (the "
+                   "service talks to it over a socket pair); false: a thread of the service")
     realtime_priority: int = setting(
         0, min=0, max=99, doc="SCHED_FIFO priority of the control-loop thread (1..99; 0 = normal "
                               "scheduling). Needs CAP_SYS_NICE or LimitRTPRIO (the systemd unit "

@@ -132,6 +132,8 @@ class Telescope:
         config = self.config
         if config.can is None or not config.drives or config.can.interface == "virtual":
             return  # an in-process bus: nobody else can be on it
+        if config.can.control_process:
+            return  # the control process listens before it sends (tcs.axes.control_core)
         from tcs.drivers.bus_check import AnotherMaster, listen_window, other_master
         from tcs.drivers.can_system import CanDrives
 
@@ -156,6 +158,9 @@ class Telescope:
         from tcs.drivers.can_system import CanDrives
 
         config = self.config
+        if config.can.control_process:
+            await self._start_control_process()
+            return
         if config.simulation is not None and config.simulation.drives and config.can.interface == "virtual":
             # simulated drives on an in-process bus live here; on any other bus they are
             # somebody else's (tcs-sim, a gateway), and only the bus settings differ
@@ -186,6 +191,36 @@ class Telescope:
         if self.pointing is not None:
             self.cabinet.attach(modules=[self.pointing])
         self.can.start()
+
+    async def _start_control_process(self) -> None:
+        """``[can] control_process``: bus, drives, simulated drives and the loop in a child
+        process (:mod:`tcs.axes.control_core`); the axes here are its asyncio side."""
+        from tcs.axes.control_process import ControlProcess, RemoteAxis, RemoteLoop, rebuild_error
+
+        config = self.config
+        loop = asyncio.get_running_loop()
+        process = ControlProcess(config, self.local, self.events)
+        info = await self.run_blocking(process.start, loop)
+        self.can = process  # (stop: release and close end the child)
+        for index, (name, section) in enumerate(config.axes.items()):
+            axis = RemoteAxis(process, index, name, section, None, self.events, self.local.ut1,
+                              config.can.sync_period, status_sink=self.status_sink,
+                              main_power=lambda: self.main_power)
+            axis.bind_loop(loop)
+            failure = info.get("failures", {}).get(section.drive)
+            if failure is not None:
+                axis.raise_condition("drive offline", ERROR, rebuild_error(failure).message)
+            for condition, text in info.get("conditions", {}).get(section.drive, ()):
+                axis.raise_condition(condition, WARNING, text)
+            self.axes.append(axis)
+        process.axes = self.axes
+        self.cabinet.attach(axes=self.axes)
+        self.control_loop = RemoteLoop(process, config.can.sync_period)
+        self.cabinet.loop_stats = self.control_loop.stats
+        from tcs.pointing.pointing_module import make_pointing
+        self.pointing = make_pointing(self)
+        if self.pointing is not None:
+            self.cabinet.attach(modules=[self.pointing])
 
     async def stop(self) -> None:
         """Stop motion, disable the drives, stop the loop and the bus, stop the simulators."""

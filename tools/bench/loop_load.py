@@ -231,30 +231,31 @@ async def load(port: int, profile: str, clients: int, seconds: float, rate: floa
 
 # ------------------------------------------------------------------ the service (this process)
 
-def window(source, s0, s1) -> dict:
-    """The figures of the cycles since the histories were cleared (``mark``)."""
+def window(loop, s0) -> dict:
+    """The figures of the cycles since :func:`mark` (the control loop in this process or in
+    the control process: ``samples`` answers the same)."""
     from axes_common import percentile
-    late = list(source.lateness)
-    loop = list(source.callback_time)
+    late, times, s1 = loop.samples()
     ms = lambda xs, q: round(percentile(xs, q) * 1e3, 3)  # noqa: E731
-    return {"cycles": s1.cycles - s0.cycles, "late": s1.late - s0.late, "missed": s1.missed - s0.missed,
-            "tpdo_timeouts": s1.tpdo_timeouts - s0.tpdo_timeouts,
+    return {"cycles": s1["cycles"] - s0["cycles"], "late": s1["late"] - s0["late"],
+            "missed": s1["missed"] - s0["missed"],
+            "tpdo_timeouts": s1["tpdo_timeouts"] - s0["tpdo_timeouts"],
             "lateness_ms": {"p50": ms(late, 50), "p99": ms(late, 99), "max": ms(late, 100)},
-            "loop_ms": {"p50": ms(loop, 50), "p99": ms(loop, 99), "max": ms(loop, 100)}}
+            "loop_ms": {"p50": ms(times, 50), "p99": ms(times, 99), "max": ms(times, 100)}}
 
 
-def mark(source):
+def mark(loop) -> dict:
     """Start a window: empty the (bounded) histories, keep the counters."""
-    source.lateness.clear()
-    source.callback_time.clear()
-    return source.stats()
+    return loop.samples(clear=True)[2]
 
 
 async def main(profiles: list[str], clients: int, seconds: float, rate: float,
-               realtime_priority: int = 0, server: dict | None = None) -> dict:
+               realtime_priority: int = 0, server: dict | None = None, process: bool = False) -> dict:
     from axes_common import Client, power_and_reference, start_service
 
-    service, port, state = await start_service(can={"realtime_priority": realtime_priority}, **(server or {}))
+    print(f"control loop: {'in the control process' if process else 'a thread of the service'}", flush=True)
+    service, port, state = await start_service(
+        can={"realtime_priority": realtime_priority, "control_process": process}, **(server or {}))
     freeze_heap()  # as tcs-server does once it serves
     child = None
     results: dict = {}
@@ -278,13 +279,13 @@ async def main(profiles: list[str], clients: int, seconds: float, rate: float,
         await c.until("AZ.MOTION_STATE", lambda v: int(v) & 2)
         await c.until("ZD.MOTION_STATE", lambda v: int(v) & 2)
         await asyncio.sleep(2.0)
-        source = service.telescope.can.cycle
-        realtime = source.realtime
+        source = service.telescope.control_loop
+        realtime = bool(source.stats().get("realtime"))
 
         print(f"baseline: {seconds:g} s without load …", flush=True)
         s0 = mark(source)
         await asyncio.sleep(seconds)
-        results["baseline"] = {"window": window(source, s0, source.stats())}
+        results["baseline"] = {"window": window(source, s0)}
 
         for profile in profiles:
             print(f"{profile}: {HELP[profile].format(clients=clients, rate=rate)} (another process) …", flush=True)
@@ -299,7 +300,7 @@ async def main(profiles: list[str], clients: int, seconds: float, rate: float,
             child.stdin.write(b"go\n")
             await child.stdin.drain()
             out = await asyncio.wait_for(child.stdout.readline(), seconds + 120)
-            w = window(source, s0, source.stats())
+            w = window(source, s0)
             await child.wait()
             child = None
             results[profile] = {"window": w, "clients": json.loads(out),
@@ -336,6 +337,7 @@ async def main(profiles: list[str], clients: int, seconds: float, rate: float,
     print(f"control loop real-time priority: {realtime_priority if realtime else 'no'}")
     print(f"load average at the end: {os.getloadavg()} on {os.cpu_count()} CPUs (shared machine: noisy)")
     return {"results": results, "realtime_priority": realtime_priority if realtime else 0,
+            "control_process": process,
             "n_clients": clients, "rate_hz": rate, "seconds": seconds}
 
 
@@ -348,6 +350,9 @@ if __name__ == "__main__":
     ap.add_argument("--rate", type=float, default=5.0, help="GETs per second per poller")
     ap.add_argument("--realtime-priority", type=int, default=0,
                     help="can.realtime_priority for the control loop (0: normal scheduling)")
+    ap.add_argument("--mode", choices=("thread", "process", "both"), default="both",
+                    help="the control loop as a thread of the service (the old way, the baseline), "
+                         "in the control process ([can] control_process), or both one after the other")
     ap.add_argument("--switch-interval", type=float, default=0.0,
                     help="sys.setswitchinterval for this process, s (0: Python's default, 5 ms)")
     ap.add_argument("--work-rest", type=float, help="[server] work_rest (default: the file's)")
@@ -366,5 +371,7 @@ if __name__ == "__main__":
             sys.setswitchinterval(args.switch_interval)
         print(f"interpreter switch interval: {sys.getswitchinterval() * 1e3:g} ms", flush=True)
         overrides = {k: v for k, v in (("work_rest", args.work_rest), ("work_slice", args.work_slice)) if v is not None}
-        result = asyncio.run(main(chosen, args.clients, args.seconds, args.rate, args.realtime_priority, overrides))
-        print(json.dumps(result))
+        modes = {"thread": [False], "process": [True], "both": [False, True]}[args.mode]
+        results = [asyncio.run(main(chosen, args.clients, args.seconds, args.rate,
+                                    args.realtime_priority, overrides, process)) for process in modes]
+        print(json.dumps(results if len(results) > 1 else results[0]))

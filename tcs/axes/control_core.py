@@ -1,0 +1,398 @@
+"""The control process: the drivers' cycle and the axes' step in a process of their own.
+
+``tcs-server`` with ``[can] control_process = true`` starts this module as a child process
+(``python -m tcs.axes.control_core FD``; :class:`tcs.axes.control_process.ControlProcess` is
+the other end). It owns everything the 10 ms cycle touches — the CAN bus, the CiA-402 drivers
+with their boot and recovery, the simulated drives of an in-process (``virtual``) bus, the
+:class:`~tcs.axes.axis.Axis` objects' control-loop side and the
+:class:`~tcs.axes.control_loop.ControlLoop` — so that nothing the TPL2, OpenTSI or Alpaca
+clients make the service do can take the interpreter from the loop: this process has its own
+interpreter lock and, with ``[can] realtime_priority``, every thread of it runs SCHED_FIFO.
+
+How it talks to the service (one ``multiprocessing.connection.Connection`` on a socket pair,
+pickled tuples; the service is the only peer):
+
+* in: ``("setup", config, ut1_utc, log_level)`` first; then ``("cmd", axis, seq, kind,
+  value, future_id, cause)`` — an axis command exactly as :meth:`Axis._send` queues it in the
+  threaded mode; ``("add", rid, axis, times, positions, now)`` — TRAJECTORY points
+  (answered at once by this receiver thread, the queue has its own lock); ``("ut1_utc",
+  value)``; ``("samples", rid, clear)``; ``("close",)``.
+* out: ``("ready", info)`` or ``("refused", kind, text)``; one ``("batch", snapshots,
+  items, stats)`` per cycle with the readbacks of every axis whose readbacks changed, then the
+  cycle's events, error conditions and completions in the order they happened (so a client
+  that gets ``DATA OK`` reads the new state); ``("reply", rid, ok, value)``; ``("log",
+  name, level, text)``; ``("closed",)``.
+
+The loop thread never blocks on the service: it appends to an outbox that a sender thread
+drains (readbacks are coalesced to the newest if the service reads slowly). If the service
+goes away (its end of the socket closes: a crash, kill -9) every axis is stopped and powered
+off here, then the process ends without releasing the drives, so they record the lost master
+as after a crash of the whole service.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import os
+import sys
+import threading
+import time
+from multiprocessing.connection import Connection
+
+from tcs.axes.axis import TRAJECTORY, Axis
+from tcs.errors import TcsError
+
+log = logging.getLogger("tcs.control")
+
+#: Readbacks sent per axis, in this order (``ControlProcess`` applies them by name).
+READBACKS = ("power_state", "referenced", "real_position", "current_speed", "current_acc",
+             "current_jerk", "motion_state", "limit_state", "target_position", "offset")
+
+
+def error_tuple(error: BaseException | None):
+    """An exception as plain data: (class name, message, number, keyword)."""
+    if error is None:
+        return None
+    if isinstance(error, TcsError):
+        return (type(error).__name__, error.message, error.number, error.keyword)
+    return ("TcsError", f"{type(error).__name__}: {error}", 13, None)
+
+
+class Outbox:
+    """What the loop and the other threads hand to the sender thread (never blocks them)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._items: list = []          # events, conditions, completions, in order
+        self._snapshots: dict = {}      # axis index -> newest readbacks
+        self._stats = None
+        self._other: collections.deque = collections.deque()  # replies, logs, …
+        self.wake = threading.Event()
+
+    def item(self, entry: tuple) -> None:
+        with self._lock:
+            self._items.append(entry)
+
+    def cycle(self, snapshots: dict, stats) -> None:
+        with self._lock:
+            self._snapshots.update(snapshots)
+            if stats is not None:
+                self._stats = stats
+        self.wake.set()
+
+    def message(self, msg: tuple) -> None:
+        self._other.append(msg)
+        self.wake.set()
+
+    def take(self):
+        with self._lock:
+            batch = None
+            if self._snapshots or self._items or self._stats is not None:
+                batch = ("batch", self._snapshots, self._items, self._stats)
+                self._snapshots, self._items, self._stats = {}, [], None
+        others = []
+        while self._other:
+            others.append(self._other.popleft())
+        return batch, others
+
+
+class ForwardingHandler(logging.Handler):
+    """Log records of this process go to the service's log (journal, CABINET.LOG)."""
+
+    def __init__(self, outbox: Outbox) -> None:
+        super().__init__()
+        self.outbox = outbox
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = record.getMessage()
+            if record.exc_info:
+                text += "\n" + logging.Formatter().formatException(record.exc_info)
+            self.outbox.message(("log", record.name, record.levelno, text))
+        except Exception:
+            pass
+
+
+class CoreAxis(Axis):
+    """The control-loop side of an axis in the control process: futures are ids, events,
+    error conditions and completions go to the outbox (the service's twin,
+    :class:`tcs.axes.control_process.RemoteAxis`, holds the asyncio side)."""
+
+    def __init__(self, index: int, outbox: Outbox, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.index = index
+        self.outbox = outbox
+        self.received_seq = 0   # newest command put into the queue (receiver thread)
+        self.applied_seq = 0    # newest command the loop has taken (a readback is after it)
+        self._active: dict[str, int] = {}  # conditions raised here and still active
+        self._sent = None
+
+    def receive(self, seq: int, kind: str, value, future_id, cause) -> None:
+        with self._lock:
+            self._commands.append((kind, value, future_id, cause))
+            self.received_seq = seq
+
+    def cycle(self, t: float, now: float, measured: float | None = None) -> None:
+        self.applied_seq = self.received_seq  # (taken before the queue is drained: ≤ applied)
+        super().cycle(t, now, measured)
+
+    # -- what the base class hands to the asyncio world ------------------------------------
+    def emit(self, level: str, number: int, text: str = "", cause=None) -> None:
+        self.outbox.item(("event", level, self.module_name, int(number), text, cause))
+
+    def raise_condition(self, name: str, bits: int = 2, text: str = "") -> None:
+        self._active[name] = bits
+        self.outbox.item(("raise", self.index, name, bits, text))
+
+    def clear_condition(self, name: str) -> None:
+        if self._active.pop(name, None) is not None:
+            self.outbox.item(("clear", self.index, name))
+
+    def conditions(self) -> dict[str, tuple[int, bool]]:
+        return {name: (bits, True) for name, bits in self._active.items()}
+
+    def _flush(self) -> None:
+        if self._completions:
+            batch, self._completions = self._completions, []
+            for future_id, error in batch:
+                self.outbox.item(("done", future_id, error_tuple(error)))
+
+    # -- readbacks ---------------------------------------------------------------------------
+    def snapshot(self, t: float):
+        """This cycle's readbacks (None when nothing changed since the last one sent)."""
+        fault = self._fault
+        stale = self.stale
+        q = self.queue
+        follower = self.follower
+        path = None
+        if follower is not None and self.motion_state & TRAJECTORY and len(q):
+            try:
+                p, v, _ = q.sample(t)
+                path = (p + follower.shift + follower._offset, v, t)
+            except TcsError:
+                path = None
+        snap = (self.applied_seq, *(getattr(self, name) for name in READBACKS),
+                None if stale is None else (stale.message, stale.number),
+                None if fault is None else error_tuple(fault),
+                self._homing, self._ack_pending,
+                (len(q), q.start_time, q.end_time, q.free_points_at(t)),
+                None if follower is None else (follower.state.value, follower.end_reason),
+                path)
+        if snap == self._sent:
+            return None
+        self._sent = snap
+        return snap
+
+
+class Core:
+    """Everything of the control process; :meth:`run` is its main thread (the receiver)."""
+
+    def __init__(self, conn: Connection):
+        self.conn = conn
+        self.outbox = Outbox()
+        self.axes: list[CoreAxis] = []
+        self.can = None
+        self.sims = None
+        self.loop = None
+        self.ut1_utc = 0.0
+        self._send_lock = threading.Lock()
+        self._running = True
+        self._stats_every = 10
+        self._cycles = 0
+
+    def ut1(self) -> float:
+        return time.time() + self.ut1_utc
+
+    # -- sender ------------------------------------------------------------------------------
+    def _send(self, msg) -> None:
+        with self._send_lock:
+            self.conn.send(msg)
+
+    def _sender(self) -> None:
+        while self._running or self.outbox.wake.is_set():
+            self.outbox.wake.wait(0.5)
+            self.outbox.wake.clear()
+            batch, others = self.outbox.take()
+            try:
+                for msg in others:
+                    self._send(msg)
+                if batch is not None:
+                    self._send(batch)
+            except (OSError, EOFError, ValueError):
+                return  # the service is gone: the receiver sees it too
+
+    # -- set-up --------------------------------------------------------------------------------
+    def start(self, config) -> dict:
+        """Claim the bus, start the simulated drives, boot, build the axes, start the loop."""
+        from tcs.axes.control_loop import ControlLoop
+        from tcs.drivers.can_system import CanDrives
+
+        can_section = config.can
+        info: dict = {"realtime": False}
+        if can_section.realtime_priority > 0:
+            try:  # before any thread is made: every thread of this process inherits it
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(can_section.realtime_priority))
+                info["realtime"] = True
+            except (OSError, AttributeError) as exc:
+                log.warning("control process: real-time priority %d refused (%s); running with "
+                            "normal scheduling (grant CAP_SYS_NICE or LimitRTPRIO)",
+                            can_section.realtime_priority, exc)
+        if can_section.interface != "virtual":
+            from tcs.drivers.bus_check import AnotherMaster, listen_window, other_master
+            can = CanDrives.from_config(config)
+            can.open(False)  # no heartbeat yet: not a frame is sent
+            busy = other_master(can.bus.network, can_section.node_id,
+                                listen_window(can_section.heartbeat_period))
+            if busy:
+                can.close()
+                raise AnotherMaster(can.bus.name, f"another master is active ({busy}): is "
+                                    "tcs-server already running (systemctl status tcs-server)? "
+                                    "Nothing was sent on the bus")
+            can.bus.start_heartbeat()
+            self.can = can
+        else:
+            if config.simulation is not None and config.simulation.drives:
+                from tcs.model.telescope import start_simulated_drives
+                self.sims = start_simulated_drives(config)
+            self.can = CanDrives.from_config(config)
+            self.can.open()
+        failures = self.can.boot()
+        info["failures"] = {name: error_tuple(e) for name, e in failures.items()}
+        info["conditions"] = {name: list(report.conditions)
+                              for name, report in self.can.eds_reports.items()}
+        for index, (name, section) in enumerate(config.axes.items()):
+            self.axes.append(CoreAxis(index, self.outbox, name, section,
+                                      self.can.drives[section.drive], None, self.ut1,
+                                      can_section.sync_period))
+        self.loop = ControlLoop(self.axes, self.can.cycle, self.ut1)
+        self.can.cycle.add_callback(self._publish)
+        self.can.start()
+        return info
+
+    def _publish(self, cycle) -> None:
+        """After the loop's step (same thread): readbacks and counters to the outbox."""
+        t = self.ut1() + (cycle.sync_time - time.monotonic())
+        snaps = {}
+        for axis in self.axes:
+            snap = axis.snapshot(t)
+            if snap is not None:
+                snaps[axis.index] = snap
+        self._cycles += 1
+        stats = None
+        if self._cycles % self._stats_every == 0:
+            stats = dict(self.loop.stats(), last_cycle=self.loop.last_cycle)
+        self.outbox.cycle(snaps, stats)
+
+    # -- receiver ----------------------------------------------------------------------------
+    def run(self) -> int:
+        """Set up from the first message, serve the service's messages until ``close``."""
+        setup = self.conn.recv()
+        _, config, self.ut1_utc, level = setup
+        root = logging.getLogger()
+        root.handlers[:] = [ForwardingHandler(self.outbox)]
+        root.setLevel(level)
+        sender = threading.Thread(target=self._sender, name="tcs-control-send", daemon=True)
+        sender.start()
+        try:
+            info = self.start(config)
+        except TcsError as exc:
+            self.outbox.message(("refused", type(exc).__name__, error_tuple(exc)))
+            self._end(sender)
+            return 1
+        except BaseException as exc:
+            log.exception("control process: start failed")
+            self.outbox.message(("refused", type(exc).__name__, error_tuple(exc)))
+            self._end(sender)
+            return 1
+        self.outbox.message(("ready", info))
+        closed = False
+        while True:
+            try:
+                msg = self.conn.recv()
+            except (EOFError, OSError):
+                break
+            kind = msg[0]
+            if kind == "cmd":
+                _, index, seq, what, value, future_id, cause = msg
+                self.axes[index].receive(seq, what, value, future_id, cause)
+            elif kind == "add":
+                _, rid, index, times, positions, now = msg
+                self._add_points(rid, self.axes[index], times, positions, now)
+            elif kind == "ut1_utc":
+                self.ut1_utc = float(msg[1])
+            elif kind == "samples":
+                source = self.can.cycle
+                lateness, loop = list(source.lateness), list(source.callback_time)
+                if msg[2]:
+                    source.lateness.clear()
+                    source.callback_time.clear()
+                self.outbox.message(("reply", msg[1], True,
+                                     (lateness, loop, dict(source.stats().__dict__))))
+            elif kind == "close":
+                closed = True
+                break
+        if closed:
+            self._close()
+        else:
+            self._orphaned()
+        self._end(sender)
+        return 0
+
+    def _add_points(self, rid, axis: CoreAxis, times, positions, now) -> None:
+        try:
+            result = axis.queue.add_points(times, positions, now)
+        except TcsError as exc:
+            self.outbox.message(("reply", rid, False, error_tuple(exc)))
+            return
+        q = axis.queue
+        summary = (len(q), q.start_time, q.end_time, q.free_points_at(self.ut1()))
+        self.outbox.message(("reply", rid, True, (tuple(result), summary)))
+
+    # -- the end -------------------------------------------------------------------------------
+    def _close(self) -> None:
+        """The service stops (it stopped and powered off the axes first): release the
+        drives (no faults left behind), close the bus, stop the simulated drives."""
+        try:
+            if self.can is not None:
+                self.can.release()
+                self.can.close()
+        finally:
+            if self.sims is not None:
+                self.sims.stop()
+        self.outbox.message(("closed",))
+
+    def _orphaned(self) -> None:
+        """The service died: stop every axis (controlled), power it off, leave the bus."""
+        log.critical("control process: the service is gone; stopping and powering off every axis")
+        for axis in self.axes:
+            axis.receive(axis.received_seq, "stop", None, None, None)
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline and any(a.motion_state & 1 for a in self.axes):
+            time.sleep(0.02)
+        for axis in self.axes:
+            axis.receive(axis.received_seq, "power", False, None, None)
+        while time.monotonic() < deadline and any(a.power_state != 0.0 for a in self.axes):
+            time.sleep(0.02)
+        if self.can is not None:
+            self.can.close()  # not released: the drives record the lost master
+        if self.sims is not None:
+            self.sims.stop()
+
+    def _end(self, sender: threading.Thread) -> None:
+        self._running = False
+        self.outbox.wake.set()
+        sender.join(5.0)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    conn = Connection(int(argv[0]))
+    try:
+        return Core(conn).run()
+    finally:
+        conn.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,457 @@
+"""The service's end of the control process (``[can] control_process = true``).
+
+:class:`ControlProcess` starts :mod:`tcs.axes.control_core` as a child process, hands it the
+hardware configuration and waits until it has claimed the bus, booted the drives and started
+the loop. Then the telescope model builds one :class:`RemoteAxis` per ``[axes]`` entry: the
+asyncio side of :class:`~tcs.axes.axis.Axis` unchanged (every check a SET makes before
+anything moves runs here, at once, on the newest readbacks), with its command queue on the
+other side of a socket instead of a lock. The loop side — the drive, the planner, the follower,
+the trajectory queue — lives in the child.
+
+Threads here: the event loop sends commands (one lock around the connection); the
+``tcs-control-recv`` thread receives, applies each cycle's readbacks to the axes, then hands
+events to the event hub, error conditions to the axes' health and completions to the event
+loop (``call_soon_threadsafe``), in the child's order. ``TRAJECTORY.ADDPOINTS`` is a short
+round trip (the child's receiver adds the points under the queue's own lock and answers with
+the queue's new size), so a refusal is the SET's reply as before.
+
+If the child ends on its own (a crash), every axis reads stale (``FAILED 4``), pending SETs
+fail, :meth:`RemoteLoop.healthy` turns false (the systemd watchdog is withheld: systemd
+restarts the service) and the drives, no longer hearing the TCS heartbeat, stop themselves.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import logging
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from multiprocessing.connection import Connection
+from types import SimpleNamespace
+
+import tcs.errors as errors_module
+from tcs.axes import trajectory as trajectory_module
+from tcs.axes.axis import Axis
+from tcs.axes.control_core import READBACKS
+from tcs.axes.trajectory import AddResult
+from tcs.errors import CommunicationError, ErrorNumber, TcsError
+
+log = logging.getLogger(__name__)
+
+START_TIMEOUT = 120.0  # s for the child to boot every drive and start (boot timeouts are per drive)
+REPLY_TIMEOUT = 5.0    # s for a round trip (TRAJECTORY points, figures)
+CLOSE_TIMEOUT = 30.0   # s for the child to release the drives and end
+
+
+def rebuild_error(data) -> TcsError | None:
+    """The exception of :func:`tcs.axes.control_core.error_tuple`, same class where known."""
+    if data is None:
+        return None
+    name, message, number, keyword = data
+    from tcs.drivers import bus_check
+    cls = None
+    for module in (errors_module, trajectory_module, bus_check):
+        cls = cls or getattr(module, name, None)
+    if not (isinstance(cls, type) and issubclass(cls, TcsError)):
+        cls = TcsError
+    error = cls.__new__(cls)
+    Exception.__init__(error, message)
+    error.message, error.number, error.keyword = message, int(number), keyword
+    return error
+
+
+class ControlProcessGone(CommunicationError):
+    pass
+
+
+class ControlProcess:
+    """The child process and the connection to it (see the module docstring)."""
+
+    def __init__(self, config, local, events):
+        self.config = config
+        self.local = local          # LocalTime: UT1−UTC is sent to the child when it changes
+        self.events = events
+        self.axes: list[RemoteAxis] = []
+        self.info: dict = {}
+        self.proc: subprocess.Popen | None = None
+        self.conn: Connection | None = None
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self._send_lock = threading.Lock()
+        self._ids = itertools.count(1)
+        self._futures: dict[int, asyncio.Future] = {}
+        self._replies: dict[int, list] = {}
+        self._reply_ready = threading.Condition()
+        self._reader: threading.Thread | None = None
+        self._closed = threading.Event()
+        self._gone: TcsError | None = None
+        self._ut1_utc_sent: float | None = None
+        self.stats: dict = {}
+        self.last_batch = 0.0
+
+    # -- start -------------------------------------------------------------------------------
+    def start(self, loop: asyncio.AbstractEventLoop) -> dict:
+        """Start the child and wait until it runs (blocking: call it off the event loop).
+
+        Raises
+        ------
+        TcsError
+            What the child refused with (another master on the bus, a drive configuration
+            its EDS rejects …), or that it could not be started.
+        """
+        self.loop = loop
+        parent, child = socket.socketpair()
+        try:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "tcs.axes.control_core", str(child.fileno())],
+                pass_fds=(child.fileno(),), close_fds=True)
+        finally:
+            child.close()
+        self.conn = Connection(parent.detach())
+        self._ut1_utc_sent = self.local.ut1_utc
+        self.conn.send(("setup", self.config, self._ut1_utc_sent, logging.getLogger().getEffectiveLevel()))
+        deadline = time.monotonic() + START_TIMEOUT
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0 or not self.conn.poll(remaining):
+                self._kill()
+                raise TcsError(f"control process did not start within {START_TIMEOUT:g} s",
+                               ErrorNumber.TIMEOUT)
+            try:
+                msg = self.conn.recv()
+            except (EOFError, OSError):
+                self._kill()
+                raise TcsError("control process ended while starting (see the log)",
+                               ErrorNumber.LIBFAIL) from None
+            if msg[0] == "log":
+                self._log(msg)
+            elif msg[0] == "ready":
+                self.info = msg[1]
+                break
+            elif msg[0] == "refused":
+                self._wait_exit(5.0)
+                raise rebuild_error(msg[2])
+        self._reader = threading.Thread(target=self._read, name="tcs-control-recv", daemon=True)
+        self._reader.start()
+        return self.info
+
+    # -- commands ----------------------------------------------------------------------------
+    def send(self, msg: tuple) -> None:
+        if self._gone is not None:
+            raise self._gone
+        try:
+            with self._send_lock:
+                self.conn.send(msg)
+        except (OSError, ValueError):
+            raise ControlProcessGone("CABINET", "the control process has ended") from None
+
+    def command(self, axis: int, seq: int, kind: str, value, future, cause) -> None:
+        future_id = None
+        if future is not None:
+            future_id = next(self._ids)
+            self._futures[future_id] = future
+        try:
+            self.send(("cmd", axis, seq, kind, value, future_id, cause))
+        except TcsError as exc:
+            self._futures.pop(future_id, None)
+            if future is not None and not future.done():
+                future.set_exception(exc)
+
+    def call(self, kind: str, *args):
+        """A round trip to the child's receiver; returns the value or raises its error."""
+        rid = next(self._ids)
+        with self._reply_ready:
+            self._replies[rid] = None
+        self.send((kind, rid, *args))
+        deadline = time.monotonic() + REPLY_TIMEOUT
+        with self._reply_ready:
+            while self._replies.get(rid) is None and self._gone is None:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    self._replies.pop(rid, None)
+                    raise TcsError(f"control process did not answer within {REPLY_TIMEOUT:g} s",
+                                   ErrorNumber.TIMEOUT)
+                self._reply_ready.wait(remaining)
+            reply = self._replies.pop(rid, None)
+        if reply is None:
+            raise self._gone
+        ok, value = reply
+        if not ok:
+            raise rebuild_error(value)
+        return value
+
+    # -- receiving -----------------------------------------------------------------------------
+    def _read(self) -> None:
+        conn = self.conn
+        while True:
+            try:
+                msg = conn.recv()
+            except (EOFError, OSError):
+                break
+            except Exception:
+                log.exception("control process: unreadable message")
+                continue
+            kind = msg[0]
+            try:
+                if kind == "batch":
+                    self._batch(msg[1], msg[2], msg[3])
+                elif kind == "reply":
+                    with self._reply_ready:
+                        if msg[1] in self._replies:
+                            self._replies[msg[1]] = (msg[2], msg[3])
+                            self._reply_ready.notify_all()
+                elif kind == "log":
+                    self._log(msg)
+                elif kind == "closed":
+                    self._closed.set()
+            except Exception:
+                log.exception("control process: handling %s failed", kind)
+        if not self._closed.is_set():
+            self._lost()
+
+    def _batch(self, snapshots: dict, items: list, stats) -> None:
+        self.last_batch = time.monotonic()
+        for index, snap in snapshots.items():
+            self.axes[index].apply(snap)
+        if stats is not None:
+            self.stats = stats
+        loop = self.loop
+        done = []
+        for item in items:
+            what = item[0]
+            if what == "event":
+                _, level, source, number, text, cause = item
+                self.events.emit(level, source, number, text, cause)
+            elif what == "done":
+                future = self._futures.pop(item[1], None)
+                if future is not None:
+                    done.append((future, rebuild_error(item[2])))
+            elif what == "raise":
+                self.axes[item[1]].raise_condition(item[2], item[3], item[4])
+            elif what == "clear":
+                self.axes[item[1]].clear_condition(item[2])
+        if done and loop is not None:
+            try:
+                loop.call_soon_threadsafe(_complete, done)
+            except RuntimeError:
+                pass
+        ut1_utc = self.local.ut1_utc
+        if ut1_utc != self._ut1_utc_sent:
+            self._ut1_utc_sent = ut1_utc
+            try:
+                self.send(("ut1_utc", ut1_utc))
+            except TcsError:
+                pass
+
+    @staticmethod
+    def _log(msg) -> None:
+        _, name, level, text = msg
+        logging.getLogger(name).log(level, "%s", text)
+
+    def _lost(self) -> None:
+        """The child ended without being asked: nothing moves under our control any more."""
+        error = ControlProcessGone("CABINET", "the control process has ended: the drives "
+                                   "stop by themselves (heartbeat lost); restart tcs-server")
+        self._gone = error
+        code = self.proc.poll() if self.proc is not None else None
+        log.critical("control process ended (exit status %s): every axis is stale; the drives "
+                     "stop by themselves when the TCS heartbeat stops", code)
+        for axis in self.axes:
+            axis.stale = error
+            axis.raise_condition("control process", 2, error.message)
+        pending, self._futures = list(self._futures.values()), {}
+        with self._reply_ready:
+            self._reply_ready.notify_all()
+        if self.loop is not None and pending:
+            try:
+                self.loop.call_soon_threadsafe(_complete, [(f, error) for f in pending])
+            except RuntimeError:
+                pass
+
+    # -- figures -------------------------------------------------------------------------------
+    def samples(self, clear: bool = False):
+        """(lateness list, loop time list, cycle counters) of the child's cycle source."""
+        return self.call("samples", clear)
+
+    # -- the end -------------------------------------------------------------------------------
+    def release(self) -> None:
+        """(Done by :meth:`close` in the child: the drives are released before the bus closes.)"""
+
+    def close(self) -> None:
+        """Ask the child to release the drives, close the bus and end (blocking)."""
+        if self.proc is None:
+            return
+        if self._gone is None and self.proc.poll() is None:
+            try:
+                self.send(("close",))
+                self._closed.wait(CLOSE_TIMEOUT)
+            except TcsError:
+                pass
+        self._wait_exit(CLOSE_TIMEOUT if self._closed.is_set() else 1.0)
+        if self._reader is not None:
+            self._reader.join(5.0)
+        try:
+            self.conn.close()
+        except OSError:
+            pass
+        self.proc = None
+
+    def _wait_exit(self, timeout: float) -> None:
+        try:
+            self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            log.error("control process did not end; killing it")
+            self._kill()
+
+    def _kill(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+
+def _complete(done) -> None:
+    for future, error in done:
+        if future.done():
+            continue
+        if error is None:
+            future.set_result(None)
+        else:
+            future.set_exception(error)
+
+
+class RemoteQueue:
+    """``axis.queue`` of a :class:`RemoteAxis`: points go to the child's queue, sizes and
+    times are the child's (from each cycle's readbacks and each ADDPOINTS answer)."""
+
+    def __init__(self, process: ControlProcess, index: int, capacity: int):
+        self.process = process
+        self.index = index
+        self.capacity = capacity
+        self.summary = (0, None, None, capacity)  # len, start, end, free points
+
+    def __len__(self) -> int:
+        return self.summary[0]
+
+    @property
+    def start_time(self):
+        return self.summary[1]
+
+    @property
+    def end_time(self):
+        return self.summary[2]
+
+    @property
+    def free_points(self) -> int:
+        return self.capacity - self.summary[0]
+
+    def free_points_at(self, now: float) -> int:
+        return self.summary[3]
+
+    def remaining(self, now: float) -> float:
+        end = self.summary[2]
+        return max(0.0, end - now) if end is not None and self.summary[0] else 0.0
+
+    def add_points(self, times, positions, now: float | None = None) -> AddResult:
+        result, summary = self.process.call("add", self.index, [float(x) for x in times],
+                                            [float(x) for x in positions], now)
+        self.summary = summary
+        return AddResult(*result)
+
+
+class RemoteFollower:
+    """``axis.follower`` of a :class:`RemoteAxis`: the child follower's state and path."""
+
+    def __init__(self, queue: RemoteQueue) -> None:
+        self.queue = queue
+        self.state = SimpleNamespace(value="idle")
+        self.end_reason: str | None = None
+        self.path = None  # (position, velocity, UT1) of the path at the last readback
+
+    def path_position(self, t: float) -> float:
+        path = self.path
+        if path is None:
+            raise TcsError("trajectory queue is empty", ErrorNumber.NOPOINTS)
+        p, v, t0 = path
+        return p + v * (t - t0)
+
+    @property
+    def running(self) -> bool:
+        return self.state.value in ("intercepting", "following")
+
+    def runtime(self, t: float) -> float:
+        return self.queue.remaining(t) if self.running else 0.0
+
+
+class RemoteAxis(Axis):
+    """The asyncio side of an axis whose loop side runs in the control process."""
+
+    def __init__(self, process: ControlProcess, index: int, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.process = process
+        self.index = index
+        self.queue = RemoteQueue(process, index, self.section.trajectory_buffer)
+        if self.follower is not None:
+            self.follower = RemoteFollower(self.queue)
+        self._seq = 0
+        self._reference_seq = 0
+        self._stale_key = None
+
+    def _send(self, kind: str, value=None, future=None) -> None:
+        from tcs.model.events import current_cause
+        self._seq += 1
+        if kind == "reference":
+            self._reference_seq = self._seq  # REFERENCED reads 0 from now on (set by reference())
+        self.process.command(self.index, self._seq, kind, value, future, current_cause.get())
+
+    def cycle(self, t: float, now: float, measured: float | None = None) -> None:
+        raise RuntimeError("a RemoteAxis is stepped in the control process")
+
+    def apply(self, snap) -> None:
+        """One cycle's readbacks from the child (receiver thread)."""
+        applied = snap[0]
+        values = snap[1:1 + len(READBACKS)]
+        stale, fault, homing, ack, queue, follower, path = snap[1 + len(READBACKS):]
+        for name, value in zip(READBACKS, values):
+            if name == "referenced" and applied < self._reference_seq:
+                continue  # the child has not taken the REINIT yet: it still reads the old value
+            setattr(self, name, value)
+        if stale != self._stale_key:
+            self._stale_key = stale
+            self.stale = None if stale is None else rebuild_error(("CommunicationError", *stale, None))
+        if (None if self._fault is None else (self._fault.message, self._fault.number)) != \
+                (None if fault is None else (fault[1], fault[2])):
+            self._fault = rebuild_error(fault)
+        self._homing, self._ack_pending = homing, ack
+        self.queue.summary = queue
+        if follower is not None and self.follower is not None:
+            self.follower.state = SimpleNamespace(value=follower[0])
+            self.follower.end_reason = follower[1]
+            self.follower.path = path
+
+
+class RemoteLoop:
+    """``telescope.control_loop`` when the loop runs in the control process."""
+
+    def __init__(self, process: ControlProcess, period: float):
+        self.process = process
+        self.period = period
+
+    def stats(self) -> dict:
+        s = dict(self.process.stats)
+        s.pop("last_cycle", None)
+        s.setdefault("realtime", int(bool(self.process.info.get("realtime"))))
+        return s
+
+    def healthy(self, max_age_periods: float = 10.0) -> bool:
+        last = self.process.stats.get("last_cycle")
+        if self.process._gone is not None or last is None:
+            return False
+        # (stats come every 10th cycle: allow for that)
+        return time.monotonic() - last < (max_age_periods + 10) * self.period
+
+    def samples(self, clear: bool = False):
+        return self.process.samples(clear)
