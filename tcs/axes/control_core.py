@@ -12,12 +12,14 @@ interpreter lock and, with ``[can] realtime_priority``, every thread of it runs 
 How it talks to the service (one ``multiprocessing.connection.Connection`` on a socket pair,
 pickled tuples; the service is the only peer):
 
-* in: ``("setup", config, ut1_utc, log_level)`` first; then ``("cmd", axis, seq, kind,
+* in: ``("setup", config, ut1_utc, log_level)`` first; ``("boot",)`` once the bus was
+  claimed (on a shared bus: listened to, no other master; the service starts its PLCs in
+  between, as in the threaded order); then ``("cmd", axis, seq, kind,
   value, future_id, cause)`` — an axis command exactly as :meth:`Axis._send` queues it in the
   threaded mode; ``("add", rid, axis, times, positions, now)`` — TRAJECTORY points
   (answered at once by this receiver thread, the queue has its own lock); ``("ut1_utc",
   value)``; ``("samples", rid, clear)``; ``("close",)``.
-* out: ``("ready", info)`` or ``("refused", kind, text)``; one ``("batch", snapshots,
+* out: ``("claimed",)``, then ``("ready", info)``, or ``("refused", kind, error)``; one ``("batch", snapshots,
   items, stats)`` per cycle with the readbacks of every axis whose readbacks changed, then the
   cycle's events, error conditions and completions in the order they happened (so a client
   that gets ``DATA OK`` reads the new state); ``("reply", rid, ok, value)``; ``("log",
@@ -35,6 +37,7 @@ from __future__ import annotations
 import collections
 import logging
 import os
+import signal
 import sys
 import threading
 import time
@@ -249,8 +252,13 @@ class Core:
                 raise AnotherMaster(can.bus.name, f"another master is active ({busy}): is "
                                     "tcs-server already running (systemctl status tcs-server)? "
                                     "Nothing was sent on the bus")
-            can.bus.start_heartbeat()
             self.can = can
+        # the bus is ours: the service starts its PLCs and GPS, then lets the drives boot
+        self.outbox.message(("claimed",))
+        if self.conn.recv()[0] != "boot":
+            raise TcsError("control process: the service ended the start")
+        if self.can is not None:
+            self.can.bus.start_heartbeat()
         else:
             if config.simulation is not None and config.simulation.drives:
                 from tcs.model.telescope import start_simulated_drives
@@ -387,6 +395,11 @@ class Core:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    # Ctrl-C in a terminal and systemd's SIGTERM reach the whole process group: the service
+    # stops the motion first and then ends this process itself ("close"); if the service is
+    # gone instead, the closed socket tells (see Core._orphaned).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     conn = Connection(int(argv[0]))
     try:
         return Core(conn).run()

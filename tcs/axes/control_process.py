@@ -94,14 +94,15 @@ class ControlProcess:
         self.last_batch = 0.0
 
     # -- start -------------------------------------------------------------------------------
-    def start(self, loop: asyncio.AbstractEventLoop) -> dict:
-        """Start the child and wait until it runs (blocking: call it off the event loop).
+    def claim(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Start the child; it opens the bus and, on a shared bus, listens for another master
+        before it sends anything (blocking: call it off the event loop).
 
         Raises
         ------
-        TcsError
+        AnotherMaster, TcsError
             What the child refused with (another master on the bus, a drive configuration
-            its EDS rejects …), or that it could not be started.
+            its EDS rejects, a bus that cannot be opened …), or that it did not start.
         """
         self.loop = loop
         parent, child = socket.socketpair()
@@ -114,6 +115,19 @@ class ControlProcess:
         self.conn = Connection(parent.detach())
         self._ut1_utc_sent = self.local.ut1_utc
         self.conn.send(("setup", self.config, self._ut1_utc_sent, logging.getLogger().getEffectiveLevel()))
+        self._expect("claimed")
+
+    def boot(self) -> dict:
+        """Let the child boot the drives and start the loop; returns what it reports
+        (``failures``: drives that did not boot, ``conditions``: EDS warnings, ``realtime``)."""
+        self.conn.send(("boot",))
+        self.info = self._expect("ready")
+        self._reader = threading.Thread(target=self._read, name="tcs-control-recv", daemon=True)
+        self._reader.start()
+        return self.info
+
+    def _expect(self, what: str):
+        """Wait for the child's ``what`` message (its log lines are logged meanwhile)."""
         deadline = time.monotonic() + START_TIMEOUT
         while True:
             remaining = deadline - time.monotonic()
@@ -129,15 +143,12 @@ class ControlProcess:
                                ErrorNumber.LIBFAIL) from None
             if msg[0] == "log":
                 self._log(msg)
-            elif msg[0] == "ready":
-                self.info = msg[1]
-                break
+            elif msg[0] == what:
+                return msg[1] if len(msg) > 1 else None
             elif msg[0] == "refused":
                 self._wait_exit(5.0)
+                self.proc = None
                 raise rebuild_error(msg[2])
-        self._reader = threading.Thread(target=self._read, name="tcs-control-recv", daemon=True)
-        self._reader.start()
-        return self.info
 
     # -- commands ----------------------------------------------------------------------------
     def send(self, msg: tuple) -> None:
@@ -284,6 +295,15 @@ class ControlProcess:
     def close(self) -> None:
         """Ask the child to release the drives, close the bus and end (blocking)."""
         if self.proc is None:
+            return
+        if self._reader is None:  # claimed the bus but never booted (the start failed later)
+            try:
+                self.conn.send(("close",))
+            except OSError:
+                pass
+            self._wait_exit(10.0)
+            self.conn.close()
+            self.proc = None
             return
         if self._gone is None and self.proc.poll() is None:
             try:
@@ -439,6 +459,11 @@ class RemoteLoop:
     def __init__(self, process: ControlProcess, period: float):
         self.process = process
         self.period = period
+
+    @property
+    def alive(self) -> bool:
+        """False once the control process has ended (nothing to wait for at stop)."""
+        return self.process._gone is None
 
     def stats(self) -> dict:
         s = dict(self.process.stats)

@@ -130,10 +130,16 @@ class Telescope:
             Somebody else sends SYNC or the TCS node's heartbeat; the bus is closed again.
         """
         config = self.config
-        if config.can is None or not config.drives or config.can.interface == "virtual":
+        if config.can is None or not config.drives:
+            return
+        if config.can.control_process:  # the control process listens before it sends
+            from tcs.axes.control_process import ControlProcess
+            process = ControlProcess(config, self.local, self.events)
+            await self.run_blocking(process.claim, asyncio.get_running_loop())
+            self.can = process
+            return
+        if config.can.interface == "virtual":
             return  # an in-process bus: nobody else can be on it
-        if config.can.control_process:
-            return  # the control process listens before it sends (tcs.axes.control_core)
         from tcs.drivers.bus_check import AnotherMaster, listen_window, other_master
         from tcs.drivers.can_system import CanDrives
 
@@ -195,13 +201,12 @@ class Telescope:
     async def _start_control_process(self) -> None:
         """``[can] control_process``: bus, drives, simulated drives and the loop in a child
         process (:mod:`tcs.axes.control_core`); the axes here are its asyncio side."""
-        from tcs.axes.control_process import ControlProcess, RemoteAxis, RemoteLoop, rebuild_error
+        from tcs.axes.control_process import RemoteAxis, RemoteLoop, rebuild_error
 
         config = self.config
         loop = asyncio.get_running_loop()
-        process = ControlProcess(config, self.local, self.events)
-        info = await self.run_blocking(process.start, loop)
-        self.can = process  # (stop: release and close end the child)
+        process = self.can  # started and claimed the bus in _claim_bus (stop: close ends it)
+        info = await self.run_blocking(process.boot)
         for index, (name, section) in enumerate(config.axes.items()):
             axis = RemoteAxis(process, index, name, section, None, self.events, self.local.ut1,
                               config.can.sync_period, status_sink=self.status_sink,
@@ -231,12 +236,13 @@ class Telescope:
             for axis in self.axes:
                 axis.stop()
             deadline = time.monotonic() + 5.0
-            while self.control_loop is not None and time.monotonic() < deadline and any(
+            running = lambda: self.control_loop is not None and getattr(self.control_loop, "alive", True)  # noqa: E731
+            while running() and time.monotonic() < deadline and any(
                     axis.motion_state & 1 for axis in self.axes):
                 await asyncio.sleep(0.02)
             for axis in self.axes:
                 axis.shutdown()
-            while self.control_loop is not None and time.monotonic() < deadline and any(
+            while running() and time.monotonic() < deadline and any(
                     axis.power_state != 0.0 for axis in self.axes):
                 await asyncio.sleep(0.02)
             # clean stop: the disabled drives stop watching our heartbeat (no 0x8130 faults

@@ -1,0 +1,253 @@
+"""The control process (``[can] control_process = true``, the shipped files' setting): the
+drivers' cycle and the axes' step run in a child process; the service keeps the asyncio side.
+
+Over TPL2 against the simulated telescope: the whole axis life (power, referencing, a move,
+a refused move, a trajectory with its refusals, STOP at speed) behaves as in one process;
+the loop's counters come from the child; a crashed child leaves the service serving with
+stale axes and a withheld watchdog; a crashed service leaves no child behind, and the child
+stops the axis it was moving.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from support.opentci_client import Client
+from support.service import make_config
+from tcs.app import Service
+
+
+def _children(pid: int) -> list[int]:
+    """Process ids of the control processes started by ``pid``."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            cmdline = (entry / "cmdline").read_bytes()
+        except OSError:
+            continue
+        ppid = int(stat.rsplit(")", 1)[1].split()[1])
+        if ppid == pid and b"tcs.axes.control_core" in cmdline:
+            found.append(int(entry.name))
+    return found
+
+
+async def _start(tmp_path):
+    config = make_config(tmp_path / "state")
+    assert config.can.control_process, "the shipped sim.toml runs the loop in a control process"
+    service = Service(config)
+    port = await service.start()
+    return service, port
+
+
+@pytest.fixture
+async def proc_service(tmp_path):
+    service, port = await _start(tmp_path)
+    try:
+        yield service, port
+    finally:
+        await service.stop()
+
+
+async def _ready(c: Client, *axes: str) -> None:
+    await c.set("CABINET.POWER=1")
+    for ax in axes:
+        await c.set(f"{ax}.POWER=1")
+        await c.set(f"{ax}.REINIT=1")
+        await c.wait(f"{ax}.REFERENCED", lambda v: v == 1.0)
+
+
+async def test_axis_life_in_the_control_process(proc_service):
+    service, port = proc_service
+    pid = os.getpid()
+    assert len(_children(pid)) == 1
+    c = await Client.connect(port)
+    try:
+        # the refusals are made here, before anything is sent to the child
+        lines = await c.set("AZ.TARGETPOS=10")
+        assert lines[-2].endswith("FAILED 5"), lines   # power off
+        await _ready(c, "AZ")
+        lines = await c.set("AZ.TARGETPOS=1000")
+        assert "RANGE" in lines[-2], lines
+        # a move: DATA OK only once the readbacks say so (readbacks before completions)
+        lines = await c.set("AZ.TARGETPOS=12.5")
+        assert lines[-2] == f"{lines[0].split()[0]} DATA OK AZ.TARGETPOS", lines
+        real, motion = await c.nums("AZ.REALPOS", "AZ.MOTION_STATE")
+        assert abs(real - 12.5) < 1e-3 and int(motion) & 8 and not int(motion) & 1
+        # the cycle counters are the child's
+        c1 = await c.num("CABINET.CORE.CYCLE.CYCLES")
+        await asyncio.sleep(0.3)
+        c2 = await c.num("CABINET.CORE.CYCLE.CYCLES")
+        assert c2 > c1
+        assert service.telescope.control_loop.healthy()
+        # STOP at speed: a controlled stop, the pending SET fails, no fault
+        cmd = await c.start("AZ.TARGETPOS=-60")
+        await c.wait("AZ.CURRSPEED", lambda v: abs(v) > 1.0)
+        await c.set("AZ.STOP=1")
+        lines = await c.until(cmd, 30)
+        assert "FAILED" in lines[-2], lines
+        await c.wait("AZ.MOTION_STATE", lambda v: not int(v) & 1)
+        assert await c.num("AZ.POWER_STATE") == 1.0
+        assert await c.num("AZ.ERROR_STATE") == 0
+    finally:
+        await c.close()
+
+
+async def test_trajectory_through_the_control_process(proc_service):
+    service, port = proc_service
+    c = await Client.connect(port)
+    try:
+        await _ready(c, "ZD")
+        t0 = await c.num("LOCAL.UT1") + 1.0
+        p0 = await c.num("ZD.REALPOS")
+        free = int(await c.num("ZD.TRAJECTORY.FREEPOINTS"))
+        n = 20
+        points = []
+        for i in range(n):
+            points += [f"ZD.TRAJECTORY.BUFFER[{i}].TIME={t0 + 0.5 * i!r}",
+                       f"ZD.TRAJECTORY.BUFFER[{i}].TARGETPOS={p0 + 0.01 * i!r}"]
+        await c.set(";".join(points))
+        await c.set(f"ZD.TRAJECTORY.ADDPOINTS={n}")
+        assert await c.num("ZD.TRAJECTORY.FREEPOINTS") == free - n  # the child's queue, at once
+        assert await c.num("ZD.TRAJECTORY.STARTTIME") == pytest.approx(t0)
+        # a point that does not follow the last one: refused by the child's queue, same reply
+        await c.set(f"ZD.TRAJECTORY.BUFFER[0].TIME={t0!r};ZD.TRAJECTORY.BUFFER[0].TARGETPOS=1")
+        lines = await c.set("ZD.TRAJECTORY.ADDPOINTS=1")
+        assert "RANGE" in lines[-2], lines
+        cmd = await c.start("ZD.TRAJECTORY.RUN=1")
+        await c.wait("ZD.MOTION_STATE", lambda v: int(v) & 2)
+        assert await c.num("ZD.TRAJECTORY.RUN") == 1
+        assert await c.num("ZD.TRAJECTORY.RUNTIME") > 0
+        lines = await c.until(cmd, 30)
+        assert lines[-2].endswith("DATA OK ZD.TRAJECTORY.RUN"), lines
+        # (the follower brakes from the path's last speed, 0.02 °/s: a little past the end)
+        assert abs(await c.num("ZD.REALPOS") - (p0 + 0.01 * (n - 1))) < 5e-3
+    finally:
+        await c.close()
+
+
+async def test_tracking_through_the_control_process(proc_service):
+    """POINTING.TRACK: the tracker's points go to the child's queues, its checks read the
+    child's follower; CURRENT follows TARGET within an arcsecond while the axes move."""
+    service, port = proc_service
+    c = await Client.connect(port)
+    try:
+        await _ready(c, "AZ", "ZD")
+        await c.set("AZ.TARGETPOS=120")
+        await c.set("ZD.TARGETPOS=35")
+        ra, dec = await c.nums("POINTING.CURRENT.RA", "POINTING.CURRENT.DEC")
+        await c.set(f"POINTING.TARGET.RA={ra + 0.01!r};POINTING.TARGET.DEC={dec + 0.1!r}")
+        cmd = await c.start("POINTING.TRACK=1")
+        for ax in ("AZ", "ZD"):
+            await c.wait(f"{ax}.MOTION_STATE", lambda v: int(v) & 10 == 10, 60)   # trajectory, on path
+        az0 = await c.num("AZ.REALPOS")
+        for _ in range(5):
+            await asyncio.sleep(0.4)
+            cra, cdec, tra, tdec = await c.nums("POINTING.CURRENT.RA", "POINTING.CURRENT.DEC",
+                                                "POINTING.TARGET.RA", "POINTING.TARGET.DEC")
+            assert abs(cra - tra) * 15 * 3600 < 1.5 and abs(cdec - tdec) * 3600 < 1.0
+            assert await c.num("POINTING.TARGETDISTANCE") < 1 / 3600
+        assert await c.num("AZ.REALPOS") != az0                          # the sky turns
+        assert await c.num("AZ.TRAJECTORY.RUNTIME") > 0
+        lines = await c.set("POINTING.TRACK=0")
+        assert lines[-2].endswith("DATA OK POINTING.TRACK"), lines
+        lines = await c.until(cmd, 30)
+        assert lines[-2].endswith("DATA OK POINTING.TRACK"), lines
+        await c.wait("AZ.MOTION_STATE", lambda v: not int(v) & 2)
+    finally:
+        await c.close()
+
+
+async def test_a_crashed_control_process_leaves_the_service_serving(proc_service):
+    service, port = proc_service
+    c = await Client.connect(port)
+    try:
+        await _ready(c, "AZ")
+        cmd = await c.start("AZ.TARGETPOS=80")
+        await c.wait("AZ.CURRSPEED", lambda v: abs(v) > 1.0)
+        (child,) = _children(os.getpid())
+        os.kill(child, signal.SIGKILL)
+        lines = await c.until(cmd, 30)
+        assert "FAILED" in lines[-2], lines            # the pending move fails
+        lines = await c.command(77, "GET AZ.REALPOS", 10)
+        assert lines[1].endswith("FAILED 4"), lines   # stale, not a frozen "live" value
+        await c.wait("AZ.ERROR_STATE", lambda v: int(v) & 2)
+        assert not service.telescope.control_loop.healthy()  # the systemd watchdog is withheld
+        lines = await c.set("AZ.TARGETPOS=1")
+        assert "FAILED" in lines[-2], lines
+        assert await c.value("LOCAL.UT1")             # the rest of the service still answers
+    finally:
+        await c.close()
+
+
+def test_a_killed_service_leaves_no_control_process(tmp_path):
+    """kill -9 of tcs-server: its control process stops the moving axis, powers it off and
+    ends by itself."""
+    from test_cli_server import free_port
+    from test_sigterm import Client as SyncClient
+
+    env = dict(os.environ, XDG_STATE_HOME=str(tmp_path / "state"))
+    port = free_port()
+    server = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--port", str(port),
+                               "--opentsi-port", "-1", "--alpaca-port", "-1"], env=env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    children = []
+    try:
+        c = SyncClient(port)
+        children = _children(server.pid)
+        assert len(children) == 1
+        c.send("1 SET CABINET.POWER=1")
+        assert c.until(1)[-1].endswith(b"COMMAND COMPLETE")
+        c.send("2 SET AZ.POWER=1")
+        assert c.until(2)[-1].endswith(b"COMMAND COMPLETE")
+        c.close()
+        server.kill()
+        server.wait(10)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and Path(f"/proc/{children[0]}").exists() and \
+                b"tcs.axes.control_core" in Path(f"/proc/{children[0]}/cmdline").read_bytes():
+            time.sleep(0.05)
+        alive = Path(f"/proc/{children[0]}/cmdline")
+        assert not (alive.exists() and b"tcs.axes.control_core" in alive.read_bytes()), \
+            "the control process outlived its service"
+    finally:
+        if server.poll() is None:
+            server.kill()
+            server.wait()
+        server.stderr.close()
+        for pid in children:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
+
+
+async def test_threaded_mode_still_runs(tmp_path):
+    """``control_process = false``: the loop is a thread of the service (tests that reach the
+    simulated drives in-process use it)."""
+    config = make_config(tmp_path / "state")
+    config = dataclasses.replace(config, can=dataclasses.replace(config.can, control_process=False))
+    object.__setattr__(config, "source", make_config(tmp_path / "state").source)
+    service = Service(config)
+    port = await service.start()
+    try:
+        assert not _children(os.getpid())
+        assert service.telescope.sims is not None
+        c = await Client.connect(port)
+        await _ready(c, "AZ")
+        await c.set("AZ.TARGETPOS=3")
+        assert abs(await c.num("AZ.REALPOS") - 3) < 1e-3
+        await c.close()
+    finally:
+        await service.stop()
