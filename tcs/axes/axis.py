@@ -66,6 +66,18 @@ REFERENCE_ORDER = {"ZD": 0, "DEC": 0, "AZ": 1, "HA": 1}
 POINTS_DROPPED = 1000
 
 
+def complete_futures(batch) -> None:
+    """Resolve ``(future, error or None)`` pairs on the event loop (futures already ended —
+    cancelled by a client that went away — are left alone)."""
+    for future, error in batch:
+        if future.done():
+            continue
+        if error is None:
+            future.set_result(None)
+        else:
+            future.set_exception(error)
+
+
 class BufferSlot:
     """One element of ``TRAJECTORY.BUFFER[]``: a staged (TIME, TARGETPOS) pair."""
 
@@ -431,18 +443,8 @@ class Axis(ModuleHealth):
         if not self._completions or self._loop is None:
             return
         batch, self._completions = self._completions, []
-
-        def done() -> None:
-            for future, error in batch:
-                if future.done():
-                    continue
-                if error is None:
-                    future.set_result(None)
-                else:
-                    future.set_exception(error)
-
         try:
-            self._loop.call_soon_threadsafe(done)
+            self._loop.call_soon_threadsafe(complete_futures, batch)
         except RuntimeError:  # loop closed at shutdown
             pass
 

@@ -25,7 +25,6 @@ from __future__ import annotations
 import asyncio
 import itertools
 import logging
-import os
 import socket
 import subprocess
 import sys
@@ -36,7 +35,7 @@ from types import SimpleNamespace
 
 import tcs.errors as errors_module
 from tcs.axes import trajectory as trajectory_module
-from tcs.axes.axis import Axis
+from tcs.axes.axis import Axis, complete_futures
 from tcs.axes.control_core import READBACKS
 from tcs.axes.trajectory import AddResult
 from tcs.errors import CommunicationError, ErrorNumber, TcsError
@@ -247,7 +246,7 @@ class ControlProcess:
                 self.axes[item[1]].clear_condition(item[2])
         if done and loop is not None:
             try:
-                loop.call_soon_threadsafe(_complete, done)
+                loop.call_soon_threadsafe(complete_futures, done)
             except RuntimeError:
                 pass
         ut1_utc = self.local.ut1_utc
@@ -279,7 +278,7 @@ class ControlProcess:
             self._reply_ready.notify_all()
         if self.loop is not None and pending:
             try:
-                self.loop.call_soon_threadsafe(_complete, [(f, error) for f in pending])
+                self.loop.call_soon_threadsafe(complete_futures, [(f, error) for f in pending])
             except RuntimeError:
                 pass
 
@@ -331,16 +330,6 @@ class ControlProcess:
         if self.proc is not None and self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait()
-
-
-def _complete(done) -> None:
-    for future, error in done:
-        if future.done():
-            continue
-        if error is None:
-            future.set_result(None)
-        else:
-            future.set_exception(error)
 
 
 class RemoteQueue:

@@ -88,19 +88,22 @@ async def load(base: str, paths: list[str], clients: int, seconds: float) -> Non
 # ------------------------------------------------------------------ the service (this process)
 
 def window(source, a, b) -> dict:
+    """The cycles between two :func:`snapshot` s of the control loop (a thread of the service
+    or the control process: ``samples`` answers the same)."""
     from axes_common import percentile
 
-    late = list(source.lateness)[a[0]:b[0]]
-    loop = list(source.callback_time)[a[1]:b[1]]
-    s0, s1 = a[2], b[2]
+    late, loop, s0 = a
+    late2, loop2, s1 = b
+    late, loop = late2[len(late):], loop2[len(loop):]
     ms = lambda xs, q: round(percentile(xs, q) * 1e3, 3) if xs else 0.0  # noqa: E731
-    return {"cycles": s1.cycles - s0.cycles, "late": s1.late - s0.late, "missed": s1.missed - s0.missed,
+    return {"cycles": s1["cycles"] - s0["cycles"], "late": s1["late"] - s0["late"],
+            "missed": s1["missed"] - s0["missed"],
             "lateness_ms": {"p50": ms(late, 50), "p99": ms(late, 99), "max": ms(late, 100)},
             "loop_ms": {"p50": ms(loop, 50), "p99": ms(loop, 99), "max": ms(loop, 100)}}
 
 
 def snapshot(source):
-    return len(source.lateness), len(source.callback_time), source.stats()
+    return source.samples()
 
 
 async def start_baseline() -> tuple[object, int]:
@@ -196,7 +199,7 @@ async def main(clients: int, seconds: float) -> dict:
                 await asyncio.sleep(0.5)
         print("tracking a star", flush=True)
         runner, base_port = await start_baseline()
-        source = service.telescope.can.cycle
+        source = service.telescope.control_loop
 
         print(f"idle: {seconds:g} s …", flush=True)
         a = snapshot(source)

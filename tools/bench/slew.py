@@ -126,7 +126,8 @@ async def track(port: int, rec: LoopRecorder, module: str, path, t0: float, t1: 
 
 
 async def main() -> dict:
-    service, port, state = await start_service()
+    # the recorder reads every cycle's setpoints in-process: the loop as a thread here
+    service, port, state = await start_service(can={"control_process": False})
     try:
         c = await Client.connect(port)
         print("powering and referencing AZ and ZD …", flush=True)
