@@ -225,6 +225,7 @@ class Axis(ModuleHealth):
         self._drive_reboots = 0
         self._discrete_target: int | None = None
         self._pending: dict[str, tuple[asyncio.Future, Any]] = {}
+        self._joined: dict[str, list[asyncio.Future]] = {}  # later requests ending with _pending's
         self._completions: list[tuple[asyncio.Future, TcsError | None]] = []
 
     # ================================================================ asyncio side
@@ -414,6 +415,8 @@ class Axis(ModuleHealth):
     # ================================================================ control-loop side
 
     def _resolve(self, key: str, error: TcsError | None = None) -> None:
+        for future in self._joined.pop(key, ()):
+            self._complete(future, error)
         entry = self._pending.pop(key, None)
         if entry is None:
             return
@@ -533,8 +536,11 @@ class Axis(ModuleHealth):
             if self.follower is not None:
                 self.follower.set_speed(value)
         elif kind == "reference":
-            if future is not None:
-                self._pending.setdefault("reference", (future, cause))
+            if future is not None:  # a request while homing runs joins it and ends with it
+                if "reference" in self._pending:
+                    self._joined.setdefault("reference", []).append(future)
+                else:
+                    self._pending["reference"] = (future, cause)
             if self._homing:
                 return
             self._homing = True
