@@ -56,7 +56,8 @@ MOVING, TRAJECTORY, BLOCKED, ON_TARGET, LIMITED = 1, 2, 4, 8, 16
 HW_MIN, HW_MAX, HW_BLOCKING, SW_MIN, SW_MAX, SW_BLOCKING = 1, 2, 128, 256, 512, 32768
 
 MEASURED_MOVING_CYCLES = 3  # cycles above standstill before a measured motion sets MOVING
-POWER_TIMEOUT = 10.0  # s for a drive to reach Operation enabled / disabled
+POWER_TIMEOUT = 10.0  # s at least for a drive to reach Operation enabled / disabled
+POWER_MARGIN = 2.0  # s the axis waits beyond the drive's own power_timeout (its error first)
 HOMING_START_TIMEOUT = 2.0  # s for the drive to show the requested homing run in progress
 ACK_TIMEOUT = 3.0  # s for the drive's fault reset after ERROR_STATE=0
 
@@ -248,6 +249,12 @@ class Axis(ModuleHealth):
         if c:
             d = (d + c / 2) % c - c / 2
         return d
+
+    @property
+    def power_timeout(self) -> float:
+        """s a POWER request may take: :data:`POWER_TIMEOUT`, or longer when the drive's own
+        enable/disable time-out (``[drives.x] enable_timeout`` …) needs more."""
+        return max(POWER_TIMEOUT, getattr(self.drive, "power_timeout", 0.0) + POWER_MARGIN)
 
     @property
     def trajectory_running(self) -> bool:
@@ -654,10 +661,10 @@ class Axis(ModuleHealth):
                 self.emit(INFO, ErrorNumber.POWERCHANGE, "power off", self._pending.get("power", (0, None))[1])
                 self._resolve("power")
             self._want_power = None
-        elif self._want_power is not None and now - self._power_since > POWER_TIMEOUT:
+        elif self._want_power is not None and now - self._power_since > self.power_timeout:
             error = st.request_error or TcsError(
                 f"{self.module_name}: drive did not reach {'on' if self._want_power else 'off'} "
-                f"within {POWER_TIMEOUT:g} s (state {st.state.value})", ErrorNumber.TIMEOUT)
+                f"within {self.power_timeout:g} s (state {st.state.value})", ErrorNumber.TIMEOUT)
             self._resolve("power", error)
             self._want_power = None
         if self._powered and not st.enabled and not self._homing and self._fault is None:
