@@ -151,3 +151,28 @@ async def test_event_log_for_late_clients(service):
     assert await late.get("SERVER.LOG.EVENTMASK") == "15"
     await c.close()
     await late.close()
+
+
+async def test_blocked_user_is_refused_by_implicit_auth_too(tmp_path):
+    """``implicit_auth`` logs a connection in without AUTH: once its user is blocked
+    (SERVER.ACCOUNTS.BLOCK or CLIENT[].BLOCK), a new connection gets the answer a blocked
+    AUTH gets (``AUTH FAILED``) and is not logged in; unblocked, it is again."""
+    svc, port = await start_service(tmp_path / "state", implicit_auth=True, implicit_user="admin")
+    try:
+        c = await RawClient.connect(port, login=None)
+        assert await c.readline() == "AUTH OK 0 0"
+        assert (await c.command(1, 'SET SERVER.ACCOUNTS.BLOCK="admin"'))[1] == "1 DATA OK SERVER.ACCOUNTS.BLOCK"
+        blocked = await RawClient.connect(port, login=None)
+        assert await blocked.readline() == "AUTH FAILED"
+        assert await blocked.command(2, "GET SERVER.UPTIME") == ["2 COMMAND ERROR UNAUTHENTICATED",
+                                                                  "2 COMMAND FAILED"]
+        await blocked.send('AUTH PLAIN "admin" "admin"')  # the same answer as a blocked AUTH
+        assert await blocked.readline() == "AUTH FAILED"
+        await blocked.close()
+        assert (await c.command(3, 'SET SERVER.ACCOUNTS.UNBLOCK="admin"'))[1] == "3 DATA OK SERVER.ACCOUNTS.UNBLOCK"
+        again = await RawClient.connect(port, login=None)
+        assert await again.readline() == "AUTH OK 0 0"
+        await again.close()
+        await c.close()
+    finally:
+        await svc.stop()

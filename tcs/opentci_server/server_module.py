@@ -16,8 +16,9 @@ A change never weakens the hardware file: a file user cannot be removed, nor giv
 privilege than the file gives, and a password changed over TPL2 is dropped once the file's
 hash for that user was edited (the file wins, as for every persisted value). A changed account
 takes effect in the server's user table at once (the next login); a connection logged in
-stays logged in. A blocked user keeps its entry with a hash no password matches (implicit
-authentication, which checks no password, is the hardware file's decision and unaffected).
+stays logged in. A blocked user keeps its entry with a hash no password matches
+(:data:`BLOCKED_HASH`); implicit authentication, which checks no password, refuses a blocked
+``implicit_user`` with ``AUTH FAILED`` too (the session looks for that hash).
 
 ``REBOOT`` and ``SHUTDOWN`` are refused (``FAILED 6``, localmode) unless the hardware file
 sets ``[server] allow_system_control``; then ``SERVER.SHUTDOWN`` and ``SYSTEM.SHUTDOWN`` stop
