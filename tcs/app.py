@@ -15,7 +15,7 @@ import logging
 
 from tcs.config import HwConfig
 from tcs.model.telescope import Telescope
-from tcs.notify import Notifier
+from tcs.notify import Notifier, serving_status
 from tcs.opentci_server.opentci import build_tree
 from tcs.opentci_server.server import Tpl2Server
 
@@ -116,7 +116,7 @@ async def serve_until_signalled(service: Service, stop: asyncio.Event, notifier:
     port = await service.start()
     freeze_heap()
     host = service.host or service.config.server.host
-    notifier.send("READY=1", f"STATUS=serving OpenTCI on {host}:{port}")
+    notifier.send("READY=1", serving_status(service, host, port))
     watchdog = asyncio.get_running_loop().create_task(_watchdog(service, notifier))
     try:
         await stop.wait()

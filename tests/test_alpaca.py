@@ -491,6 +491,45 @@ def test_malformed_requests_are_http_400_plain_text(live, method, path, query, f
         api(live, "PUT", "disconnect", form="")
 
 
+@pytest.mark.parametrize("method, member, query, form", [
+    ("PUT", "slewtocoordinatesasync", "", "RightAscension=abc&Declination=10"),  # not a number
+    ("PUT", "slewtocoordinatesasync", "", "RightAscension=1"),                  # one missing
+    ("PUT", "moveaxis", "", "Axis=0&Rate=fast"),
+    ("PUT", "pulseguide", "", "Direction=0&Duration=1.5"),                       # not an integer
+    ("PUT", "tracking", "", "Tracking=maybe"),
+    ("GET", "axisrates", "Axis=x", None),
+    ("GET", "destinationsideofpier", "RightAscension=1", None),
+    ("PUT", "commandstring", "", "Command=LOCAL.UTC&Raw=perhaps"),
+])
+def test_parameters_are_checked_before_the_connection(live, method, member, query, form):
+    """Alpaca API: a missing or malformed parameter is HTTP 400 whatever the connection state
+    (it answered NotConnected on a disconnected device); a well-formed request to a
+    disconnected device is NotConnected (0x407)."""
+    api(live, "PUT", "disconnect", form="")
+    status, kind, text = http(live, method, f"/api/v1/telescope/0/{member}", query, form)
+    assert status == 400 and kind.startswith("text/plain") and text, (status, text)
+    assert api(live, "PUT", "slewtocoordinatesasync", form="RightAscension=1&Declination=10")["ErrorNumber"] == 0x407
+
+
+def test_parameters_are_checked_before_the_connection_on_every_device(live):
+    """The same rule on the other devices (their first member with a parameter)."""
+    cases = {"focuser": ("move", "Position=1.5"), "rotator": ("moveabsolute", "Position=north"),
+             "dome": ("slewtoazimuth", "Azimuth="), "filterwheel": ("position", "Position=red"),
+             "covercalibrator": ("calibratoron", "Brightness=x"), "switch": ("setswitch", "Id=0&State=2"),
+             "observingconditions": ("averageperiod", "")}
+    seen = set()
+    for d in management.configureddevices(address(live)):
+        kind = d["DeviceType"].lower()
+        if kind not in cases:
+            continue
+        device, (member, form) = f"{kind}/{d['DeviceNumber']}", cases[kind]
+        api(live, "PUT", "disconnect", form="", device=device)
+        status, _, text = http(live, "PUT", f"/api/v1/{device}/{member}", form=form)
+        assert status == 400, (device, member, status, text)
+        seen.add(kind)
+    assert len(seen) >= 5, seen
+
+
 def test_device_errors_are_200_with_ascom_numbers_and_values_have_their_types(live):
     assert api(live, "GET", "rightascension")["ErrorNumber"] == 0x407          # not connected
     api(live, "PUT", "connect", form="")

@@ -98,3 +98,36 @@ async def test_discovery_answers_the_http_port_and_can_be_off():
         assert off.discovery_port == -1 and off._discovery is None
     finally:
         await off.stop()
+
+
+def _reads(cls, name: str, depth: int = 0) -> set[str]:
+    """Parameter names the handler ``name`` of ``cls`` reads (its own ``r.<kind>("Name")`` and
+    those of the helpers it hands ``r`` to; a helper's literal name arguments count too)."""
+    import inspect
+    import re
+
+    source = inspect.getsource(getattr(cls, name))
+    names = set(re.findall(r'\br\.(?:float|int|bool|text|raw)\(\s*"(\w+)"', source))
+    for helper, args in re.findall(r"self\.(\w+)\(r\b([^)]*)\)", source):
+        if depth < 2 and helper != name:
+            names |= _reads(cls, helper, depth + 1)
+            names |= set(re.findall(r'"(\w+)"', args))
+    return names
+
+
+def test_parameter_tables_match_what_the_handlers_read():
+    """Each device's PARAMETERS (checked before the connection, see
+    test_alpaca.test_parameters_are_checked_before_the_connection) names exactly the
+    parameters its handlers read: the table cannot drift from the code."""
+    from tcs.alpaca import equipment, site, telescope
+    from tcs.alpaca.device import COMMON_PARAMETERS, Device
+
+    classes = [c for module in (equipment, site, telescope) for c in vars(module).values()
+               if isinstance(c, type) and issubclass(c, Device) and c is not Device]
+    assert len(classes) >= 8
+    for cls in classes:
+        for name in dir(cls):
+            if not name.startswith(("get_", "put_")) or name == "get_devicestate":
+                continue
+            table = cls.PARAMETERS.get(name) or COMMON_PARAMETERS.get(name, ())
+            assert {n for n, _kind in table} == _reads(cls, name), (cls.__name__, name)

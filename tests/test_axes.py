@@ -800,3 +800,25 @@ async def test_reinit_of_a_referenced_axis_tells_the_truth(live, ax):
         assert abs(sim.physical_position - shift - target) <= 2 * resolution
     finally:
         await c.close()
+
+
+async def test_second_reinit_joins_the_running_homing(live):
+    """A second referencing request while the axis already homes (here the cabinet's REINIT
+    after AZ.REINIT=1) joins the running homing and completes with it: CABINET.REINIT ends
+    with "referenced AZ" (its wait on AZ's homing was dropped before and never ended)."""
+    c = await connect(live["port"])
+    sim = live["svc"].telescope.sims[NODE["AZ"]]
+    try:
+        await ready(c, *NODE)  # every other axis referenced: CABINET.REINIT=0 takes AZ only
+        shift = sim.physical_position - await c.num("AZ.REALPOS")
+        await move(c, "AZ", sim.params.home_switch + 3.0 - shift)  # a search of a few seconds
+        c.forget()
+        assert (await c.set("AZ.REINIT=1"))[-2].endswith("DATA OK AZ.REINIT")
+        lines = await c.set("CABINET.REINIT=0")
+        assert "EVENT INFO CABINET:18 referencing AZ" in "\n".join(lines), lines
+        assert await c.num("AZ.REFERENCED") < 1.0, "AZ finished homing before the second request"
+        assert (await c.event(r"EVENT \w+ CABINET:(19|20) ", WAIT)).endswith("CABINET:19 referenced AZ")
+        assert await c.num("AZ.REFERENCED") == 1.0
+        assert await c.num("AZ.ERROR_STATE") == 0
+    finally:
+        await c.close()

@@ -151,3 +151,55 @@ async def test_event_log_for_late_clients(service):
     assert await late.get("SERVER.LOG.EVENTMASK") == "15"
     await c.close()
     await late.close()
+
+
+async def test_blocked_user_is_refused_by_implicit_auth_too(tmp_path):
+    """``implicit_auth`` logs a connection in without AUTH: once its user is blocked
+    (SERVER.ACCOUNTS.BLOCK or CLIENT[].BLOCK), a new connection gets the answer a blocked
+    AUTH gets (``AUTH FAILED``) and is not logged in; unblocked, it is again."""
+    svc, port = await start_service(tmp_path / "state", implicit_auth=True, implicit_user="admin")
+    try:
+        c = await RawClient.connect(port, login=None)
+        assert await c.readline() == "AUTH OK 0 0"
+        assert (await c.command(1, 'SET SERVER.ACCOUNTS.BLOCK="admin"'))[1] == "1 DATA OK SERVER.ACCOUNTS.BLOCK"
+        blocked = await RawClient.connect(port, login=None)
+        assert await blocked.readline() == "AUTH FAILED"
+        assert await blocked.command(2, "GET SERVER.UPTIME") == ["2 COMMAND ERROR UNAUTHENTICATED",
+                                                                  "2 COMMAND FAILED"]
+        await blocked.send('AUTH PLAIN "admin" "admin"')  # the same answer as a blocked AUTH
+        assert await blocked.readline() == "AUTH FAILED"
+        await blocked.close()
+        assert (await c.command(3, 'SET SERVER.ACCOUNTS.UNBLOCK="admin"'))[1] == "3 DATA OK SERVER.ACCOUNTS.UNBLOCK"
+        again = await RawClient.connect(port, login=None)
+        assert await again.readline() == "AUTH OK 0 0"
+        await again.close()
+        await c.close()
+    finally:
+        await svc.stop()
+
+
+async def test_accounts_are_the_same_on_the_opentci_and_opentsi_ports(tmp_path):
+    """One set of accounts for every port of the service: a user blocked over the OpenTCI port
+    cannot log in over the OpenTSI port (it could), an account added over OpenTSI logs in
+    over OpenTCI, and neither port's save undoes the other's change."""
+    state = tmp_path / "state"
+    svc, port = await start_service(state)
+    try:
+        tsi = svc.opentsi_port
+        assert tsi > 0
+        c = await RawClient.connect(port)
+        t = await RawClient.connect(tsi)
+        lines = await t.command(1, 'SET SERVER.ACCOUNTS.ADD="obs:pw1:3:3"', timeout=30)
+        assert lines[1] == "1 DATA OK SERVER.ACCOUNTS.ADD", lines
+        assert (await login(port, "obs", "pw1")).startswith("AUTH OK 3 3")
+        assert (await c.command(2, 'SET SERVER.ACCOUNTS.BLOCK="admin"'))[1] == "2 DATA OK SERVER.ACCOUNTS.BLOCK"
+        assert (await login(tsi, "admin", "admin")) == "AUTH FAILED"
+        assert (await login(port, "admin", "admin")) == "AUTH FAILED"
+        assert (await t.command(3, 'SET SERVER.ACCOUNTS.UNBLOCK="admin"'))[1] == "3 DATA OK SERVER.ACCOUNTS.UNBLOCK"
+        assert (await login(port, "admin", "admin")).startswith("AUTH OK 0 0")
+        await c.close()
+        await t.close()
+    finally:
+        await svc.stop()
+    saved = json.loads((state / "accounts.json").read_text())["accounts"]
+    assert set(saved) == {"obs", "admin"} and not saved["admin"]["blocked"]

@@ -208,3 +208,21 @@ async def test_fault_of_one_mount_axis_stops_the_other_under_control(tmp_path):
     finally:
         await c.close()
         await svc.stop()
+
+
+async def test_axis_waits_for_a_slow_drives_own_enable_timeout(tmp_path):
+    """A drive configured with ``enable_timeout`` above the axis's 10 s (a commutation
+    search): the axis's POWER waits at least the drive's own time-out plus a margin, so the
+    drive's error (or its success) comes first; drives with the default keep 10 s. (Checked
+    through the computed time-out: the simulated drive has no slow enable to wait for.)"""
+    svc = Service(fast_config(tmp_path, enable_timeout=30.0))
+    port = await svc.start()
+    c = await Client.connect(port)
+    try:
+        axes = {a.module_name: a for a in svc.telescope.axes}
+        assert axes["ZD"].power_timeout > 30.0 + 1.0  # 30 s + mode switch + a margin
+        assert axes["AZ"].power_timeout == 10.0
+        await ready(c, "ZD")  # and it powers on as before
+    finally:
+        await c.close()
+        await svc.stop()

@@ -14,13 +14,15 @@ import socket
 import subprocess
 import sys
 import time
+import urllib.request
 from pathlib import Path
 
 import pytest
 
 from test_cli_server import connect, free_port
 
-SYSTEMD = Path(__file__).resolve().parent.parent / "tools" / "systemd"
+REPO = Path(__file__).resolve().parent.parent
+SYSTEMD = REPO / "tools" / "systemd"
 
 
 def receive_all(sock: socket.socket, until: str, timeout: float = 60.0) -> list[str]:
@@ -46,15 +48,28 @@ def test_notify_sequence_and_watchdog(tmp_path):
     env = dict(os.environ, NOTIFY_SOCKET=path, WATCHDOG_USEC="200000",
                XDG_STATE_HOME=str(tmp_path / "state"))
     env.pop("WATCHDOG_PID", None)
-    proc = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--port", str(port),
-                             "--opentsi-port", "0", "--alpaca-port", "-1"], env=env,
+    # the bundled telescope with every front end, Alpaca without its discovery socket (0.0.0.0)
+    config = tmp_path / "sim.toml"
+    config.write_text(re.sub(r"(?m)^discovery_port = \d+", "discovery_port = -1",
+                             (REPO / "hwconfig" / "sim.toml").read_text()))
+    proc = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--config", str(config),
+                             "--port", str(port), "--opentsi-port", "0", "--alpaca-port", "0"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         before_ready = receive_all(sock, "READY=1")
         assert "READY=1" in before_ready, before_ready
         assert before_ready[0].startswith("STATUS=starting")
-        assert any(m.startswith("STATUS=serving OpenTCI on 127.0.0.1:") for m in before_ready)
+        # the STATUS line names every port served, and they are the ones that answer
+        serving = [m for m in before_ready if m.startswith("STATUS=serving ")]
+        assert serving, before_ready
+        m = re.fullmatch(rf"STATUS=serving OpenTCI on 127\.0\.0\.1:{port}, OpenTSI on 127\.0\.0\.1:(\d+), "
+                         rf"ASCOM Alpaca on http://127\.0\.0\.1:(\d+)", serving[0])
+        assert m, serving
         connect(port).close()  # it serves once READY was sent
+        with connect(int(m[1])) as tsi:
+            assert tsi.recv(200).startswith(b"TPL2 ")
+        with urllib.request.urlopen(f"http://127.0.0.1:{m[2]}/management/apiversions", timeout=10) as r:
+            assert b'"Value": [1]' in r.read()
         assert "WATCHDOG=1" in receive_all(sock, "WATCHDOG=1", timeout=30)
         proc.send_signal(signal.SIGTERM)
         after = receive_all(sock, "STOPPING=1", timeout=30)

@@ -32,6 +32,14 @@ COMMON_GET = ("connected", "connecting", "description", "driverinfo", "driverver
               "interfaceversion", "name", "supportedactions", "devicestate")
 COMMON_PUT = ("connect", "disconnect", "connected", "action", "commandblind", "commandbool",
               "commandstring")
+#: The parameters of the common members: handler name -> ((name, kind), ...); kind is an
+#: ``AlpacaRequest`` accessor (``float``, ``int``, ``bool``, ``text``), ``?`` = optional.
+COMMON_PARAMETERS: dict[str, tuple[tuple[str, str], ...]] = {
+    "put_connected": (("Connected", "bool"),),
+    "put_action": (("Action", "text"), ("Parameters", "text")),
+    **{f"put_{m}": (("Command", "text"), ("Raw", "bool?"))
+       for m in ("commandblind", "commandbool", "commandstring")},
+}
 #: Members answered while not connected (everything else: NotConnected 0x407).
 UNCONNECTED = {"connected", "connecting", "connect", "disconnect", "description", "driverinfo",
                "driverversion", "interfaceversion", "name", "supportedactions"}
@@ -52,6 +60,10 @@ class Device:
     MEMBERS: tuple[str, ...] = ()   #: the interface's own members (lower case)
     STATE: tuple[str, ...] = ()     #: members reported by DeviceState
     ALWAYS: frozenset[str] = frozenset()   #: members of this interface answered while not connected
+    #: The parameters of this interface's members, as :data:`COMMON_PARAMETERS` (the ASCOM
+    #: interface's own list): checked before anything else, so a missing or malformed one is
+    #: HTTP 400 whatever the connection state.
+    PARAMETERS: dict[str, tuple[tuple[str, str], ...]] = {}
 
     def __init__(self, number: int, name: str, description: str, telescope, *, commands=None,
                  unique_seed: str = ""):
@@ -77,6 +89,7 @@ class Device:
             if getattr(self, f"{other}_{member}", None) is not None or member in COMMON_GET + COMMON_PUT:
                 raise BadRequest(f"{member} does not accept {method}")
             raise not_implemented(f"{self.NAME}.{member}")
+        self.check_parameters(handler.__name__, request)
         if member not in UNCONNECTED and member not in self.ALWAYS and not self.connected:
             raise AscomError(Code.NOT_CONNECTED, f"{self.NAME} {self.number} is not connected")
         try:
@@ -86,6 +99,16 @@ class Device:
         except TcsError as exc:
             raise from_tcs_error(exc) from None
         return result
+
+    def check_parameters(self, handler: str, request: AlpacaRequest) -> None:
+        """BadRequest (HTTP 400) unless every parameter ``handler`` takes is there and parses
+        (Alpaca API: a malformed request is 400 in any state, before NotConnected)."""
+        for name, kind in self.PARAMETERS.get(handler) or COMMON_PARAMETERS.get(handler, ()):
+            if kind.endswith("?"):
+                if request.raw(name) is None:
+                    continue
+                kind = kind[:-1]
+            getattr(request, kind)(name)
 
     # -- common members ---------------------------------------------------------------------------
     def get_connected(self, r: AlpacaRequest) -> bool:

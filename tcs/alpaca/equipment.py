@@ -52,6 +52,10 @@ class FocuserDevice(Device):
                "tempcompavailable", "temperature", "halt", "move")
     STATE = ("ismoving", "position", "temperature")
     STATE_NAMES = {"ismoving": "IsMoving", "position": "Position", "temperature": "Temperature"}
+    PARAMETERS = {
+        "put_tempcomp": (("TempComp", "bool"),),
+        "put_move": (("Position", "int"),),
+    }
     STEP = 1000.0   # steps per user unit (µm per mm)
 
     def __init__(self, number, name, description, telescope, axis, **kw):
@@ -105,6 +109,9 @@ class FilterWheelDevice(Device):
     NAME = "FilterWheel"
     INTERFACE_VERSION = 3
     MEMBERS = ("focusoffsets", "names", "position")
+    PARAMETERS = {
+        "put_position": (("Position", "int"),),
+    }
     STATE = ("position",)
     STATE_NAMES = {"position": "Position"}
 
@@ -150,6 +157,12 @@ class RotatorDevice(Device):
                "targetposition", "halt", "move", "moveabsolute", "movemechanical", "sync")
     STATE = ("ismoving", "mechanicalposition", "position")
     STATE_NAMES = {"ismoving": "IsMoving", "mechanicalposition": "MechanicalPosition", "position": "Position"}
+    PARAMETERS = {
+        "put_reverse": (("Reverse", "bool"),),
+        "put_move": (("Position", "float"),),
+        "put_moveabsolute": (("Position", "float"),),
+        "put_movemechanical": (("Position", "float"),),
+    }
 
     def __init__(self, number, name, description, telescope, axis, **kw):
         super().__init__(number, name, description, telescope, **kw)
@@ -248,6 +261,12 @@ class DomeDevice(Device):
                "cansetazimuth", "cansetpark", "cansetshutter", "canslave", "cansyncazimuth",
                "shutterstatus", "slaved", "slewing", "abortslew", "closeshutter", "findhome",
                "openshutter", "park", "setpark", "slewtoaltitude", "slewtoazimuth", "synctoazimuth")
+    PARAMETERS = {
+        "put_slaved": (("Slaved", "bool"),),
+        "put_slewtoazimuth": (("Azimuth", "float"),),
+        "put_slewtoaltitude": (("Altitude", "float"),),
+        "put_synctoazimuth": (("Azimuth", "float"),),
+    }
     STATE = ("athome", "atpark", "azimuth", "shutterstatus", "slewing")
     STATE_NAMES = {"athome": "AtHome", "atpark": "AtPark", "azimuth": "Azimuth",
                    "shutterstatus": "ShutterStatus", "slewing": "Slewing"}
@@ -359,6 +378,9 @@ class CoverCalibratorDevice(Device):
     INTERFACE_VERSION = 2
     MEMBERS = ("brightness", "calibratorchanging", "calibratorstate", "covermoving", "coverstate",
                "maxbrightness", "calibratoroff", "calibratoron", "closecover", "haltcover", "opencover")
+    PARAMETERS = {
+        "put_calibratoron": (("Brightness", "int"),),
+    }
     STATE = ("brightness", "calibratorchanging", "calibratorstate", "covermoving", "coverstate")
     STATE_NAMES = {"brightness": "Brightness", "calibratorchanging": "CalibratorChanging",
                    "calibratorstate": "CalibratorState", "covermoving": "CoverMoving",

@@ -59,6 +59,24 @@ class SwitchDevice(Device):
                "getswitchvalue", "minswitchvalue", "maxswitchvalue", "setswitch", "setswitchname",
                "setswitchvalue", "switchstep", "canasync", "setasync", "setasyncvalue",
                "statechangecomplete", "cancelasync")
+    PARAMETERS = {
+        "get_canwrite": (("Id", "int"),),
+        "get_canasync": (("Id", "int"),),
+        "get_getswitch": (("Id", "int"),),
+        "get_getswitchdescription": (("Id", "int"),),
+        "get_getswitchname": (("Id", "int"),),
+        "get_getswitchvalue": (("Id", "int"),),
+        "get_minswitchvalue": (("Id", "int"),),
+        "get_maxswitchvalue": (("Id", "int"),),
+        "get_switchstep": (("Id", "int"),),
+        "get_statechangecomplete": (("Id", "int"),),
+        "put_setswitch": (("Id", "int"), ("State", "bool")),
+        "put_setswitchvalue": (("Id", "int"), ("Value", "float")),
+        "put_setswitchname": (("Id", "int"), ("Name", "text")),
+        "put_setasync": (("Id", "int"), ("State", "bool")),
+        "put_setasyncvalue": (("Id", "int"), ("Value", "float")),
+        "put_cancelasync": (("Id", "int"),),
+    }
 
     def __init__(self, number, name, description, telescope, switches, **kw):
         super().__init__(number, name, description, telescope, **kw)
@@ -166,6 +184,11 @@ class ObservingConditionsDevice(Device):
     NAME = "ObservingConditions"
     INTERFACE_VERSION = 2
     MEMBERS = ("averageperiod", "refresh", "sensordescription", "timesincelastupdate", *CONDITIONS)
+    PARAMETERS = {
+        "put_averageperiod": (("AveragePeriod", "float"),),
+        "get_sensordescription": (("SensorName", "text"),),
+        "get_timesincelastupdate": (("SensorName", "text"),),
+    }
 
     def __init__(self, number, name, description, telescope, sensors: dict, **kw):
         super().__init__(number, name, description, telescope, **kw)

@@ -56,7 +56,8 @@ MOVING, TRAJECTORY, BLOCKED, ON_TARGET, LIMITED = 1, 2, 4, 8, 16
 HW_MIN, HW_MAX, HW_BLOCKING, SW_MIN, SW_MAX, SW_BLOCKING = 1, 2, 128, 256, 512, 32768
 
 MEASURED_MOVING_CYCLES = 3  # cycles above standstill before a measured motion sets MOVING
-POWER_TIMEOUT = 10.0  # s for a drive to reach Operation enabled / disabled
+POWER_TIMEOUT = 10.0  # s at least for a drive to reach Operation enabled / disabled
+POWER_MARGIN = 2.0  # s the axis waits beyond the drive's own power_timeout (its error first)
 HOMING_START_TIMEOUT = 2.0  # s for the drive to show the requested homing run in progress
 ACK_TIMEOUT = 3.0  # s for the drive's fault reset after ERROR_STATE=0
 
@@ -237,6 +238,7 @@ class Axis(ModuleHealth):
         self._drive_reboots = 0
         self._discrete_target: int | None = None
         self._pending: dict[str, tuple[asyncio.Future, Any]] = {}
+        self._joined: dict[str, list[asyncio.Future]] = {}  # later requests ending with _pending's
         self._completions: list[tuple[asyncio.Future, TcsError | None]] = []
 
     # ================================================================ asyncio side
@@ -259,6 +261,12 @@ class Axis(ModuleHealth):
         if c:
             d = (d + c / 2) % c - c / 2
         return d
+
+    @property
+    def power_timeout(self) -> float:
+        """s a POWER request may take: :data:`POWER_TIMEOUT`, or longer when the drive's own
+        enable/disable time-out (``[drives.x] enable_timeout`` …) needs more."""
+        return max(POWER_TIMEOUT, getattr(self.drive, "power_timeout", 0.0) + POWER_MARGIN)
 
     @property
     def trajectory_running(self) -> bool:
@@ -426,6 +434,8 @@ class Axis(ModuleHealth):
     # ================================================================ control-loop side
 
     def _resolve(self, key: str, error: TcsError | None = None) -> None:
+        for future in self._joined.pop(key, ()):
+            self._complete(future, error)
         entry = self._pending.pop(key, None)
         if entry is None:
             return
@@ -535,8 +545,11 @@ class Axis(ModuleHealth):
             if self.follower is not None:
                 self.follower.set_speed(value)
         elif kind == "reference":
-            if future is not None:
-                self._pending.setdefault("reference", (future, cause))
+            if future is not None:  # a request while homing runs joins it and ends with it
+                if "reference" in self._pending:
+                    self._joined.setdefault("reference", []).append(future)
+                else:
+                    self._pending["reference"] = (future, cause)
             if self._homing:
                 return
             self._homing = True
@@ -650,10 +663,10 @@ class Axis(ModuleHealth):
                 self.emit(INFO, ErrorNumber.POWERCHANGE, "power off", self._pending.get("power", (0, None))[1])
                 self._resolve("power")
             self._want_power = None
-        elif self._want_power is not None and now - self._power_since > POWER_TIMEOUT:
+        elif self._want_power is not None and now - self._power_since > self.power_timeout:
             error = st.request_error or TcsError(
                 f"{self.module_name}: drive did not reach {'on' if self._want_power else 'off'} "
-                f"within {POWER_TIMEOUT:g} s (state {st.state.value})", ErrorNumber.TIMEOUT)
+                f"within {self.power_timeout:g} s (state {st.state.value})", ErrorNumber.TIMEOUT)
             self._resolve("power", error)
             self._want_power = None
         if self._powered and not st.enabled and not self._homing and self._fault is None:

@@ -27,6 +27,14 @@ then run (the drives are booted again, as after a power blip). Kernel SYNC
 (``send_periodic`` on socketcan) is not moved to the new socket: on socketcan the socket
 survives an interface down/up and no reopen happens unless sends keep failing.
 
+**Sends from several threads.** The cycle thread (SYNC, RPDOs, heartbeat), the SDO worker
+(canopen's ``Network.send_message``) and python-can's periodic-send threads all call the
+python-can bus's ``send``. socketcand writes each frame as text to one TCP stream with no lock
+of its own, so on that interface (:data:`SERIALIZED_INTERFACES`) the bus's ``send`` is
+replaced by one that holds a lock (:func:`serialize_sends`): every caller, ours or the
+libraries', goes through it. virtual and socketcan are left as they are (thread-safe: a queue,
+one kernel call per frame), so their path costs nothing more.
+
 The SYNC producer is not here but in :class:`tcs.drivers.cycle.CycleSource`, which must know
 when each SYNC went out. All receive callbacks run in the one notifier thread and never block.
 """
@@ -48,6 +56,22 @@ from tcs.errors import CommunicationError, ErrorNumber, TcsError
 log = logging.getLogger(__name__)
 
 SYNC_COB_ID = 0x080
+#: python-can interfaces whose ``send`` is not safe from several threads (a byte stream).
+SERIALIZED_INTERFACES = frozenset({"socketcand"})
+
+
+def serialize_sends(bus: can.BusABC) -> can.BusABC:
+    """Make ``bus.send`` hold a lock of its own (for every caller: canopen's SDO, python-can's
+    periodic tasks and ours call ``bus.send``); returns ``bus``."""
+    send = bus.send
+    lock = threading.Lock()
+
+    def locked_send(msg: can.Message, timeout: float | None = None) -> None:
+        with lock:
+            send(msg, timeout)
+
+    bus.send = locked_send  # type: ignore[method-assign]
+    return bus
 HEARTBEAT_BASE = 0x700
 NMT_OPERATIONAL = 0x05
 
@@ -147,7 +171,7 @@ class CanBus:
         if self.section.interface == "socketcand":
             logging.getLogger("can.interfaces.socketcand").setLevel(logging.ERROR)
         try:
-            self.bus = can.Bus(**self.section.bus_kwargs())
+            self.bus = self._new_bus()
         except (can.CanError, OSError, ValueError, TypeError, ImportError) as exc:
             raise CommunicationError(self.name, f"cannot open the bus: {exc}") from exc
         self.network = canopen.Network(self.bus)
@@ -161,6 +185,10 @@ class CanBus:
                                              daemon=True)
         self._reconnector.start()
         return self
+
+    def _new_bus(self) -> can.BusABC:
+        bus = can.Bus(**self.section.bus_kwargs())
+        return serialize_sends(bus) if self.section.interface in SERIALIZED_INTERFACES else bus
 
     # ---------------------------------------------------------------- reconnect
     def add_reconnect_callback(self, callback: Callable[[], None]) -> None:
@@ -211,7 +239,7 @@ class CanBus:
                 old_bus.shutdown()
             except Exception:
                 pass
-        new = can.Bus(**self.section.bus_kwargs())
+        new = self._new_bus()
         network.bus = new
         network.notifier = can.Notifier(new, network.listeners, network.NOTIFIER_CYCLE)
         self.bus = new

@@ -124,6 +124,11 @@ class Cia402Drive:
         self._bus_fault: TcsError | None = None
         quick = section.quick_stop_deceleration or section.max_acceleration
         self.stop_timeout = abs(section.max_velocity) / max(abs(quick), 1e-9) + 1.0
+        # the longest an enable (mode switch by SDO, then enable_timeout) or a disable (quick
+        # stop to standstill first) may take before this driver itself reports it failed
+        sdo = (section.sdo_timeout or can.sdo_timeout) * (section.sdo_retries + 1)
+        self.power_timeout = max(section.enable_timeout + section.mode_switch_timeout + sdo,
+                                 self.stop_timeout)
         self._standstill = max(1.0, 1e-3 * abs(section.max_velocity * section.velocity_scale))
         self._stopping_since: float | None = None
         self._offline_since: float | None = None

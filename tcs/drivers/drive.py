@@ -100,9 +100,14 @@ class DriveStatus:
 
 @runtime_checkable
 class Drive(Protocol):
-    """What the axis layer needs from one drive (all requests are non-blocking)."""
+    """What the axis layer needs from one drive (all requests are non-blocking).
+
+    ``power_timeout``: the longest (s) an enable or a disable may take before the drive
+    itself reports it failed (``request_error``); the axis waits at least that long.
+    """
 
     name: str
+    power_timeout: float
 
     def status(self) -> DriveStatus:
         """The latest snapshot (any thread)."""

@@ -15,9 +15,11 @@ in ``accounts.json`` in the state directory (never in the hardware file) and sur
 A change never weakens the hardware file: a file user cannot be removed, nor given more
 privilege than the file gives, and a password changed over TPL2 is dropped once the file's
 hash for that user was edited (the file wins, as for every persisted value). A changed account
-takes effect in the server's user table at once (the next login); a connection logged in
-stays logged in. A blocked user keeps its entry with a hash no password matches (implicit
-authentication, which checks no password, is the hardware file's decision and unaffected).
+takes effect in the user table of every server of the telescope (OpenTCI and OpenTSI ports:
+one module per server, one set of accounts) at once (the next login); a connection logged in
+stays logged in. A blocked user keeps its entry with a hash no password matches
+(:data:`BLOCKED_HASH`); implicit authentication, which checks no password, refuses a blocked
+``implicit_user`` with ``AUTH FAILED`` too (the session looks for that hash).
 
 ``REBOOT`` and ``SHUTDOWN`` are refused (``FAILED 6``, localmode) unless the hardware file
 sets ``[server] allow_system_control``; then ``SERVER.SHUTDOWN`` and ``SYSTEM.SHUTDOWN`` stop
@@ -71,9 +73,25 @@ class ServerModule:
         self.settings = server.settings
         self.file_users = dict(server.users)  # the hardware file's, as loaded
         state_dir = getattr(telescope, "state_dir", None)
-        self.store = StateStore(state_dir, "accounts") if state_dir is not None else None
-        self.accounts: dict[str, dict] = {}
-        self._load_accounts()
+        # the servers of one telescope (OpenTCI and OpenTSI ports) share one set of accounts:
+        # a user blocked (added, changed) on one port is so on every port at once
+        peers = getattr(telescope, "_server_modules", None)
+        if peers is None and telescope is not None:
+            peers = []
+            try:
+                telescope._server_modules = peers
+            except AttributeError:
+                peers = None
+        self._peers: list[ServerModule] = peers if peers is not None else []
+        self._peers.append(self)
+        if len(self._peers) > 1:
+            first = self._peers[0]
+            self.store, self.accounts = first.store, first.accounts  # (the same objects)
+            self._apply_all()
+        else:
+            self.store = StateStore(state_dir, "accounts") if state_dir is not None else None
+            self.accounts: dict[str, dict] = {}
+            self._load_accounts()
         self.log: deque[str] = deque(maxlen=LOG_CAPACITY)
         self.log_total = 0
         self.log_eventmask = 15
@@ -279,7 +297,8 @@ class ServerModule:
         else:
             self.accounts[name] = entry
         self._save()
-        self._apply(name, entry)
+        for module in self._peers:
+            module._apply(name, entry)
 
     async def change_password(self, name: str, password: str) -> None:
         """Set ``name``'s password (hashed off the loop, persisted, effective at once)."""

@@ -59,6 +59,7 @@ from tcs.model.events import ERROR, LEVEL_BITS, Event, current_cause
 from tcs.opentci_server import messages as m
 from tcs.opentci_server.guard import host_of
 from tcs.opentci_server.protocol import Tpl2Connection
+from tcs.opentci_server.server_module import BLOCKED_HASH
 from tcs.opentci_server.tree import module_of
 from tcs.opentci_server.values import ascii_text
 
@@ -151,6 +152,11 @@ class Session(asyncio.Protocol):
         self.send(m.Greeting("2.1", self.id, () if implicit else ("PLAIN",), (), cfg.greeting))
         if implicit:
             user = self.server.users[cfg.implicit_user]
+            if user.password == BLOCKED_HASH:  # blocked over TPL2: refused as its AUTH would be
+                log.warning("connection %d (%s): implicit login as blocked user %r refused",
+                            self.id, self.address, user.name)
+                self.send(m.AuthFailed())
+                return
             self._login(user.name, user.rlevel, user.wlevel)
 
     def data_received(self, data: bytes) -> None:

@@ -85,20 +85,20 @@ class _Client(asyncio.Protocol):
 
     def data_received(self, data: bytes) -> None:
         self.buffer += data.decode("ascii", "replace")
-        if len(self.buffer) > 65536:
+        pos = 0
+        while True:  # every complete "< … >" of what arrived (a burst may hold thousands)
+            start = self.buffer.find("<", pos)
+            end = self.buffer.find(">", start + 1) if start >= 0 else -1
+            if start < 0 or end < 0:
+                self.buffer = self.buffer[start:] if start >= 0 else ""
+                break
+            pos = end + 1
+            self.command(self.buffer[start + 1:end].strip())
+            if self.transport is None:
+                return
+        if len(self.buffer) > 65536:  # (what is left is one unfinished frame)
             log.warning("socketcand: a client sent 64 KiB without a frame; closing it")
             self.transport.close()
-            return
-        while True:
-            start = self.buffer.find("<")
-            end = self.buffer.find(">", start + 1)
-            if start < 0 or end < 0:
-                if start < 0:
-                    self.buffer = ""
-                return
-            body = self.buffer[start + 1:end].strip()
-            self.buffer = self.buffer[end + 1:]
-            self.command(body)
 
     def command(self, body: str) -> None:
         word = body.split(" ", 1)[0]

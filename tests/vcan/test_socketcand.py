@@ -97,3 +97,53 @@ async def test_malformed_lines_are_ignored_and_the_connection_goes_on(bridge):
     assert server.refused == 2
     writer.close()
     await writer.wait_closed()
+
+
+async def test_many_threads_send_through_our_bus_while_the_gateway_stalls(bridge):
+    """The TCS sends from several threads at once (cycle, SDO worker, heartbeat task); over
+    socketcand every frame must arrive intact and in each sender's order, also when the
+    gateway stops reading for a while and then gets a burst of hundreds of KiB (it dropped the
+    connection on such a burst: "64 KiB without a frame"). Our bus serializes sends there."""
+    import threading
+    import time
+
+    from tcs.config.can import CanSection
+    from tcs.drivers.canbus import CanBus
+
+    server, port, peer = bridge
+    got: list[can.Message] = []
+    listener = can.Notifier(peer, [got.append], timeout=0.1)
+    section = CanSection(interface="socketcand", channel="can0", port=port, heartbeat_period=0.01)
+    bus = await asyncio.to_thread(CanBus(section).open)   # (its heartbeat task sends too)
+    threads, count = 6, 1500
+    try:
+        await asyncio.sleep(0.3)  # rawmode settles
+
+        def sender(k: int) -> None:
+            for i in range(count):
+                data = bytes([k, i >> 8, i & 0xFF, 0xA5, 0x5A, k, 0xC3, 0x3C])
+                if i % 2:
+                    bus.send(0x200 + k, data)                    # the cycle's path
+                else:
+                    bus.network.send_message(0x200 + k, data)    # canopen's (SDO) path
+
+        workers = [threading.Thread(target=sender, args=(k,)) for k in range(threads)]
+        for w in workers:
+            w.start()
+        time.sleep(1.0)  # the gateway (this event loop) is busy: nothing is read meanwhile
+        while any(w.is_alive() for w in workers):
+            await asyncio.sleep(0.01)
+        deadline = time.monotonic() + 30
+        while sum(1 for m in got if 0x200 <= m.arbitration_id < 0x200 + threads) < threads * count:
+            assert time.monotonic() < deadline, f"{len(got)} frames arrived"
+            await asyncio.sleep(0.05)
+    finally:
+        await asyncio.to_thread(bus.close)
+        listener.stop()
+    frames = [m for m in got if 0x200 <= m.arbitration_id < 0x200 + threads]
+    for k in range(threads):
+        mine = [bytes(m.data) for m in frames if m.arbitration_id == 0x200 + k]
+        assert mine == [bytes([k, i >> 8, i & 0xFF, 0xA5, 0x5A, k, 0xC3, 0x3C]) for i in range(count)]
+    heartbeats = [m for m in got if m.arbitration_id == 0x700 + section.node_id]
+    assert heartbeats and all(bytes(m.data) == b"\x05" for m in heartbeats)
+    assert server.refused == 0 and bus.reconnects == 0
