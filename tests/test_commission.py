@@ -558,3 +558,24 @@ def test_progress_fits_the_terminal_and_prints_plain_lines_elsewhere():
     assert len(lines) == 3 and "\r" not in log.getvalue()
     assert lines[0].endswith("az  25% 1.000") and lines[-1].endswith("az  50% 2.000")
     assert lines[0].startswith("[  0 s]")
+
+
+def test_machine_lock_one_holder_per_bus(hw):
+    """The machine-wide bus lock: one holder per bus name, released when closed (or when
+    the holder's process ends); the in-process virtual bus needs none."""
+    import dataclasses
+
+    from tcs.drivers.bus_check import AnotherMaster, machine_lock
+
+    port = 20000 + uuid.uuid4().int % 20000  # a bus name of its own (tests run in parallel)
+    section = dataclasses.replace(load_config(hw).can, interface="socketcand", port=port)
+    assert machine_lock(dataclasses.replace(section, interface="virtual")) is None
+    lock = machine_lock(section)
+    try:
+        with pytest.raises(AnotherMaster, match="another process of this machine"):
+            machine_lock(section)
+        other = machine_lock(dataclasses.replace(section, port=section.port + 1))  # another bus
+        other.close()
+    finally:
+        lock.close()
+    machine_lock(section).close()

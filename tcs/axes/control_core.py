@@ -198,6 +198,7 @@ class Core:
         self.can = None
         self.sims = None
         self.loop = None
+        self.bus_lock = None
         self.ut1_utc = 0.0
         self._send_lock = threading.Lock()
         self._running = True
@@ -242,16 +243,9 @@ class Core:
                             "normal scheduling (grant CAP_SYS_NICE or LimitRTPRIO)",
                             can_section.realtime_priority, exc)
         if can_section.interface != "virtual":
-            from tcs.drivers.bus_check import AnotherMaster, listen_window, other_master
+            from tcs.drivers.bus_check import claim
             can = CanDrives.from_config(config)
-            can.open(False)  # no heartbeat yet: not a frame is sent
-            busy = other_master(can.bus.network, can_section.node_id,
-                                listen_window(can_section.heartbeat_period))
-            if busy:
-                can.close()
-                raise AnotherMaster(can.bus.name, f"another master is active ({busy}): is "
-                                    "tcs-server already running (systemctl status tcs-server)? "
-                                    "Nothing was sent on the bus")
+            self.bus_lock = claim(can)  # held until this process ends (refused: nothing sent)
             self.can = can
         # the bus is ours: the service starts its PLCs and GPS, then lets the drives boot
         self.outbox.message(("claimed",))

@@ -36,6 +36,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 
+from tcs.drivers.bus_check import AnotherMaster, machine_lock
 from tcs.drivers.bus_check import listen_window, other_master  # noqa: F401 (re-exported)
 from tcs.drivers.can_system import CanDrives
 from tcs.drivers.drive import DriveState, DriveStatus, Mode
@@ -103,6 +104,7 @@ class DriveSession:
         self.check_bus = check_bus
         self.listen = listen if listen is not None else listen_window(config.can.heartbeat_period)
         self.sims = None
+        self._bus_lock = None  # this machine's lock of a shared bus (bus_check.machine_lock)
         self.system: CanDrives | None = None
         self.booted: set[str] = set()
         self._hooks: list[Callable] = []
@@ -129,6 +131,14 @@ class DriveSession:
         self.system = CanDrives(self.config.can, self.sections, resolve=self.config.resolve,
                                 file=str(self.config.source))
         listen = self.config.can.interface != "virtual"
+        try:
+            self._bus_lock = machine_lock(self.config.can)
+        except AnotherMaster as exc:
+            if self.check_bus:
+                raise CommissionError(f"{exc.message}: stop the service (systemctl stop "
+                                      "tcs-server) before commissioning, or pass --force",
+                                      ExitCode.HARDWARE) from None
+            log.warning("%s; going on (--force)", exc.message)
         try:
             self.system.open(heartbeat=not listen)
         except CommunicationError as exc:
@@ -199,6 +209,9 @@ class DriveSession:
         sims, self.sims = self.sims, None
         if sims is not None:
             sims.stop()
+        lock, self._bus_lock = self._bus_lock, None
+        if lock is not None:
+            lock.close()
 
     def _disable_all(self, system: CanDrives) -> None:
         names = [n for n in self.booted if system.drives[n].status().state not in

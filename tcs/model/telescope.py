@@ -67,6 +67,7 @@ class Telescope:
         self.control_loop = None
         self.pointing = None  # POINTING (tcs.pointing.pointing_module), made after the axes
         self._blocking: ThreadPoolExecutor | None = None  # boot, bus open/close: off the loop
+        self._bus_lock = None  # this machine's lock of a shared bus (tcs.drivers.bus_check)
 
     # -- lookup for the declaration ---------------------------------------------------------
     def axis(self, module: str):
@@ -140,22 +141,11 @@ class Telescope:
             return
         if config.can.interface == "virtual":
             return  # an in-process bus: nobody else can be on it
-        from tcs.drivers.bus_check import AnotherMaster, listen_window, other_master
+        from tcs.drivers.bus_check import claim
         from tcs.drivers.can_system import CanDrives
 
         can = CanDrives.from_config(config)
-        await self.run_blocking(can.open, False)  # no heartbeat yet: not a frame is sent
-        try:
-            busy = await self.run_blocking(other_master, can.bus.network, config.can.node_id,
-                                           listen_window(config.can.heartbeat_period))
-        except BaseException:
-            await self.run_blocking(can.close)
-            raise
-        if busy:
-            await self.run_blocking(can.close)
-            raise AnotherMaster(can.bus.name, f"another master is active ({busy}): is "
-                                "tcs-server already running (systemctl status tcs-server)? Nothing "
-                                "was sent on the bus")
+        self._bus_lock = await self.run_blocking(claim, can)  # (refused: nothing sent)
         self.can = can
 
     async def _start_can(self) -> None:
@@ -250,6 +240,9 @@ class Telescope:
             await self.run_blocking(self.can.release)
             await self.run_blocking(self.can.close)
             self.can = None
+        if self._bus_lock is not None:
+            self._bus_lock.close()
+            self._bus_lock = None
         if self.sims is not None:
             await self.run_blocking(self.sims.stop)
             self.sims = None
