@@ -197,6 +197,10 @@ class Telescope:
         loop = asyncio.get_running_loop()
         process = self.can  # started and claimed the bus in _claim_bus (stop: close ends it)
         info = await self.run_blocking(process.boot)
+        log.info("control loop and CAN drivers%s run in the control process (pid %d, %s)",
+                 " (and the simulated drives)" if config.can.interface == "virtual" and config.simulation
+                 else "", process.proc.pid, f"real-time priority {config.can.realtime_priority}"
+                 if info.get("realtime") else "normal scheduling")
         for index, (name, section) in enumerate(config.axes.items()):
             axis = RemoteAxis(process, index, name, section, None, self.events, self.local.ut1,
                               config.can.sync_period, status_sink=self.status_sink,
