@@ -2,6 +2,11 @@
 
 ``_no_leaks`` (autouse) fails any test that leaves threads or asyncio tasks behind: servers,
 buses, notifiers and simulators must be stopped by the test that started them.
+
+The suite runs in pytest-xdist workers (``-n 3 --dist loadfile``, pyproject.toml): a file runs
+on one worker, in order, and its module-scoped service starts once. What a test uses is its
+own: free ports, ``tmp_path``, a private virtual CAN channel, ``XDG_STATE_HOME`` in ``tmp_path``
+for the processes it starts. A kernel CAN bus is shared: see ``tests/vcan/conftest.py``.
 """
 
 from __future__ import annotations

@@ -23,7 +23,7 @@ from alpaca.exceptions import (InvalidOperationException, InvalidValueException,
                                NotConnectedException, ParkedException)
 from alpaca.telescope import GuideDirections, Telescope  # noqa: E402
 
-from support.live import LiveService  # noqa: E402
+from support.live import live_service  # noqa: E402
 from support.opentci_client import Client  # noqa: E402
 
 HW = Path(__file__).with_name("hw_alpaca.toml")
@@ -31,13 +31,7 @@ WAIT = 60.0
 ARCSEC = 1.0 / 3600.0
 
 
-@pytest.fixture(scope="module")
-def live(tmp_path_factory):
-    service = LiveService(HW, tmp_path_factory.mktemp("alpaca")).start()
-    try:
-        yield service
-    finally:
-        service.stop()
+live = live_service(HW)
 
 
 @pytest.fixture(autouse=True)

@@ -16,21 +16,18 @@ import pytest
 pytest.importorskip("alpaca", reason="alpyca (the 'dev' extra) is not installed")
 from alpaca.telescope import GuideDirections, Telescope  # noqa: E402
 
-from support.live import LiveService  # noqa: E402
+from support.live import live_service  # noqa: E402
 
 ARCSEC = 1.0 / 3600.0
 
 
-@pytest.fixture(scope="module")
-def live(tmp_path_factory):
-    base = tmp_path_factory.mktemp("alpaca-eq")
+def _equatorial_with_alpaca(base: Path) -> Path:
     hw = base / "hw_alpaca_eq.toml"
     hw.write_text(Path(__file__).with_name("hw_pointing_eq.toml").read_text() + "\n[alpaca]\nport = 0\n")
-    service = LiveService(hw, base / "state").start()
-    try:
-        yield service
-    finally:
-        service.stop()
+    return hw
+
+
+live = live_service(_equatorial_with_alpaca)
 
 
 @pytest.fixture(autouse=True)

@@ -14,7 +14,6 @@ simulator faults are injected through the simulated hardware (``telescope.sims[n
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import math
 import re
 import time
@@ -23,7 +22,7 @@ from pathlib import Path
 import pytest
 
 from support.live import LiveService
-from support.service import make_config
+from support.service import make_config, tolerant_heartbeats
 from support.opentci_client import Client
 from tcs.app import Service
 
@@ -108,17 +107,6 @@ async def move(c: Client, ax: str, target: float) -> list[str]:
 
 
 # ------------------------------------------------------------------------ sim.toml, as shipped
-
-def tolerant_heartbeats(config):
-    """``config`` with drive heartbeats every 1 s (lost after 1.5 s) instead of 0.1 s: on a
-    loaded 2-core machine the simulator's timer thread was seen 0.66 s late, and the tests
-    are not about lost heartbeats (see hw_axes_fast.toml). Everything else stays as in the file."""
-    drives = {name: dataclasses.replace(d, heartbeat_period=1.0, heartbeat_consumer_timeout=5.0)
-              for name, d in config.drives.items()}
-    new = dataclasses.replace(config, drives=drives)
-    object.__setattr__(new, "source", config.source)
-    return new
-
 
 async def test_sim_toml_power_reference_move(tmp_path):
     """The bundled telescope: POWER completes when on with POWERCHANGE under the SET's id;

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from support.live import LiveService
+from support.live import live_service
 from support.opentci_client import WAIT, Client, done_ok
 
 HW = Path(__file__).with_name("hw_enclosure.toml")
@@ -21,11 +21,7 @@ SITE_LAT, SITE_LON, SITE_HEIGHT = 28.7606, -17.8792, 2326.0
 ERROR_BIT, WARNING_BIT = 2, 4
 
 
-@pytest.fixture(scope="module")
-def live(tmp_path_factory):
-    service = LiveService(HW, tmp_path_factory.mktemp("gps")).start()
-    yield service
-    service.stop()
+live = live_service(HW)
 
 
 @pytest.fixture(autouse=True)

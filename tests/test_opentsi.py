@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from support.live import LiveService
+from support.live import live_service
 from support.opentci_client import Client as SharedClient
 from support.tpl2 import RawClient
 from tcs.pointing.sky_object import precess_from_j2000
@@ -43,13 +43,7 @@ PYOBS_ERRORS = {"ERR_GPS_PositionLost", "ERR_GPS_LeapSecond", "ERR_GPS_TooFewSat
                 "ERR_Azimuth_ETELError", "ERR_Azimuth_ETELWarning", "ERR_Elevation_ETELError"}
 
 
-@pytest.fixture(scope="module")
-def live(tmp_path_factory):
-    service = LiveService(HW, tmp_path_factory.mktemp("opentsi")).start()
-    try:
-        yield service
-    finally:
-        service.stop()
+live = live_service(HW)
 
 
 @pytest.fixture(autouse=True)

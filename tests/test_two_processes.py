@@ -148,7 +148,7 @@ def test_server_drives_the_simulator_in_another_process(tmp_path):
         target = start + 30.0
         s.sendall(f"9 SET AZ.TARGETPOS={target}\n".encode())
         # Started by mistake during the slew, on the same bus: a second tcs-server with its own
-        # TPL2 port hears the first one's SYNC and exits before sending a frame; one on the
+        # TPL2 port hears the first one (SYNC or heartbeat) and exits before sending a frame; one on the
         # same port exits before opening the bus at all. The slew goes on undisturbed.
         for port in (free_port(), tpl2_port):
             others.append(subprocess.Popen(

@@ -13,6 +13,10 @@ numeric access ``<n>``) are the positions among the members that exist, in decla
 An element of a module array whose object is ``None`` (a port with no hardware) still gets every
 declared member (TPL2 §8.3: all elements have the same substructure); its variables answer
 their declared ``absent`` value (``VERSION`` 0) or ``FAILED 4``, reads and writes alike.
+The elements of a module array whose members are all variables (``SERVER.CLIENT[]``: one per
+connection slot, hundreds) are built on first use (:class:`_LazyElements`): building a variable
+node reads nothing from its object, so an element built late is the one an eager build makes,
+and a service starts without thousands of nodes no client may ever ask for.
 
 Lookup validates every index against its array *before* expanding a range, and takes a limit
 on the number of objects one reference may select (the server's per-command budget). In a
@@ -37,6 +41,7 @@ from __future__ import annotations
 
 import inspect
 import logging
+from collections.abc import Sequence as SequenceABC
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterator, Sequence
 
@@ -185,11 +190,35 @@ class ModuleNode(Node):
 
 @dataclass(eq=False)
 class ArrayNode(Node):
-    elements: list[ModuleNode] = field(default_factory=list)
+    elements: Sequence[ModuleNode] = field(default_factory=list)
     cls_code = MODULEARR
 
     def object_count(self) -> int:
+        if isinstance(self.elements, _LazyElements):  # without building them: 1 + one per member
+            return 1 + len(self.elements) * (1 + len(self.elements.spec.members))
         return 1 + sum(e.object_count() for e in self.elements)
+
+
+class _LazyElements(SequenceABC):
+    """The elements of a module array whose members are all variables, each built (and kept)
+    the first time it is asked for; ``len`` needs none of them."""
+
+    __slots__ = ("_array", "spec", "_objs", "_built")
+
+    def __init__(self, array: ArrayNode, spec: ModuleSpec, objs: list):
+        self._array, self.spec, self._objs = array, spec, objs
+        self._built: list[ModuleNode | None] = [None] * len(objs)
+
+    def __len__(self) -> int:
+        return len(self._objs)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self._objs)))]
+        element = self._built[i]  # IndexError past the end, like a list
+        if element is None:
+            element = self._built[i] = _element(self._array, self.spec, i % len(self._objs), self._objs[i])
+        return element
 
 
 #: The reply of a variable of a module-array element that has no hardware (nocon, App. B 4).
@@ -569,11 +598,10 @@ def _build_members(parent: ModuleNode, members, obj, absent: bool = False) -> No
             if not objs:
                 continue
             array = ArrayNode(spec.name, index, spec.info, parent)
-            for i, element_obj in enumerate(objs):
-                element = ModuleNode(f"{spec.name}[{i}]", i, spec.info, array, element_obj)
-                # None: an index with nothing configured; it has the members, answering FAILED 4
-                _build_members(element, spec.members, element_obj, absent=element_obj is None)
-                array.elements.append(element)
+            if all(isinstance(m, VarSpec) for m in spec.members):
+                array.elements = _LazyElements(array, spec, objs)
+            else:  # submodules bind to their objects now, as every other module does
+                array.elements = [_element(array, spec, i, o) for i, o in enumerate(objs)]
             parent.add(array)
         else:
             if bound is None:
@@ -581,6 +609,14 @@ def _build_members(parent: ModuleNode, members, obj, absent: bool = False) -> No
             child = ModuleNode(spec.name, index, spec.info, parent, bound)
             _build_members(child, spec.members, bound)
             parent.add(child)
+
+
+def _element(array: ArrayNode, spec: ModuleSpec, i: int, obj: Any) -> ModuleNode:
+    """Element ``i`` of ``array``, bound to ``obj``; None: an index with nothing configured,
+    which has the members all the same, answering their ``absent`` value or FAILED 4."""
+    element = ModuleNode(f"{spec.name}[{i}]", i, spec.info, array, obj)
+    _build_members(element, spec.members, obj, absent=obj is None)
+    return element
 
 
 def _walk(node: Node, prefix: str) -> Iterator[tuple[str, Node]]:

@@ -5,6 +5,11 @@ thread with its own loop; tests talk to it over TPL2 on ``port`` and reach the s
 hardware in it with :meth:`LiveService.call` (a function or coroutine run on the service's
 loop, awaited from the test's loop) — the simulators are not thread-safe, so fault injection
 must happen on their loop. :meth:`stop` ends the service and checks that no thread is left.
+
+:func:`live_service` makes the module-scoped ``live`` fixture of a test file out of a hardware
+file: one service for all the tests of the module (they must not depend on each other's state).
+Such a module also overrides the autouse ``_no_leaked_threads`` check with a no-op: the
+service's threads are expected while it runs, and :meth:`LiveService.stop` checks them at the end.
 """
 
 from __future__ import annotations
@@ -14,6 +19,9 @@ import inspect
 import threading
 import time
 from pathlib import Path
+from typing import Callable
+
+import pytest
 
 from support.service import start_service
 
@@ -83,3 +91,27 @@ class LiveService:
 
     def _left(self) -> list[str]:
         return [t.name for t in threading.enumerate() if t.ident not in self._before]
+
+
+def live_service(hwfile: Path | Callable[[Path], Path]):
+    """A module-scoped pytest fixture yielding a started :class:`LiveService`.
+
+    Parameters
+    ----------
+    hwfile:
+        The hardware file, or a function of a fresh directory that writes one there and
+        returns its path. The service's state lives in that directory too.
+
+    Usage: ``live = live_service(HW)`` at module level.
+    """
+    @pytest.fixture(scope="module")
+    def live(tmp_path_factory):
+        base = tmp_path_factory.mktemp("live")
+        path = hwfile(base) if callable(hwfile) else hwfile
+        service = LiveService(path, base / "state").start()
+        try:
+            yield service
+        finally:
+            service.stop()
+
+    return live

@@ -11,15 +11,33 @@ Environment (to run the same tests on a kernel bus, e.g. ``vcan0``):
   (tests cannot hear each other), ``vcan0`` otherwise.
 
 The fixture also makes canopen's notifier shut down without waiting, so teardown is fast.
+On a kernel bus every test is on the same cable, whoever runs it: the tests of parallel pytest
+workers (and of other pytest runs) take turns, one at a time per channel
+(``_one_test_at_a_time_on_a_kernel_bus``).
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
+import tempfile
 import uuid
+from pathlib import Path
 
 import canopen
 import pytest
+
+
+@pytest.fixture(autouse=True)
+def _one_test_at_a_time_on_a_kernel_bus():
+    interface = os.environ.get("TCS_CAN_INTERFACE", "virtual")
+    if interface == "virtual":  # a private channel per test, in this process only
+        yield
+        return
+    channel = os.environ.get("TCS_CAN_CHANNEL", "vcan0")
+    with open(Path(tempfile.gettempdir()) / f"tcs-test-bus-{channel}.lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also if the test dies
+        yield
 
 
 @pytest.fixture
