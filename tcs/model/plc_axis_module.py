@@ -68,6 +68,7 @@ import asyncio
 import logging
 from typing import Callable
 
+from tcs.axes.axis import complete_futures
 from tcs.axes.limits import limit_text
 from tcs.drivers.modbus import PlcConnectionEvent, PlcSnapshot
 from tcs.drivers.plc_axis import AxisState
@@ -474,12 +475,7 @@ class PlcAxisModule(PlcModule):
 
     @staticmethod
     def _finish(future: asyncio.Future, error: TcsError | None) -> None:
-        if future.done():
-            return
-        if error is None:
-            future.set_result(None)
-        else:
-            future.set_exception(error)
+        complete_futures(((future, error),))
 
     def _fail_motion(self, error: TcsError, run_ok: bool = True) -> None:
         """Fail pending TARGETPOS/OFFSET; RUN completes (STOP) or fails with them."""
