@@ -220,6 +220,7 @@ class Axis(ModuleHealth):
         self.offset = 0.0
         self.last_status: DriveStatus | None = None
         self.stale: TcsError | None = None  # set while the drive gives no fresh data (FAILED 4)
+        self.measured_ut1 = 0.0  # UT1 at which REALPOS was measured (the cycle's SYNC); 0: never
         # -- loop-thread state --
         self._powered = False
         self._want_power: bool | None = None
@@ -746,6 +747,7 @@ class Axis(ModuleHealth):
         trajectory TARGETPOS is the path at that time and TARGETDISTANCE the following error
         (the path where the setpoint is heading would add velocity × 2 cycles to it)."""
         prev_motion, prev_limit = self.motion_state, self.limit_state
+        self.measured_ut1 = t
         sp = self._sp
         if st.state is DriveState.OFFLINE:
             why = st.fault.message if st.fault is not None else "drive offline"

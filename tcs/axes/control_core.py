@@ -50,7 +50,8 @@ log = logging.getLogger("tcs.control")
 
 #: Readbacks sent per axis, in this order (``ControlProcess`` applies them by name).
 READBACKS = ("power_state", "referenced", "real_position", "current_speed", "current_acc",
-             "current_jerk", "motion_state", "limit_state", "target_position", "offset")
+             "current_jerk", "motion_state", "limit_state", "target_position", "offset",
+             "measured_ut1")
 
 
 def error_tuple(error: BaseException | None):

@@ -82,7 +82,8 @@ _ON_TARGET = 8   # MOTION_STATE bit 3
 
 
 def _distance(axis, ut1: float) -> float:
-    """Demand of a trajectory-running axis at ``ut1`` (path + OFFSET) minus REALPOS.
+    """Demand of a trajectory-running axis (path + OFFSET) minus REALPOS, both at the time the
+    drive measured REALPOS (``ut1`` when the axis has not published yet).
 
     (The axis's own TARGETDISTANCE compares the demand of the next setpoint, a control cycle
     or two ahead, with the last measured position: at tracking rates a fraction of an arcsec.)
@@ -90,8 +91,9 @@ def _distance(axis, ut1: float) -> float:
     follower = axis.follower
     if follower is None or not len(axis.queue):
         return axis.target_distance
+    measured = getattr(axis, "measured_ut1", 0.0) or ut1  # the path where REALPOS was measured
     try:
-        d = follower.path_position(ut1) - axis.real_position
+        d = follower.path_position(measured) - axis.real_position
     except TcsError:        # emptied meanwhile
         return axis.target_distance
     cycle = axis.section.cyclic
@@ -354,8 +356,12 @@ class Pointing(ModuleHealth):
         return float(self.astrometry().sidereal_time(self.utc()))
 
     def place(self) -> Place:
-        """CURRENT: the sky place of the main axes' REALPOS now (cached for 10 ms)."""
-        utc = self.utc()
+        """CURRENT: the sky place of the main axes' REALPOS at the time the drives measured it
+        (the last control cycle's SYNC; a readback read a little late — a busy service — still
+        gives the place the telescope pointed to then, not a place shifted by the sky's turn
+        meanwhile); cached per position and 10 ms."""
+        measured = getattr(self.axis1, "measured_ut1", 0.0)
+        utc = measured - self.local.ut1_utc if measured else self.utc()
         pipe = self.pipeline()
         key = (self.axis1.real_position, self.axis2.real_position, round(utc, 2), id(pipe))
         if self._place_cache is None or self._place_cache[0] != key:
