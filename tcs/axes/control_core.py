@@ -403,4 +403,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    code = main()
+    # (a start that failed half-way may leave a bus or simulator thread behind: end anyway)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
