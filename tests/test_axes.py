@@ -23,7 +23,7 @@ import pytest
 
 from support.live import LiveService
 from support.service import make_config, tolerant_heartbeats
-from support.opentci_client import Client
+from support.opentci_client import Client, upload
 from tcs.app import Service
 
 FAST = Path(__file__).with_name("hw_axes_fast.toml")
@@ -404,16 +404,6 @@ class PathRecorder:
 
 def rms(values: list[float]) -> float:
     return math.sqrt(sum(v * v for v in values) / len(values))
-
-
-async def upload(c: Client, ax: str, points: list[tuple[float, float]]) -> list[str]:
-    """Stage ``points`` in BUFFER[0..n-1] (one SET) and ADDPOINTS them; returns the reply."""
-    parts = []
-    for i, (t, p) in enumerate(points):
-        parts += [f"{ax}.TRAJECTORY.BUFFER[{i}].TIME={t!r}", f"{ax}.TRAJECTORY.BUFFER[{i}].TARGETPOS={p!r}"]
-    lines = await c.set(";".join(parts))
-    assert all(" DATA OK " in x for x in lines[1:-1]), lines
-    return await c.set(f"{ax}.TRAJECTORY.ADDPOINTS={len(points)}")
 
 
 async def test_trajectory_follows_a_sinusoid(live):

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from support.opentci_client import Client
+from support.opentci_client import Client, upload
 from support.service import start_service
 
 FAST = Path(__file__).with_name("hw_axes_fast.toml")
@@ -47,15 +47,6 @@ async def ready(c: Client, *axes: str) -> None:
     for ax in axes:
         await c.wait(f"{ax}.REFERENCED", lambda v: v == 1.0, WAIT)
         await c.wait(f"{ax}.MOTION_STATE", lambda v: not int(v) & MOVING, WAIT)
-
-
-async def upload(c: Client, ax: str, points: list[tuple[float, float]]) -> list[str]:
-    parts = []
-    for i, (t, p) in enumerate(points):
-        parts += [f"{ax}.TRAJECTORY.BUFFER[{i}].TIME={t!r}", f"{ax}.TRAJECTORY.BUFFER[{i}].TARGETPOS={p!r}"]
-    lines = await c.set(";".join(parts))
-    assert all(" DATA OK " in x for x in lines[1:-1]), lines
-    return await c.set(f"{ax}.TRAJECTORY.ADDPOINTS={len(points)}")
 
 
 # ------------------------------------------------------------------ item 9

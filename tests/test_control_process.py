@@ -21,9 +21,17 @@ from pathlib import Path
 
 import pytest
 
-from support.opentci_client import Client
+from support.opentci_client import Client, upload
 from support.service import make_config
+from test_axes import ready
 from tcs.app import Service
+
+
+def _is_control_process(pid: int) -> bool:
+    try:
+        return b"tcs.axes.control_core" in Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return False
 
 
 def _children(pid: int) -> list[int]:
@@ -34,38 +42,24 @@ def _children(pid: int) -> list[int]:
             continue
         try:
             stat = (entry / "stat").read_text()
-            cmdline = (entry / "cmdline").read_bytes()
         except OSError:
             continue
         ppid = int(stat.rsplit(")", 1)[1].split()[1])
-        if ppid == pid and b"tcs.axes.control_core" in cmdline:
+        if ppid == pid and _is_control_process(int(entry.name)):
             found.append(int(entry.name))
     return found
 
 
-async def _start(tmp_path):
+@pytest.fixture
+async def proc_service(tmp_path):
     config = make_config(tmp_path / "state")
     assert config.can.control_process, "the shipped sim.toml runs the loop in a control process"
     service = Service(config)
     port = await service.start()
-    return service, port
-
-
-@pytest.fixture
-async def proc_service(tmp_path):
-    service, port = await _start(tmp_path)
     try:
         yield service, port
     finally:
         await service.stop()
-
-
-async def _ready(c: Client, *axes: str) -> None:
-    await c.set("CABINET.POWER=1")
-    for ax in axes:
-        await c.set(f"{ax}.POWER=1")
-        await c.set(f"{ax}.REINIT=1")
-        await c.wait(f"{ax}.REFERENCED", lambda v: v == 1.0)
 
 
 async def test_axis_life_in_the_control_process(proc_service):
@@ -77,7 +71,7 @@ async def test_axis_life_in_the_control_process(proc_service):
         # the refusals are made here, before anything is sent to the child
         lines = await c.set("AZ.TARGETPOS=10")
         assert lines[-2].endswith("FAILED 5"), lines   # power off
-        await _ready(c, "AZ")
+        await ready(c, "AZ")
         lines = await c.set("AZ.TARGETPOS=1000")
         assert "RANGE" in lines[-2], lines
         # a move: DATA OK only once the readbacks say so (readbacks before completions)
@@ -108,17 +102,12 @@ async def test_trajectory_through_the_control_process(proc_service):
     service, port = proc_service
     c = await Client.connect(port)
     try:
-        await _ready(c, "ZD")
+        await ready(c, "ZD")
         t0 = await c.num("LOCAL.UT1") + 1.0
         p0 = await c.num("ZD.REALPOS")
         free = int(await c.num("ZD.TRAJECTORY.FREEPOINTS"))
         n = 20
-        points = []
-        for i in range(n):
-            points += [f"ZD.TRAJECTORY.BUFFER[{i}].TIME={t0 + 0.5 * i!r}",
-                       f"ZD.TRAJECTORY.BUFFER[{i}].TARGETPOS={p0 + 0.01 * i!r}"]
-        await c.set(";".join(points))
-        await c.set(f"ZD.TRAJECTORY.ADDPOINTS={n}")
+        await upload(c, "ZD", [(t0 + 0.5 * i, p0 + 0.01 * i) for i in range(n)])
         assert await c.num("ZD.TRAJECTORY.FREEPOINTS") == free - n  # the child's queue, at once
         assert await c.num("ZD.TRAJECTORY.STARTTIME") == pytest.approx(t0)
         # a point that does not follow the last one: refused by the child's queue, same reply
@@ -143,7 +132,7 @@ async def test_tracking_through_the_control_process(proc_service):
     service, port = proc_service
     c = await Client.connect(port)
     try:
-        await _ready(c, "AZ", "ZD")
+        await ready(c, "AZ", "ZD")
         await c.set("AZ.TARGETPOS=120")
         await c.set("ZD.TARGETPOS=35")
         ra, dec = await c.nums("POINTING.CURRENT.RA", "POINTING.CURRENT.DEC")
@@ -173,7 +162,7 @@ async def test_a_crashed_control_process_leaves_the_service_serving(proc_service
     service, port = proc_service
     c = await Client.connect(port)
     try:
-        await _ready(c, "AZ")
+        await ready(c, "AZ")
         cmd = await c.start("AZ.TARGETPOS=80")
         await c.wait("AZ.CURRSPEED", lambda v: abs(v) > 1.0)
         (child,) = _children(os.getpid())
@@ -192,8 +181,8 @@ async def test_a_crashed_control_process_leaves_the_service_serving(proc_service
 
 
 def test_a_killed_service_leaves_no_control_process(tmp_path):
-    """kill -9 of tcs-server: its control process stops the moving axis, powers it off and
-    ends by itself."""
+    """kill -9 of tcs-server with an axis powered: its control process (which stops and
+    powers off the axes first) ends by itself."""
     from test_cli_server import free_port
     from test_sigterm import Client as SyncClient
 
@@ -215,12 +204,9 @@ def test_a_killed_service_leaves_no_control_process(tmp_path):
         server.kill()
         server.wait(10)
         deadline = time.monotonic() + 30
-        while time.monotonic() < deadline and Path(f"/proc/{children[0]}").exists() and \
-                b"tcs.axes.control_core" in Path(f"/proc/{children[0]}/cmdline").read_bytes():
+        while time.monotonic() < deadline and _is_control_process(children[0]):
             time.sleep(0.05)
-        alive = Path(f"/proc/{children[0]}/cmdline")
-        assert not (alive.exists() and b"tcs.axes.control_core" in alive.read_bytes()), \
-            "the control process outlived its service"
+        assert not _is_control_process(children[0]), "the control process outlived its service"
     finally:
         if server.poll() is None:
             server.kill()
@@ -236,16 +222,16 @@ def test_a_killed_service_leaves_no_control_process(tmp_path):
 async def test_threaded_mode_still_runs(tmp_path):
     """``control_process = false``: the loop is a thread of the service (tests that reach the
     simulated drives in-process use it)."""
-    config = make_config(tmp_path / "state")
-    config = dataclasses.replace(config, can=dataclasses.replace(config.can, control_process=False))
-    object.__setattr__(config, "source", make_config(tmp_path / "state").source)
+    base = make_config(tmp_path / "state")
+    config = dataclasses.replace(base, can=dataclasses.replace(base.can, control_process=False))
+    object.__setattr__(config, "source", base.source)
     service = Service(config)
     port = await service.start()
     try:
         assert not _children(os.getpid())
         assert service.telescope.sims is not None
         c = await Client.connect(port)
-        await _ready(c, "AZ")
+        await ready(c, "AZ")
         await c.set("AZ.TARGETPOS=3")
         assert abs(await c.num("AZ.REALPOS") - 3) < 1e-3
         await c.close()

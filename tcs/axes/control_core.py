@@ -19,8 +19,8 @@ pickled tuples; the service is the only peer):
   threaded mode; ``("add", rid, axis, times, positions, now)`` — TRAJECTORY points
   (answered at once by this receiver thread, the queue has its own lock); ``("ut1_utc",
   value)``; ``("samples", rid, clear)``; ``("close",)``.
-* out: ``("claimed",)``, then ``("ready", info)``, or ``("refused", kind, error)``; one ``("batch", snapshots,
-  items, stats)`` per cycle with the readbacks of every axis whose readbacks changed, then the
+* out: ``("claimed",)``, then ``("ready", info)``, or ``("refused", kind, error)``; one
+  ``("batch", snapshots, items, stats)`` per cycle with the readbacks of every axis, then the
   cycle's events, error conditions and completions in the order they happened (so a client
   that gets ``DATA OK`` reads the new state); ``("reply", rid, ok, value)``; ``("log",
   name, level, text)``; ``("closed",)``.
@@ -130,7 +130,6 @@ class CoreAxis(Axis):
         self.received_seq = 0   # newest command put into the queue (receiver thread)
         self.applied_seq = 0    # newest command the loop has taken (a readback is after it)
         self._active: dict[str, int] = {}  # conditions raised here and still active
-        self._sent = None
 
     def receive(self, seq: int, kind: str, value, future_id, cause) -> None:
         with self._lock:
@@ -163,8 +162,9 @@ class CoreAxis(Axis):
                 self.outbox.item(("done", future_id, error_tuple(error)))
 
     # -- readbacks ---------------------------------------------------------------------------
-    def snapshot(self, t: float):
-        """This cycle's readbacks (None when nothing changed since the last one sent)."""
+    def snapshot(self):
+        """This cycle's readbacks, for the time the drive measured them (``measured_ut1``)."""
+        t = self.measured_ut1
         fault = self._fault
         stale = self.stale
         q = self.queue
@@ -172,21 +172,16 @@ class CoreAxis(Axis):
         path = None
         if follower is not None and self.motion_state & TRAJECTORY and len(q):
             try:
-                p, v, _ = q.sample(t)
-                path = (p + follower.shift + follower._offset, v, t)
-            except TcsError:
+                path = (*follower.path_sample(t), t)
+            except TcsError:  # (emptied meanwhile)
                 path = None
-        snap = (self.applied_seq, *(getattr(self, name) for name in READBACKS),
+        return (self.applied_seq, *(getattr(self, name) for name in READBACKS),
                 None if stale is None else (stale.message, stale.number),
                 None if fault is None else error_tuple(fault),
                 self._homing, self._ack_pending,
                 (len(q), q.start_time, q.end_time, q.free_points_at(t)),
                 None if follower is None else (follower.state.value, follower.end_reason),
                 path)
-        if snap == self._sent:
-            return None
-        self._sent = snap
-        return snap
 
 
 class Core:
@@ -201,7 +196,6 @@ class Core:
         self.loop = None
         self.bus_lock = None
         self.ut1_utc = 0.0
-        self._send_lock = threading.Lock()
         self._running = True
         self._stats_every = 10
         self._cycles = 0
@@ -209,11 +203,7 @@ class Core:
     def ut1(self) -> float:
         return time.time() + self.ut1_utc
 
-    # -- sender ------------------------------------------------------------------------------
-    def _send(self, msg) -> None:
-        with self._send_lock:
-            self.conn.send(msg)
-
+    # -- sender (the only thread that writes to the connection) -------------------------------
     def _sender(self) -> None:
         while self._running or self.outbox.wake.is_set():
             self.outbox.wake.wait(0.5)
@@ -221,9 +211,9 @@ class Core:
             batch, others = self.outbox.take()
             try:
                 for msg in others:
-                    self._send(msg)
+                    self.conn.send(msg)
                 if batch is not None:
-                    self._send(batch)
+                    self.conn.send(batch)
             except (OSError, EOFError, ValueError):
                 return  # the service is gone: the receiver sees it too
 
@@ -275,12 +265,7 @@ class Core:
 
     def _publish(self, cycle) -> None:
         """After the loop's step (same thread): readbacks and counters to the outbox."""
-        t = self.ut1() + (cycle.sync_time - time.monotonic())
-        snaps = {}
-        for axis in self.axes:
-            snap = axis.snapshot(t)
-            if snap is not None:
-                snaps[axis.index] = snap
+        snaps = {axis.index: axis.snapshot() for axis in self.axes}
         self._cycles += 1
         stats = None
         if self._cycles % self._stats_every == 0:
@@ -299,12 +284,9 @@ class Core:
         sender.start()
         try:
             info = self.start(config)
-        except TcsError as exc:
-            self.outbox.message(("refused", type(exc).__name__, error_tuple(exc)))
-            self._end(sender)
-            return 1
         except BaseException as exc:
-            log.exception("control process: start failed")
+            if not isinstance(exc, TcsError):
+                log.exception("control process: start failed")
             self.outbox.message(("refused", type(exc).__name__, error_tuple(exc)))
             self._end(sender)
             return 1
@@ -325,13 +307,7 @@ class Core:
             elif kind == "ut1_utc":
                 self.ut1_utc = float(msg[1])
             elif kind == "samples":
-                source = self.can.cycle
-                lateness, loop = list(source.lateness), list(source.callback_time)
-                if msg[2]:
-                    source.lateness.clear()
-                    source.callback_time.clear()
-                self.outbox.message(("reply", msg[1], True,
-                                     (lateness, loop, dict(source.stats().__dict__))))
+                self.outbox.message(("reply", msg[1], True, self.loop.samples(msg[2])))
             elif kind == "close":
                 closed = True
                 break

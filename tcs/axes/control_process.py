@@ -90,7 +90,6 @@ class ControlProcess:
         self._gone: TcsError | None = None
         self._ut1_utc_sent: float | None = None
         self.stats: dict = {}
-        self.last_batch = 0.0
 
     # -- start -------------------------------------------------------------------------------
     def claim(self, loop: asyncio.AbstractEventLoop) -> None:
@@ -224,7 +223,6 @@ class ControlProcess:
             self._lost()
 
     def _batch(self, snapshots: dict, items: list, stats) -> None:
-        self.last_batch = time.monotonic()
         for index, snap in snapshots.items():
             self.axes[index].apply(snap)
         if stats is not None:

@@ -184,7 +184,12 @@ class TrajectoryFollower:
 
     def path_position(self, t: float) -> float:
         """Demanded position of the path at ``t`` (``TARGETPOS`` during a trajectory)."""
-        return self.queue.sample(t)[0] + self.shift + self._offset
+        return self.path_sample(t)[0]
+
+    def path_sample(self, t: float) -> tuple[float, float]:
+        """Demanded position and velocity of the path at ``t``."""
+        p, v, _ = self.queue.sample(t)
+        return p + self.shift + self._offset, v
 
     def runtime(self, t: float) -> float:
         """``RUNTIME``: seconds of path left after ``t``."""

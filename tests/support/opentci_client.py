@@ -89,3 +89,14 @@ def failed(lines: list[str], obj: str) -> int | None:
         if m:
             return int(m.group(1))
     return None
+
+
+async def upload(c: Client, ax: str, points: list[tuple[float, float]]) -> list[str]:
+    """Stage ``points`` in ``ax``.TRAJECTORY.BUFFER[0..n-1] (one SET) and ADDPOINTS them;
+    returns the ADDPOINTS reply."""
+    parts = []
+    for i, (t, p) in enumerate(points):
+        parts += [f"{ax}.TRAJECTORY.BUFFER[{i}].TIME={t!r}", f"{ax}.TRAJECTORY.BUFFER[{i}].TARGETPOS={p!r}"]
+    lines = await c.set(";".join(parts))
+    assert all(" DATA OK " in x for x in lines[1:-1]), lines
+    return await c.set(f"{ax}.TRAJECTORY.ADDPOINTS={len(points)}")
