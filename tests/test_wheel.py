@@ -4,7 +4,9 @@ no ``--config``) and ``tcs-commission scan`` from there — the defaults are pac
 paths into the source tree.
 
 The build uses pip's isolated build environment (setuptools from the package index pip is
-configured with); the venv sees the system's site-packages so no dependency is downloaded.
+configured with). The wheel goes in with ``--no-deps``; its dependencies come from the
+site-packages of the interpreter that runs the tests (``support.venvs``), so nothing is
+downloaded and nothing installed by hand into the base Python is needed.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from pathlib import Path
 
 import pytest
 
+from support.venvs import make_venv
 from test_cli_server import connect, free_port
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -42,8 +45,7 @@ def installed(tmp_path_factory) -> Path:
     assert build.returncode == 0, build.stderr
     wheel = next(dist.glob("tcs-*.whl"))
     venv = base / "venv"
-    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True,
-                   timeout=120)
+    make_venv(venv)
     subprocess.run([str(venv / "bin" / "python"), "-m", "pip", "install", "-q", "--no-deps", str(wheel)],
                    check=True, timeout=300)
     shutil.rmtree(src)  # nothing of the source tree is left to lean on
