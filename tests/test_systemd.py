@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 
+from support.venvs import make_venv
 from test_cli_server import connect, free_port
 
 REPO = Path(__file__).resolve().parent.parent
@@ -118,12 +119,16 @@ def test_units_verify_and_the_service_is_hardened(tmp_path):
     assert float(m.group(1)) <= 3.0, security.stdout
 
 
+@pytest.mark.timeout(900)  # four installs, two package builds: minutes on a loaded machine
 def test_install_is_idempotent_and_keeps_the_hardware_file(tmp_path):
     root = tmp_path / "root"
-    env = dict(os.environ, DESTDIR=str(root), TCS_VENV_OPTIONS="--system-site-packages")
+    env = dict(os.environ, DESTDIR=str(root))
     env.pop("VIRTUAL_ENV", None)
+    # the dependencies come from this test run's environment (nothing is downloaded); tcs itself
+    # is built and installed by install.sh
+    make_venv(root / "opt" / "tcs" / "venv")
     install = [str(SYSTEMD / "install.sh")]
-    first = subprocess.run(install, env=env, capture_output=True, text=True, timeout=300)
+    first = subprocess.run(install, env=env, capture_output=True, text=True, timeout=600)
     assert first.returncode == 0, first.stdout + first.stderr
     hwfile = root / "etc" / "tcs" / "tcs.toml"
     assert "installed tcs 0.1.0" in first.stdout and f"installed {hwfile}" in first.stdout
@@ -138,17 +143,22 @@ def test_install_is_idempotent_and_keeps_the_hardware_file(tmp_path):
     assert "BITRATE=1000000" in (root / "etc" / "tcs" / "can-can0.env").read_text()
     # an older install had put sim.toml (public admin/admin) here: the upgrade says so loudly
     hwfile.write_text((SYSTEMD.parent.parent / "hwconfig" / "sim.toml").read_text())
-    warned = subprocess.run(install, env=env, capture_output=True, text=True, timeout=300)
+    # the later runs are offline, from a wheelhouse (here: tcs alone, the venv has the rest)
+    wheelhouse = tmp_path / "wheelhouse"
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(wheelhouse), str(REPO)],
+                   check=True, capture_output=True, timeout=600)
+    install += ["--wheelhouse", str(wheelhouse)]
+    warned = subprocess.run(install, env=env, capture_output=True, text=True, timeout=600)
     assert "WARNING: user 'admin'" in warned.stdout and "PUBLIC password hash" in warned.stdout
     # the operator edits the file; an older install had copied hwconfig/ into the prefix
     hwfile.write_text(text + "\n# edited by the operator\n")
     (root / "opt" / "tcs" / "hwconfig" / "hwconfig").mkdir(parents=True)
-    second = subprocess.run(install, env=env, capture_output=True, text=True, timeout=300)
+    second = subprocess.run(install, env=env, capture_output=True, text=True, timeout=600)
     assert second.returncode == 0, second.stdout + second.stderr
     assert f"kept {hwfile}" in second.stdout
     assert hwfile.read_text().endswith("# edited by the operator\n")
     assert "removed" in second.stdout and not (root / "opt" / "tcs" / "hwconfig").exists()
     assert f"unchanged {units / 'tcs-server.service'}" in second.stdout
-    third = subprocess.run(install, env=env, capture_output=True, text=True, timeout=300)
+    third = subprocess.run(install, env=env, capture_output=True, text=True, timeout=600)
     assert "nothing changed" in third.stdout, third.stdout
     assert "systemctl stop tcs-server" in third.stdout

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Install or upgrade tcs as a systemd service on the cabinet computer (run as root from a clone):
 #   sudo tools/systemd/install.sh [--prefix /opt/tcs] [--template hwconfig/cabinet.toml]
+#                                 [--wheelhouse DIR]
 #
 # Idempotent: a re-run upgrades in place. It puts the package in a virtual environment
 # ($prefix/venv), creates the system user "tcs", installs the units and, only when there is
@@ -11,19 +12,30 @@
 # Every step prints what it changed; at the end the hardware file is checked with
 # `tcs-server --check-config`. It does not start or restart the service.
 #
+# Offline (a cabinet computer without the package index): make a wheelhouse on a machine that
+# has the index, with the same Python version and architecture,
+#   pip wheel -w wheelhouse /path/to/tcs-clone      # tcs and every dependency as wheels
+# copy it over, and give it with --wheelhouse DIR: pip then installs from DIR only (--no-index).
+#
 # DESTDIR=DIR installs below DIR instead of / (no user, no systemctl: for tests and packaging);
 # TCS_VENV_OPTIONS (e.g. --system-site-packages) is passed to `python3 -m venv`.
 set -euo pipefail
 prefix=/opt/tcs
 src=$(cd "$(dirname "$0")/../.." && pwd)
 template=$src/hwconfig/cabinet.toml
+wheelhouse=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --prefix) prefix=$2; shift 2 ;;
     --template|--config) template=$(cd "$(dirname "$2")" && pwd)/$(basename "$2"); shift 2 ;;
-    *) echo "usage: $0 [--prefix DIR] [--template HARDWARE-FILE.toml]" >&2; exit 2 ;;
+    --wheelhouse) wheelhouse=$(cd "$2" && pwd) || { echo "no wheelhouse directory $2" >&2; exit 2; }; shift 2 ;;
+    *) echo "usage: $0 [--prefix DIR] [--template HARDWARE-FILE.toml] [--wheelhouse DIR]" >&2; exit 2 ;;
   esac
 done
+python3 -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null || {
+  echo "tcs needs Python 3.11 or newer as python3 (found: $(python3 --version 2>&1))" >&2; exit 1; }
+python3 -c 'import venv, ensurepip' 2>/dev/null || {
+  echo "python3 has no venv/ensurepip module: install it (Debian: apt-get install python3-venv)" >&2; exit 1; }
 root=${DESTDIR:-}
 [ -n "$root" ] || [ "$(id -u)" -eq 0 ] || { echo "run as root" >&2; exit 1; }
 etc=$root/etc/tcs
@@ -46,7 +58,7 @@ install_file() {
 }
 owned() { [ -z "$root" ] && chown "$1" "$2" || true; }
 
-echo "tcs install from $src into ${root:-/} (prefix $prefix):"
+echo "tcs install from ${wheelhouse:-$src} into ${root:-/} (prefix $prefix):"
 
 # -- user
 if [ -z "$root" ]; then
@@ -67,7 +79,12 @@ else
   python3 -m venv ${TCS_VENV_OPTIONS:-} "$venv"
   note "created $venv"
 fi
-"$venv/bin/pip" install --quiet --upgrade "$src"
+if [ -n "$wheelhouse" ]; then
+  # offline: tcs and its dependencies from the wheelhouse only
+  "$venv/bin/pip" install --quiet --upgrade --no-index --find-links "$wheelhouse" tcs
+else
+  "$venv/bin/pip" install --quiet --upgrade "$src"
+fi
 after=$("$venv/bin/python" -c 'import tcs; print(tcs.__version__)')
 if [ -z "$before" ]; then
   note "installed tcs $after"
