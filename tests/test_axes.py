@@ -455,11 +455,14 @@ async def test_trajectory_follows_a_sinusoid(live):
         # setpoints: the queue's interpolation of 0.25 s points (0.4″ here, more at the
         # one-sided last knot) and the drive's resolution (1e-4 degrees = 0.36″)
         assert rms(sp) * arcsec < 0.6 and max(map(abs, sp)) * arcsec < 3.0, (rms(sp), max(map(abs, sp)))
-        # the drive: no systematic lag (error = -velocity * lag), noise from SYNC jitter
+        # the drive: no systematic lag (error = -velocity * lag). A setpoint latched a cycle
+        # early or late shows as 10 ms; the rest is where the recorder stamps the samples: the
+        # SYNC's send time, while the simulated drive samples when its thread gets the SYNC,
+        # a few ms later on a loaded machine. So the bound sits below one cycle, not at zero.
         speed = [(t, 2 * math.pi / period * amp * math.sin(2 * math.pi * (t - t0) / period))
                  for t, _ in rec.actual if t0 + 0.5 <= t <= points[-1][0]]
         lag = -sum(e * v for e, (_, v) in zip(act, speed)) / sum(v * v for _, v in speed)
-        assert abs(lag) < 0.003, f"the drive lags the path by {lag * 1e3:.1f} ms"
+        assert abs(lag) < 0.0075, f"the drive lags the path by {lag * 1e3:.1f} ms"
         assert rms(act) * arcsec < 60, f"drive off the path by {rms(act) * arcsec:.1f}″ rms"
     finally:
         await c.close()
