@@ -28,3 +28,14 @@ def test_shell_scripts_parse(script):
     proc = subprocess.run([shell, "-n", str(ROOT / script)], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     assert (ROOT / script).stat().st_mode & 0o111, "not executable"
+
+
+def test_ci_runs_the_readme_gate_then_the_readme_test_command():
+    """.ci/run proves the README's first command (tools/ci/readme_gate.py starts the simulated
+    telescope as the README says) before the second; the gate's own command check passes."""
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert ci.index("python tools/ci/readme_gate.py") < ci.index("\npython -m pytest\n")
+    proc = subprocess.run(["python3", "-c", "import sys; sys.path.insert(0, 'tools/ci'); import readme_gate as g; "
+                           "g.check_commands(); sys.exit(1 if g.failures else 0)"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
