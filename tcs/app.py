@@ -51,9 +51,10 @@ class Service:
                                  manufacturer=self.config.cabinet.manufacturer)
         try:
             await self.server.start(self.host, self.port, serve=False)
-            await self.telescope.start()
+            await self.telescope.start()  # its stop() on failure releases the state directory
         except BaseException:
             await self.server.stop()
+            self.telescope.release_state_dir()
             raise
         self.server.tree = build_tree(self.telescope, self.server)
         try:

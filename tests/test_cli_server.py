@@ -60,6 +60,34 @@ def test_serves_the_simulated_telescope_and_stops_cleanly(tmp_path, sig):
     assert "TPL2 server listening on 127.0.0.1:" in err
 
 
+def test_a_second_server_on_the_same_state_directory_is_refused(tmp_path):
+    """Two simulated telescopes started by one user from sim.toml would share
+    ~/.local/state/tcs/sim (state, status list, pointing model, accounts): the second one is
+    refused, naming the directory and the holder; once the first ends, the directory is free."""
+    port = free_port()
+    first = start(tmp_path, "--port", str(port), "--opentsi-port", "-1", "--alpaca-port", "-1")
+    try:
+        connect(port).close()
+        second = start(tmp_path, "--port", str(free_port()), "--opentsi-port", "-1", "--alpaca-port", "-1")
+        _, err = second.communicate(timeout=120)
+        assert second.returncode == 1, err
+        assert "Traceback" not in err
+        assert f"the state directory {tmp_path / 'state' / 'tcs' / 'sim'} is in use by another " \
+               f"tcs-server (pid {first.pid})" in err, err
+        first.send_signal(signal.SIGTERM)
+        assert first.wait(60) == 0
+        third = start(tmp_path, "--port", str(port), "--opentsi-port", "-1", "--alpaca-port", "-1")
+        try:
+            connect(port, timeout=120).close()
+        finally:
+            third.send_signal(signal.SIGTERM)
+            assert third.wait(60) == 0
+    finally:
+        if first.poll() is None:
+            first.kill()
+        first.communicate()
+
+
 def test_bad_hardware_file_is_refused_with_a_clear_message(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text('[server]\nport = "high"\n[site]\nlatitude = 123\n[nonsense]\n')

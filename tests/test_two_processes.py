@@ -150,10 +150,12 @@ def test_server_drives_the_simulator_in_another_process(tmp_path):
         # Started by mistake during the slew, on the same bus: a second tcs-server with its own
         # TPL2 port hears the first one (SYNC or heartbeat) and exits before sending a frame; one on the
         # same port exits before opening the bus at all. The slew goes on undisturbed.
+        # (each with a state directory of its own: a shared one is refused before all that)
         for port in (free_port(), tpl2_port):
             others.append(subprocess.Popen(
                 [sys.executable, "-m", "tcs.cli.server", "--config", str(hwfile), "--port",
-                 str(port), "--opentsi-port", "-1", "--alpaca-port", "-1"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
+                 str(port), "--opentsi-port", "-1", "--alpaca-port", "-1"],
+                env=dict(env, XDG_STATE_HOME=str(tmp_path / f"state-{port}")), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
         fastest, replies, n = 0.0, [], 10
         deadline = time.monotonic() + 120
         while not (replies and replies[-1].startswith(b"9 COMMAND COMPLETE")):

@@ -108,3 +108,39 @@ class StateStore:
                 os.close(dfd)
         except OSError:
             pass
+
+
+class StateDirectoryLock:
+    """This process's claim on a state directory: an exclusive ``flock`` on ``<dir>/.lock``.
+
+    Two services that share a state directory (two ``tcs-server`` started from files named
+    ``sim.toml`` by one user, say) would overwrite each other's state, status list, pointing
+    model and accounts. The kernel drops the lock whenever its holder ends, so a crash leaves
+    nothing to clean up. The file holds the holder's pid, for the message to the second one.
+    """
+
+    def __init__(self, directory: Path):
+        import fcntl
+
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        path = self.directory / ".lock"
+        self._file = open(path, "a+", encoding="ascii")
+        try:
+            fcntl.flock(self._file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            self._file.seek(0)
+            holder = self._file.read().strip() or "?"
+            self._file.close()
+            from tcs.errors import TcsError
+            raise TcsError(f"the state directory {self.directory} is in use by another tcs-server "
+                           f"(pid {holder}): give this one its own with [state] path in the hardware "
+                           "file or another XDG_STATE_HOME") from None
+        self._file.seek(0)
+        self._file.truncate()
+        self._file.write(f"{os.getpid()}\n")
+        self._file.flush()
+
+    def release(self) -> None:
+        if not self._file.closed:
+            self._file.close()  # closing the file drops the lock

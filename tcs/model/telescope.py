@@ -35,7 +35,7 @@ from tcs.model.health import ERROR, WARNING
 from tcs.model.local import LocalTime
 from tcs.model.mount_config import MountConfig
 from tcs.model.peripherals import Peripherals
-from tcs.model.state_store import StateStore
+from tcs.model.state_store import StateDirectoryLock, StateStore
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +47,7 @@ class Telescope:
         self.config = config
         self.events = EventHub()
         self.state_dir = config.state_dir()
+        self._state_lock = StateDirectoryLock(self.state_dir)  # one service per state directory
         self.store = StateStore(self.state_dir)
         self.local = LocalTime(config, self.store, self.events)
         self.mount_config = MountConfig(config, self.store, self.events)
@@ -104,6 +105,10 @@ class Telescope:
         return await asyncio.get_running_loop().run_in_executor(self._blocking, fn, *args)
 
     # -- life cycle ------------------------------------------------------------------------------
+    def release_state_dir(self) -> None:
+        """Let another service use the state directory (after :meth:`stop`, or a failed start)."""
+        self._state_lock.release()
+
     async def start(self) -> None:
         """Bring up the simulators (if any), the bus, the drives, the axes and the loop."""
         self.events.bind_loop()
@@ -252,6 +257,7 @@ class Telescope:
             self.sims = None
         await self.peripherals.stop()
         await self.cabinet.close()
+        self.release_state_dir()
         if self._blocking is not None:
             self._blocking.shutdown(wait=True)
             self._blocking = None
