@@ -203,3 +203,31 @@ async def test_accounts_are_the_same_on_the_opentci_and_opentsi_ports(tmp_path):
         await svc.stop()
     saved = json.loads((state / "accounts.json").read_text())["accounts"]
     assert set(saved) == {"obs", "admin"} and not saved["admin"]["blocked"]
+
+
+async def test_load_and_uptime_need_no_proc_files_and_a_refused_reboot_says_why(tmp_path, monkeypatch):
+    """The unit's ProcSubset=pid hides /proc/loadavg and /proc/uptime: SYSTEM.LOAD and UPTIME
+    come from sysinfo(2), so they are the host's figures, not 0. A REBOOT the system refuses
+    (the unit's NoNewPrivileges: systemctl is denied) fails with systemctl's words instead of
+    answering OK. (A stand-in systemctl on PATH: this test must never reboot the machine.)"""
+    import os
+
+    from tcs.opentci_server.server_module import host_sysinfo
+
+    uptime, load = host_sysinfo()
+    assert uptime > 0 and abs(load - os.getloadavg()[0]) < 5.0
+    fake = tmp_path / "bin"
+    fake.mkdir()
+    (fake / "systemctl").write_text("#!/bin/sh\necho 'Failed to reboot system: Access denied' >&2\nexit 1\n")
+    (fake / "systemctl").chmod(0o755)
+    monkeypatch.setenv("PATH", f"{fake}:{os.environ['PATH']}")
+    svc, port = await start_service(tmp_path / "state", allow_system_control=True)
+    try:
+        c = await RawClient.connect(port)
+        assert float(await c.get("SERVER.SYSTEM.UPTIME")) >= uptime
+        lines = await c.command(1, "SET SERVER.SYSTEM.REBOOT=1", timeout=60)
+        assert "1 DATA ERROR SERVER.SYSTEM.REBOOT FAILED 2" in lines, lines
+        assert any("Access denied" in line for line in lines), lines
+        await c.close()
+    finally:
+        await svc.stop()
