@@ -173,7 +173,7 @@ class CanBus:
         try:
             self.bus = self._new_bus()
         except (can.CanError, OSError, ValueError, TypeError, ImportError) as exc:
-            raise CommunicationError(self.name, f"cannot open the bus: {exc}") from exc
+            raise CommunicationError(self.name, f"cannot open the bus: {exc}{open_hint(self.section, exc)}") from exc
         self.network = canopen.Network(self.bus)
         self.network.listeners.append(_HealthListener(self))
         self.network.connect()
@@ -403,3 +403,25 @@ class CanBus:
         if now - self._last_receive_error < 0.5:
             time.sleep(0.1)
         self._last_receive_error = now
+
+
+def open_hint(section, exc: BaseException) -> str:
+    """What to look at when ``section``'s interface cannot be opened (appended to the error)."""
+    import errno
+
+    number = getattr(exc, "errno", None) or getattr(getattr(exc, "__cause__", None), "errno", None)
+    channel = section.channel
+    if section.interface == "socketcan":
+        if number == errno.EAFNOSUPPORT:
+            return (": this kernel has no SocketCAN (AF_CAN); load the modules (`modprobe can can_raw`, "
+                    "and `vcan` for a virtual bus) or use a kernel that has them (Debian's "
+                    "linux-image-amd64 does, the cloud kernel does not)")
+        if number == errno.ENODEV:
+            return (f": there is no interface {channel!r}; `ip link` lists the CAN interfaces; bring it "
+                    f"up with `systemctl start tcs-can@{channel}` (tools/systemd/install.sh installs it) "
+                    f"or `ip link set {channel} up type can bitrate ...`")
+        if number == errno.ENETDOWN:
+            return f": {channel!r} is down; `systemctl start tcs-can@{channel}` brings it up"
+    if section.interface == "socketcand" and number == errno.ECONNREFUSED:
+        return ": nothing listens there; is the socketcand server (or tcs-sim) running?"
+    return ""
