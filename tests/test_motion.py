@@ -359,7 +359,9 @@ def test_property_setpoints_stay_inside_limits(lo, width, frac, v, a, cyclic, cm
             elif kind == "offset":
                 planner.set_offset((x - 0.5) * width / 4)
             else:
-                planner.set_speed(0.1 + 4.9 * x)
+                # not slower than 0.5°/s: 300° at 0.1°/s would need more than run()'s 200,000
+                # cycles to come to rest (hypothesis found that, not a planner fault)
+                planner.set_speed(0.5 + 4.5 * x)
         except RangeRefused:
             pass
         stream += [planner.step() for _ in range(steps)]
