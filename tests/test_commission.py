@@ -201,6 +201,27 @@ def test_limit_search_writes_limits_keeping_comments(hw, capsys):
     assert len(after.splitlines()) == len(before.splitlines())
 
 
+def test_limit_search_never_writes_a_shipped_file(capsys):
+    """--write on the shipped sim.toml (the default, or inside site-packages in a wheel install)
+    is refused before any motion, with the way to do it on a copy; the file is unchanged."""
+    from tcs.resources import hwconfig_file
+
+    shipped = hwconfig_file("sim.toml")
+    before = shipped.read_text()
+    code, out = run(capsys, "limits", "az", "--config", shipped, "--write")
+    assert code == 2, out
+    assert "shipped with tcs" in out["error"] and "--config tcs.toml" in out["error"], out
+    assert shipped.read_text() == before
+
+
+def test_limit_search_says_how_long_it_may_take(hw, capsys):
+    code = main(["limits", "zd", "--config", str(hw), "--no-home", "--side", "positive",
+                 "--search", "25", "40", "--speed", "10", "--json"])
+    captured = capsys.readouterr()
+    assert "searching positive between 25.0000 and 40.0000 at 10/s: up to about 1 min" in captured.err, captured.err
+    assert json.loads(captured.out)["worst_case_s"] == round(15 / 10 + 60)
+
+
 def test_limit_search_without_switch_fails_and_writes_nothing(hw, capsys):
     before = hw.read_text()
     code, out = run(capsys, "limits", "zd", "--config", hw, "--no-home", "--side", "positive",

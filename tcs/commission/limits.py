@@ -35,6 +35,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
+from pathlib import Path
 
 from tcs.axes.motion import SoftLimits
 from tcs.drivers.drive import Mode
@@ -199,6 +201,16 @@ def search_side(session: DriveSession, target: Target, mover: CspMover, side: st
     return result
 
 
+def shipped(path) -> bool:
+    """Whether ``path`` is one of the hardware files shipped inside the package."""
+    from tcs.resources import HWCONFIG_DIR
+
+    try:
+        return Path(path).resolve().is_relative_to(Path(HWCONFIG_DIR).resolve())
+    except (OSError, ValueError):
+        return False
+
+
 def run(args, config) -> Outcome:
     out = Outcome("limits")
     target = resolve_target(config, args.axis)
@@ -210,6 +222,17 @@ def run(args, config) -> Outcome:
     lo, hi = search_range(target, args.overtravel, args.search)
     sides = SIDES if args.side == "both" else (args.side,)
     source = config.source
+    if args.write and shipped(source):
+        raise CommissionError(
+            f"{source} is a hardware file shipped with tcs (package data, replaced by every "
+            f"upgrade): copy it (cp {source} tcs.toml) and give the copy with --config tcs.toml "
+            "to write limits into it", ExitCode.USAGE)
+    # the worst case, said before the search starts: the whole range once per side, and back
+    worst = (hi - lo) * len(sides) / speed + 60.0
+    out.data["worst_case_s"] = round(worst)
+    print(f"tcs-commission limits: searching {' and '.join(sides)} between {fmt(lo)} and {fmt(hi)} at "
+          f"{speed:g}/s: up to about {worst / 60:.0f} min (faster with --speed, narrower with --search)",
+          file=sys.stderr, flush=True)
     config, simulate = prepare_config(config, args.simulate)
     name = target.drive
     widened = dataclasses.replace(target.section, min_position=lo, max_position=hi)
