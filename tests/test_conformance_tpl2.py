@@ -160,6 +160,11 @@ async def test_string_slices(service):
     assert await c.get("CONFIG.MOUNT{0:1}") == '"AZ"'  # characters 0..1, inclusive
     assert await c.get("CONFIG.MOUNT{3:99}") == '"ZD"'  # clipped to the string
     assert await c.get("CONFIG.MOUNT{9:12}") == '""'
+    # TPL2 §4.1.2: an omitted bound is the string's start or end; a start past the end is ""
+    assert await c.get("CONFIG.MOUNT{:2}") == '"AZ-"'
+    assert await c.get("CONFIG.MOUNT{3:}") == '"ZD"'
+    assert await c.get("CONFIG.MOUNT{:}") == '"AZ-ZD"'
+    assert await c.get("CONFIG.MOUNT{100:}") == '""'
     assert await c.get("LOCAL.LATITUDE{0:1}") == "TYPE"  # not a STRING
     assert await c.get("CONFIG.MOUNT{0:1}!NAME") == "TYPE"
     # a bad slice fails its object only, never the whole GET

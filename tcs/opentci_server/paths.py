@@ -88,7 +88,8 @@ class ObjectRef:
     prop:
         The upper-cased property name after ``!``, or ``None``.
     slice:
-        ``(a, b)`` of a string slice ``X{a:b}``: characters a to b inclusive, 0-based.
+        ``(a, b)`` of a string slice ``X{a:b}``: characters a to b inclusive, 0-based; b is
+        ``None`` for "to the end" (``X{a:}``).
     slice_error:
         The error keyword of a slice that cannot be applied (malformed, decreasing or not on
         the last part: ``DIMENSION``), else ``None``.
@@ -97,7 +98,7 @@ class ObjectRef:
     text: str
     parts: tuple[PathPart, ...]
     prop: str | None = None
-    slice: tuple[int, int] | None = None
+    slice: tuple[int, int | None] | None = None
     slice_error: str | None = None
 
     @property
@@ -111,7 +112,9 @@ class ObjectRef:
 
 _SIMPLE = re.compile(r"[A-Za-z0-9_-]+(?:\.[A-Za-z0-9_-]+)*(?:![A-Za-z0-9_-]+)?\Z", re.ASCII)
 _PART = re.compile(r"(?:([A-Za-z0-9_-]+)|<([0-9]{1,9})>)(?:\[([^\]]*)\])?(?:\{([^}]*)\})?", re.ASCII)
-_SLICE = re.compile(r"\s*([0-9]{1,9})\s*:\s*([0-9]{1,9})\s*\Z", re.ASCII)
+# TPL2 §4.1.2: X{a:b}, characters a to b inclusive; an omitted a is the string's start, an
+# omitted b its end ({:2}, {4:}, {:}); a start past the end reads "".
+_SLICE = re.compile(r"\s*([0-9]{1,9})?\s*:\s*([0-9]{1,9})?\s*\Z", re.ASCII)
 _PROP = re.compile(r"!([A-Za-z0-9_-]+)\Z", re.ASCII)
 _RANGE = re.compile(r"\s*([0-9]{1,9})\s*(?:-\s*([0-9]{1,9})\s*)?\Z", re.ASCII)
 
@@ -172,10 +175,12 @@ def _parse_object(text: str) -> ObjectRef:
     slice = None
     if slice_text is not None and slice_error is None:
         s = _SLICE.match(slice_text)
-        if s is None or int(s.group(1)) > int(s.group(2)):
+        first = int(s.group(1)) if s is not None and s.group(1) is not None else 0
+        last = int(s.group(2)) if s is not None and s.group(2) is not None else None
+        if s is None or (last is not None and first > last):
             slice_error = "DIMENSION"
         else:
-            slice = (int(s.group(1)), int(s.group(2)))
+            slice = (first, last)
     return ObjectRef(text, tuple(parts), prop, slice, slice_error)
 
 

@@ -427,7 +427,7 @@ class Tree:
         if value is None:
             return "NULL"
         a, b = ref.slice  # type: ignore[misc]
-        return format_value(ascii_text(str(value))[a:b + 1], STRING)
+        return format_value(ascii_text(str(value))[a:None if b is None else b + 1], STRING)
 
     # -- writes ------------------------------------------------------------------------------
 
