@@ -150,6 +150,7 @@ async def test_idbusy_and_reuse_after_final_line(motor_server):
     assert await c.readline() in ("4 COMMAND OK", "4 EVENT INFO MOTOR:23 moving")
     while (line := await c.readline()) != "0 COMMAND ERROR IDBUSY 4":
         pass
+    assert await c.readline() == "0 COMMAND FAILED"  # the refused line's final line
     motor.arrive()
     assert (await c.until(4))[-1] == "4 COMMAND COMPLETE"
     assert (await c.command(4, "GET MOTOR.REALPOS"))[1] == "4 DATA INLINE MOTOR.REALPOS=1.0"

@@ -16,9 +16,9 @@ The command lifecycle (protocol doc §4), one final line per command:
 situation                  lines
 =========================  =============================================================
 not logged in              ``<id> COMMAND ERROR UNAUTHENTICATED``, ``<id> COMMAND FAILED``
-id still running           ``0 COMMAND ERROR IDBUSY <id>`` (the running command is untouched)
-id out of range            ``0 COMMAND ERROR IDRANGE <id>``
-unparseable line           ``<id> COMMAND ERROR SYNTAX``, ``<id> COMMAND FAILED`` (id 0: first line only)
+id still running           ``0 COMMAND ERROR IDBUSY <id>``, ``0 COMMAND FAILED`` (the running command is untouched)
+id out of range            ``0 COMMAND ERROR IDRANGE <id>``, ``0 COMMAND FAILED``
+unparseable line           ``<id> COMMAND ERROR SYNTAX``, ``<id> COMMAND FAILED`` (id 0 when none could be read)
 unknown verb               ``<id> COMMAND ERROR UNKNOWN [unknown command X]``, ``<id> COMMAND FAILED``
 too many in flight         ``<id> COMMAND ERROR TOOMANY``, ``<id> COMMAND FAILED``
 GET / SET                  ``COMMAND OK``, one ``DATA`` line per object, ``COMMAND COMPLETE``
@@ -339,6 +339,7 @@ class Session(asyncio.Protocol):
             self.send(m.AuthError())
         elif kind is m.BadId:
             self.send(m.CommandError.idrange(msg.text))
+            self.send(m.CommandFailed(0))  # every refused command ends with a final line
         elif kind is m.BadSyntax or kind is m.LineTooLong:
             self._refuse(msg.cmd_id, "SYNTAX")
         elif kind is m.UnknownCommand:
@@ -348,8 +349,7 @@ class Session(asyncio.Protocol):
 
     def _refuse(self, cmd_id: int, code: str, detail: str | None = None) -> None:
         self.send(m.CommandError(cmd_id, code, detail))
-        if cmd_id:
-            self.send(m.CommandFailed(cmd_id))
+        self.send(m.CommandFailed(cmd_id))  # id 0 too: the final line of the refused command
 
     def _admit_command(self, cmd_id: int) -> bool:
         if not self.authenticated:
@@ -357,6 +357,7 @@ class Session(asyncio.Protocol):
             return False
         if cmd_id in self.commands:
             self.send(m.CommandError.idbusy(cmd_id))
+            self.send(m.CommandFailed(0))  # ends the refused line; the running command goes on
             return False
         if len(self.commands) >= self.server.settings.max_in_flight:
             self._refuse(cmd_id, "TOOMANY")
