@@ -542,7 +542,8 @@ class Session(asyncio.Protocol):
 
     def _data_result(self, cmd_id: int, obj: str, errors: list[str]) -> None:
         if any(errors):
-            self.send(m.DataError(cmd_id, obj, tuple(e or "OK" for e in errors)))
+            # one slot per element; an element that was written has an empty slot (",RANGE")
+            self.send(m.DataError(cmd_id, obj, tuple(e or "" for e in errors)))
         else:
             self.send(m.DataOk(cmd_id, obj))
 
