@@ -1,6 +1,7 @@
 """``tcs-client``: talk to the telescope over TPL2 from a shell or a script.
 
-    tcs-client get VAR... [--json]            values (strings decoded), exit 1 if one failed
+    tcs-client get VAR... [--json]            values (strings decoded; a module: its variables),
+                                              exit 1 if one failed (the error and its meaning)
     tcs-client set VAR=VALUE... [--no-wait]   one SET; waits for its completion with a
                                               progress line; exit 0 done, 1 failed
     tcs-client watch [VAR...] [--count N]     events and a compact status line, live
@@ -17,7 +18,10 @@ refused, 130 interrupted (a running SET is aborted first).
 How it works: one blocking socket, lines parsed with the server's own reply parser
 (:func:`tcs.opentci_server.protocol.parse_reply`), replies routed by command id so that a SET
 and the GETs of its progress line run at the same time on one connection; events are shown
-as they come. Nothing here imports the service: it is a plain client.
+as they come; a SET's progress variables are read once per progress line, not in a loop.
+Error keywords are printed with their meaning (:func:`explain`: the object's MIN/MAX, levels,
+the OpenTCI meaning of ``FAILED n`` from :data:`tcs.errors.EVENT_MEANINGS`). Nothing here
+imports the service: it is a plain client.
 """
 
 from __future__ import annotations

@@ -416,7 +416,8 @@ class Session(asyncio.Protocol):
         self._arm_timer(self.server.settings.idle_timeout)
         self.authenticated = True
         self.send(m.AuthOk(rlevel, wlevel))
-        log.info("connection %d (%s) logged in as %s (%d %d)", self.id, self.address, name, rlevel, wlevel)
+        # DEBUG: tcs-client opens a connection per call (failed logins stay WARNING)
+        log.debug("connection %d (%s) logged in as %s (%d %d)", self.id, self.address, name, rlevel, wlevel)
 
     # -- time-outs -----------------------------------------------------------------------------
     def _arm_timer(self, seconds: float) -> None:
