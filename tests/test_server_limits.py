@@ -223,6 +223,23 @@ async def test_an_attacker_guessing_slows_himself_not_the_operator(make_server):
         await asyncio.wait(attackers, timeout=WAIT_S)
 
 
+async def test_a_login_under_back_off_outlives_the_login_timeout(make_server):
+    """The back-off is the server's own wait: a right password checked after it gets in even
+    when that takes longer than ``login_timeout`` (which is for clients that say nothing)."""
+    server = await make_server(login_timeout=0.5, auth_fail_delay=0.01, auth_backoff_failures=1,
+                               auth_backoff_max=1.0, auth_max_failures=100)
+    c = await RawClient.connect(server.port, login=None)
+    for i in range(8):
+        await c.send(f'AUTH PLAIN "admin" "guess{i}"')
+        assert await c.readline(timeout=WAIT_S) == "AUTH FAILED"
+    assert server.guard.logins.backoff("admin") == pytest.approx(1.0)
+    operator, reply = await login(server.port, "admin", "admin-pw")
+    assert reply == "AUTH OK 0 0"
+    assert await operator.get("SERVER.CONNECTION.USERNAME") == '"admin"'
+    for x in (c, operator):
+        await x.close()
+
+
 async def test_two_hundred_logins_at_once_from_one_address(make_server):
     """Issue 22.9: 200 clients logging in at once through one address (pollers behind one SSH
     tunnel after a restart) all get in with the default limits (old code: 136 refused by a

@@ -433,6 +433,12 @@ class Session(asyncio.Protocol):
         if self._closed:
             return
         cfg = self.server.settings
+        if not self.authenticated and self._auth_task is not None:
+            # a login being checked (back-off, hash queue): its answer comes in bounded time
+            # (auth_backoff_max + the check + auth_fail_delay), and a right password must not
+            # be cut off by the server's own slowness
+            self._arm_timer(1.0)
+            return
         if not self.authenticated:
             log.info("connection %d (%s): no login within %.1f s, closing it", self.id, self.address,
                      cfg.login_timeout)
