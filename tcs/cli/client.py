@@ -320,9 +320,9 @@ def problems_of(conn: Connection, reply: Reply, writing: bool) -> list[str]:
             if len(errors) == 1:
                 out.append(f"{d.obj}: {explain(conn, d.obj, errors[0], writing)}")
             else:  # one per element: OK,TYPE,OK
-                out.append(f"{d.obj}: {','.join(errors)} ("
-                           + "; ".join(f"{e}: {explain(conn, d.obj, e, writing).partition(' (')[2][:-1]}"
-                                       for e in dict.fromkeys(errors) if e != "OK") + ")")
+                meanings = [explain(conn, d.obj, e, writing) for e in dict.fromkeys(errors) if e != "OK"]
+                out.append(f"{d.obj}: {','.join(errors)}"
+                           + (f" ({'; '.join(meanings)})" if meanings else ""))
         elif isinstance(d, m.DataInline):
             out.extend(f"{d.obj}: {explain(conn, d.obj, v, writing)}"
                        for v in map(decode, d.values) if isinstance(v, WireError))
@@ -535,7 +535,7 @@ def cmd_set(conn: Connection, args) -> int:
                         poll = conn.start("GET " + ";".join(watch))
                     else:
                         line.show(f"{what}: {now - started:.1f} s", force=True)
-            wake = [0.2, next_poll - now]
+            wake = [0.2] if poll is not None else [0.2, next_poll - now]
             if deadline is not None:
                 wake.append(deadline - now)
             conn.pump(max(0.01, min(wake)))
