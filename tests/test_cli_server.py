@@ -83,13 +83,14 @@ def test_port_in_use_is_a_clear_error(tmp_path):
     assert "Traceback" not in err and "address already in use" in err.lower()
 
 
-STAMP = r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d\.\d{3} (DEBUG|INFO|WARNING|ERROR|CRITICAL) "
+STAMP = r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z (DEBUG|INFO|WARNING|ERROR|CRITICAL) "
 
 
 def test_a_log_started_by_hand_has_timestamps_and_quiet_logins(tmp_path):
     """Issue 25: a server started by hand logged without time stamps, and every login (one per
     tcs-client call) was an INFO line. Now each line starts with the local time, a login is
-    DEBUG (not shown at the default INFO) and a failed login stays a WARNING."""
+    DEBUG (not shown at the default INFO) and a failed login stays a WARNING. The time is UTC,
+    as in CABINET.STATUS.LOG[]."""
     import re
 
     port = free_port()

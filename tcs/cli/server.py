@@ -5,8 +5,9 @@ No arguments: the simulated telescope of ``hwconfig/sim.toml`` on 127.0.0.1:6543
 ``--opentsi-port`` the port of the OpenTSI tree (65433 in sim.toml; -1 serves none),
 ``--alpaca-port`` the ASCOM Alpaca devices' (11111 in sim.toml; -1 serves none).
 Logs go to stderr: under systemd (stderr is the journal, ``$JOURNAL_STREAM``) as ``LEVEL
-name: message`` — journald adds the time; started by hand with the local time in front
-(``2026-11-25 21:03:04.123 INFO name: message``). A bad hardware file is
+name: message`` — journald adds the time; started by hand with the time (UTC, as in
+``CABINET.STATUS.LOG[]``) in front: ``2026-11-25T21:03:04.123Z INFO name: message``. A bad
+hardware file is
 reported key by key and the exit status is 2 — also a valid file that cannot run a service: no
 ``[[users]]``, or a real telescope without ``[site]``. ``--check-config FILE`` does only that
 validation (and that the EDS files exist), touching no hardware: status 0 or 2. SIGINT and
@@ -24,6 +25,7 @@ import logging
 import os
 import signal
 import sys
+import time
 
 from tcs import __version__
 from tcs.config import DEFAULT_CONFIG, HwConfig, load_config
@@ -79,14 +81,17 @@ def stderr_is_journal() -> bool:
 
 #: Log line formats: journald stamps each line itself; a log started by hand needs the time.
 JOURNAL_FORMAT = "%(levelname)s %(name)s: %(message)s"
-HAND_FORMAT = "%(asctime)s.%(msecs)03d %(levelname)s %(name)s: %(message)s"
+#: (UTC, as the lines of ``CABINET.STATUS.LOG[]``: ``2026-11-25T21:03:04.123Z``).
+HAND_FORMAT = "%(asctime)s.%(msecs)03dZ %(levelname)s %(name)s: %(message)s"
 
 
 def setup_logging(level: str) -> None:
     journal = stderr_is_journal()
-    logging.basicConfig(stream=sys.stderr, level=getattr(logging, level),
-                        format=JOURNAL_FORMAT if journal else HAND_FORMAT,
-                        datefmt="%Y-%m-%d %H:%M:%S")
+    handler = logging.StreamHandler(sys.stderr)
+    formatter = logging.Formatter(JOURNAL_FORMAT if journal else HAND_FORMAT, datefmt="%Y-%m-%dT%H:%M:%S")
+    formatter.converter = time.gmtime
+    handler.setFormatter(formatter)
+    logging.basicConfig(level=getattr(logging, level), handlers=[handler])
     logging.getLogger("can.interfaces.socketcand").setLevel(logging.ERROR)
     from tcs.log_repeat import install
     install()  # a repeated line: once, then a count every 10 s (a dead bus floods otherwise)
