@@ -16,7 +16,8 @@ configured method (then any distance inside the limits); ``--unreferenced`` jogs
 anyway, with the limits counted in the current frame — only when you know where the axis
 stands (the limit switches are then the protection).
 
-Exit codes: 0 moved, 1 the move failed, 2 refused (outside the limits, bad speed),
+Exit codes: 0 moved, 1 the move failed, 2 refused (outside the limits, unreferenced beyond the
+creep distance, bad speed),
 3 the drive does not answer.
 """
 
