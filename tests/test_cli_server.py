@@ -109,3 +109,54 @@ def test_port_in_use_is_a_clear_error(tmp_path):
         out, err = proc.communicate(timeout=60)
     assert proc.returncode == 1
     assert "Traceback" not in err and "address already in use" in err.lower()
+
+
+STAMP = r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z (DEBUG|INFO|WARNING|ERROR|CRITICAL) "
+
+
+def test_a_log_started_by_hand_has_timestamps_and_quiet_logins(tmp_path):
+    """Issue 25: a server started by hand logged without time stamps, and every login (one per
+    tcs-client call) was an INFO line. Now each line starts with the local time, a login is
+    DEBUG (not shown at the default INFO) and a failed login stays a WARNING. The time is UTC,
+    as in CABINET.STATUS.LOG[]."""
+    import re
+
+    port = free_port()
+    proc = start(tmp_path, "--port", str(port), "--opentsi-port", "-1", "--alpaca-port", "-1")
+    try:
+        for password, answer in (("admin", b"AUTH OK 0 0\n"), ("wrong", b"AUTH FAILED\n")):
+            s = connect(port)
+            f = s.makefile("rb")
+            assert f.readline().startswith(b"TPL2 2.1 CONN ")
+            s.sendall(f'AUTH PLAIN "admin" "{password}"\n'.encode())
+            assert f.readline() == answer
+            s.close()
+            f.close()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(30) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        out, err = proc.communicate()
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert lines and all(re.match(STAMP, line) for line in lines), err
+    assert not any("logged in as admin" in line for line in lines), err
+    assert any(re.match(STAMP + r"tcs\.opentci_server\.session: .*failed login as 'admin'", line)
+               for line in lines), err
+
+
+def test_under_journald_lines_leave_the_time_to_the_journal(tmp_path):
+    """systemd's journal stamps every line itself: when stderr is the stream $JOURNAL_STREAM
+    names (its device:inode), the lines are ``LEVEL name: message``; the variable inherited by
+    a process whose stderr goes elsewhere does not count."""
+    code = ("import logging; from tcs.cli.server import setup_logging; setup_logging('INFO'); "
+            "logging.getLogger('tcs.x').info('hello')")
+    log = tmp_path / "stderr.log"
+    with open(log, "w") as stream:
+        st = os.fstat(stream.fileno())
+        env = dict(os.environ, JOURNAL_STREAM=f"{st.st_dev}:{st.st_ino}")
+        subprocess.run([sys.executable, "-c", code], env=env, stderr=stream, check=True, timeout=60)
+    assert log.read_text() == "INFO tcs.x: hello\n"
+    elsewhere = subprocess.run([sys.executable, "-c", code], env=env, stderr=subprocess.PIPE,
+                               text=True, check=True, timeout=60)
+    assert elsewhere.stderr.endswith(" INFO tcs.x: hello\n") and elsewhere.stderr[:2] == "20"

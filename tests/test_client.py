@@ -5,6 +5,7 @@ process, as an operator's script would run it. Plus login options, ``tree`` and 
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import subprocess
@@ -158,5 +159,110 @@ def test_implicit_login_and_crlf_lines(tmp_path):
                       stdin="")
         assert proc.returncode == 0, proc.stderr
         assert proc.stdout == "CONFIG.MOUNT=AZ-ZD\nSERVER.CONNECTION.USERNAME=admin\n"
+    finally:
+        svc.stop()
+
+
+# ------------------------------------------------------------------ issue 25: smaller client items
+def on_service(live, fn):
+    """``fn()`` on the service's loop (its objects are not thread-safe), from a plain test."""
+    async def call():
+        return fn()
+
+    return asyncio.run_coroutine_threadsafe(call(), live.loop).result(WAIT)
+
+
+def test_set_polls_at_the_progress_interval(env, live):
+    """Issue 25: while a SET runs, tcs-client reads the progress variables once per progress
+    interval (old code: a GET after every answer, ~410 GETs/s). Counted on the server: the
+    commands of the client's connection over the time it was connected."""
+    assert client(env, "set", "CABINET.POWER=1").returncode == 0
+    try:
+        assert client(env, "set", "CABINET.REINIT=1").returncode == 0
+        until(env, "CABINET.REFERENCED", lambda v: v == 1.0)
+        server = live.service.server
+        before = set(on_service(live, lambda: list(server.sessions)))
+        started = time.monotonic()
+        proc = subprocess.Popen([sys.executable, "-m", "tcs.cli.client", "set", "AZ.TARGETPOS=-150",
+                                 "--progress-interval", "1"], env=env, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        commands: dict[int, int] = {}
+        while proc.poll() is None:
+            for sid, n in on_service(live, lambda: [(s.id, len(s.command_times))
+                                                    for s in server.sessions.values()]):
+                if sid not in before:
+                    commands[sid] = max(n, commands.get(sid, 0))
+            time.sleep(0.05)
+        elapsed = time.monotonic() - started
+        out, err = proc.communicate(timeout=WAIT)
+        assert proc.returncode == 0, err
+        assert get(env, "AZ.REALPOS")["AZ.REALPOS"] == pytest.approx(-150, abs=0.01)
+        assert len(commands) == 1, commands
+        (count,) = commands.values()
+        # the SET, one GET per second connected (the first after 0.5 s), DISCONNECT: old code ~100s
+        assert 1 <= count <= elapsed / 1.0 + 3, (count, elapsed, err)
+        assert "AZ.TARGETPOS=-150: done" in err
+    finally:
+        client(env, "set", "AZ.TARGETPOS=0")
+        assert client(env, "set", "CABINET.POWER=0").returncode == 0
+
+
+def test_get_of_a_module_prints_its_members(env):
+    """Issue 25: ``get CABINET.CORE.CYCLE`` (a module) printed INVALID; now its variables."""
+    proc = client(env, "get", "CABINET.CORE.CYCLE")
+    assert proc.returncode == 0, proc.stderr
+    lines = dict(line.split("=", 1) for line in proc.stdout.splitlines())
+    assert {"CABINET.CORE.CYCLE.CYCLES", "CABINET.CORE.CYCLE.LATE",
+            "CABINET.CORE.CYCLE.MAX_LATENESS"} <= set(lines), proc.stdout
+    assert int(lines["CABINET.CORE.CYCLE.CYCLES"]) > 0
+    both = client(env, "get", "--json", "CONFIG.MOUNT", "CABINET.CORE")  # a sub-module and a variable
+    assert both.returncode == 0, both.stderr
+    values = json.loads(both.stdout)
+    assert values["CONFIG.MOUNT"] == "AZ-ZD" and "CABINET.CORE.CYCLE.LATE" in values
+    assert "CABINET.CORE.DRIVE[]: module array" in both.stderr
+
+
+def test_errors_say_what_they_mean(env):
+    """Issue 25: bare keywords get their meaning: RANGE with the object's MIN/MAX, DENIED with
+    read-only / write-only / the levels, FAILED n with the OpenTCI meaning of n."""
+    refused = client(env, "set", "ZD.TARGETPOS=100")
+    assert refused.returncode == 1
+    assert "ZD.TARGETPOS: RANGE (allowed -85 .. 85)" in refused.stderr, refused.stderr
+    read_only = client(env, "set", "AZ.REALPOS=1")
+    assert read_only.returncode == 1 and "AZ.REALPOS: DENIED (read-only)" in read_only.stderr, read_only.stderr
+    write_only = client(env, "get", "CABINET.REINIT")
+    assert write_only.returncode == 1
+    assert "CABINET.REINIT: DENIED (write-only)" in write_only.stderr, write_only.stderr
+    off = client(env, "set", "ZD.TARGETPOS=10")  # main power is off
+    assert off.returncode == 1
+    assert "ZD.TARGETPOS: FAILED 5 (invalid operation mode" in off.stderr, off.stderr
+    unknown = client(env, "get", "NOPE.X")
+    assert "NOPE.X: UNKNOWN (no such object)" in unknown.stderr
+
+
+def test_watch_on_the_opentsi_port_shows_faults(tmp_path):
+    """Issue 25: on the OpenTSI port ``watch`` printed "errors none" while
+    TELESCOPE.STATUS.LIST listed faults (it looked for OpenTCI's ERROR_STATE variables)."""
+    text = CONFIG.read_text().replace('port = 0\n', 'port = 0\nopentsi_port = 0\n', 1)
+    hwfile = tmp_path / "tsi.toml"
+    hwfile.write_text(text)
+    svc = LiveService(hwfile, tmp_path / "state").start()
+    try:
+        env = {**os.environ, "TCS_HOST": "127.0.0.1", "TCS_PORT": str(svc.service.opentsi_port),
+               "TCS_USER": "admin"}
+        quiet = client(env, "watch", "--count", "1", "--password-file", "-", stdin="admin\n")
+        assert quiet.returncode == 0, quiet.stderr
+        assert "errors none" in quiet.stdout and "ready " in quiet.stdout, quiet.stdout
+        on_service(svc, lambda: svc.telescope.sims[1].inject_fault("overcurrent"))
+        deadline = time.monotonic() + WAIT
+        while True:
+            watch = client(env, "watch", "--count", "1", "--password-file", "-", stdin="admin\n")
+            assert watch.returncode == 0, watch.stderr
+            status = watch.stdout.strip().splitlines()[-1]
+            if "errors none" not in status:
+                break
+            assert time.monotonic() < deadline, status
+            time.sleep(0.3)
+        assert "AZ=" in status, status
     finally:
         svc.stop()

@@ -257,19 +257,47 @@ def test_proposal_keeps_margins():
 
 # ------------------------------------------------------------------------------ jog
 def test_jog_moves_inside_limits_and_refuses_beyond(hw, capsys):
-    code, out = run(capsys, "jog", "az", "2.5", "--config", hw, "--speed", "10")
+    code, out = run(capsys, "jog", "az", "2.5", "--config", hw, "--speed", "10", "--unreferenced")
     assert code == 0, out
     assert out["start"] == pytest.approx(0.0, abs=1e-3)
     assert out["position"] == pytest.approx(2.5, abs=0.01)
-    code, out = run(capsys, "jog", "az", "-7", "--config", hw)
+    code, out = run(capsys, "jog", "az", "-7", "--config", hw, "--unreferenced")
     assert code == 2
     assert "outside the software limits [-4.5, 4.5]" in out["error"]
     code, out = run(capsys, "jog", "az", "1", "--speed", "500", "--config", hw)
     assert code == 2 and "--speed" in out["error"]
 
 
+def test_jog_an_unreferenced_drive_only_creeps(hw, capsys):
+    """Issue 22.10: an unreferenced drive counts its position from where it was switched on, so
+    the software limits mean nothing: without --unreferenced it may only creep (creep_distance,
+    default 1 % of the drive's range: 0.1 of AZ's 10 here), with a message saying why (old
+    code: moved 2.5, limits checked in the arbitrary frame). --home or a configured creep
+    distance lets it go further."""
+    code, out = run(capsys, "jog", "az", "2.5", "--config", hw, "--speed", "10")
+    assert code == 2, out
+    assert "not referenced" in out["error"] and "--unreferenced" in out["error"]
+    assert "--home" in out["error"] and "creep 0.1 " in out["error"]
+    assert "position" not in out and out["referenced"] is False
+    code, out = run(capsys, "jog", "az", "--", "-0.08", "--config", hw, "--speed", "10")
+    assert code == 0, out  # a creep is allowed (and the limits are not what bounds it)
+    assert out["position"] == pytest.approx(out["start"] - 0.08, abs=0.01)
+    assert out["creep_distance"] == pytest.approx(0.1)
+    code, out = run(capsys, "jog", "az", "2.5", "--config", hw, "--speed", "10", "--home")
+    assert code == 0, out
+    assert out["referenced"] is True
+    assert out["position"] == pytest.approx(out["start"] + 2.5, abs=0.01)
+    hw.write_text(hw.read_text(encoding="utf-8").replace(
+        "following_error_window = 2.0\nmax_velocity = 20.0\nmax_acceleration = 100.0\nquick_stop",
+        "following_error_window = 2.0\ncreep_distance = 3.0\nmax_velocity = 20.0\n"
+        "max_acceleration = 100.0\nquick_stop", 1), encoding="utf-8")
+    code, out = run(capsys, "jog", "az", "2.5", "--config", hw, "--speed", "10")
+    assert code == 0, out
+    assert out["creep_distance"] == 3.0 and out["referenced"] is False
+
+
 def test_jog_a_profile_position_drive(hw, capsys):
-    code, out = run(capsys, "jog", "focus", "-2", "--config", hw, "--speed", "4")
+    code, out = run(capsys, "jog", "focus", "-2", "--config", hw, "--speed", "4", "--unreferenced")
     assert code == 0, out
     assert out["start"] == pytest.approx(10.0) and out["position"] == pytest.approx(8.0, abs=0.01)
 
@@ -285,7 +313,8 @@ def test_drives_left_disabled_and_quiet_after_the_tool(hw, capsys):
 
     sims = start_simulated_drives(load_config(hw))
     try:
-        code, out = run(capsys, "jog", "az", "-1", "--config", hw, "--no-simulate", "--speed", "10")
+        code, out = run(capsys, "jog", "az", "-1", "--config", hw, "--no-simulate", "--speed", "10",
+                        "--unreferenced")
         assert code == 0, out
         time.sleep(0.5)            # past the heartbeat consumer time the tool had configured
         az = sims[1]
@@ -540,7 +569,7 @@ def test_strong_correlations_are_warned_about():
 def test_axis_names_in_any_case_and_negative_distance_before_options(hw, capsys):
     config = load_config(hw)
     assert resolve_target(config, "AZ").drive == "az" == resolve_target(config, "Az").drive
-    code, out = run(capsys, "jog", "AZ", "--", "-1.5", "--speed", "10", "--config", hw)
+    code, out = run(capsys, "jog", "AZ", "--", "-1.5", "--speed", "10", "--config", hw, "--unreferenced")
     assert code == 0, out
     assert out["drive"] == "az" and out["position"] == pytest.approx(-1.5, abs=0.01)
     code, out = run(capsys, "home", "ZD", "--config", hw)

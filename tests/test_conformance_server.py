@@ -187,6 +187,8 @@ async def test_accounts_are_the_same_on_the_opentci_and_opentsi_ports(tmp_path):
     try:
         tsi = svc.opentsi_port
         assert tsi > 0
+        # and one per-name login back-off (issue 22.9): guesses on one port slow the other too
+        assert svc.server.guard.logins is svc.opentsi_server.guard.logins
         c = await RawClient.connect(port)
         t = await RawClient.connect(tsi)
         lines = await t.command(1, 'SET SERVER.ACCOUNTS.ADD="obs:pw1:3:3"', timeout=30)

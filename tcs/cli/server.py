@@ -4,7 +4,10 @@ No arguments: the simulated telescope of ``hwconfig/sim.toml`` on 127.0.0.1:6543
 ``--config FILE`` runs whatever the file describes; ``--host``/``--port`` override the file,
 ``--opentsi-port`` the port of the OpenTSI tree (65433 in sim.toml; -1 serves none),
 ``--alpaca-port`` the ASCOM Alpaca devices' (11111 in sim.toml; -1 serves none).
-Logs go to stderr as ``LEVEL name: message`` (journald adds the time). A bad hardware file is
+Logs go to stderr: under systemd (stderr is the journal, ``$JOURNAL_STREAM``) as ``LEVEL
+name: message`` — journald adds the time; started by hand with the time (UTC, as in
+``CABINET.STATUS.LOG[]``) in front: ``2026-11-25T21:03:04.123Z INFO name: message``. A bad
+hardware file is
 reported key by key and the exit status is 2 — also a valid file that cannot run a service: no
 ``[[users]]``, or a real telescope without ``[site]``. ``--check-config FILE`` does only that
 validation (and that the EDS files exist), touching no hardware: status 0 or 2. SIGINT and
@@ -19,8 +22,10 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import os
 import signal
 import sys
+import time
 
 from tcs import __version__
 from tcs.config import DEFAULT_CONFIG, HwConfig, load_config
@@ -59,9 +64,34 @@ def service_config(path: str) -> HwConfig:
     return config
 
 
+def stderr_is_journal() -> bool:
+    """True when stderr is connected to journald: systemd sets ``$JOURNAL_STREAM`` to the
+    ``device:inode`` of that stream (a child whose stderr was redirected elsewhere inherits the
+    variable, so it is compared with stderr's own device and inode)."""
+    value = os.environ.get("JOURNAL_STREAM", "")
+    dev, _, ino = value.partition(":")
+    if not (dev.isdigit() and ino.isdigit()):
+        return False
+    try:
+        st = os.fstat(sys.stderr.fileno())
+    except (OSError, ValueError, AttributeError):
+        return False
+    return (st.st_dev, st.st_ino) == (int(dev), int(ino))
+
+
+#: Log line formats: journald stamps each line itself; a log started by hand needs the time.
+JOURNAL_FORMAT = "%(levelname)s %(name)s: %(message)s"
+#: (UTC, as the lines of ``CABINET.STATUS.LOG[]``: ``2026-11-25T21:03:04.123Z``).
+HAND_FORMAT = "%(asctime)s.%(msecs)03dZ %(levelname)s %(name)s: %(message)s"
+
+
 def setup_logging(level: str) -> None:
-    logging.basicConfig(stream=sys.stderr, level=getattr(logging, level),
-                        format="%(levelname)s %(name)s: %(message)s")
+    journal = stderr_is_journal()
+    handler = logging.StreamHandler(sys.stderr)
+    formatter = logging.Formatter(JOURNAL_FORMAT if journal else HAND_FORMAT, datefmt="%Y-%m-%dT%H:%M:%S")
+    formatter.converter = time.gmtime
+    handler.setFormatter(formatter)
+    logging.basicConfig(level=getattr(logging, level), handlers=[handler])
     logging.getLogger("can.interfaces.socketcand").setLevel(logging.ERROR)
     from tcs.log_repeat import install
     install()  # a repeated line: once, then a count every 10 s (a dead bus floods otherwise)

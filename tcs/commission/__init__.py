@@ -14,7 +14,7 @@ Usage::
     tcs-commission limits AXIS       [--speed V] [--margin M] [--backoff B]
                                      [--overtravel X | --search LO HI]
                                      [--side both|negative|positive] [--no-home] [--write]
-    tcs-commission jog    AXIS ±DISTANCE [--speed V] [--home]
+    tcs-commission jog    AXIS ±DISTANCE [--speed V] [--home | --unreferenced]
     tcs-commission pointing [--dump FILE | --synthetic N | --guided STARS] [--out DIR]
                             [--terms IA,IE,...] [--fix TERM=ARCSEC]... [--no-plots]
                             [--true TERM=ARCSEC]... [--noise ARCSEC] [--seed N] [--count N]
@@ -29,7 +29,7 @@ telescope (its drives are started in this process)::
     tcs-commission scan
     tcs-commission home all                     # ZD/DEC first, then AZ/HA, then the rest
     tcs-commission limits az --speed 2 --write  # find the switches, write min/max
-    tcs-commission jog zd -- -5 --speed 1       # or: jog zd -5
+    tcs-commission jog zd -- -5 --speed 1 --home  # or: jog zd -5 --home
     tcs-commission pointing --synthetic 60 --out /tmp/pm
     tcs-commission pointing --dump night.dump --fix TX=0 --out /tmp/pm
 
@@ -51,7 +51,8 @@ Subcommands (one module each):
   written to ``[axes.<name>] min/max`` and ``[drives.<name>] min/max_position`` only with
   ``--write``, comments and layout kept (tomlkit; :mod:`~tcs.commission.hwfile`).
 * ``jog AXIS ±DISTANCE`` (:mod:`~tcs.commission.jog`) — a move refused beyond the software
-  limits (the axis's inside the drive's).
+  limits (the axis's inside the drive's). An unreferenced drive (its frame is arbitrary) only
+  creeps ``creep_distance`` (default 1 % of its range) unless ``--home`` or ``--unreferenced``.
 * ``pointing`` (:mod:`~tcs.commission.pointing`) — samples (a dump file, synthetic samples
   for the simulator, or a guided run with a star list), the fit, and a report directory:
   ``report.md``, ``model.json`` (coefficients with errors, correlations), ``pointing.model``,

@@ -7,10 +7,17 @@ Drives whose ``default_mode`` is ``csp`` are moved by a jerk-limited profile str
 (:class:`~tcs.commission.motion.CspMover`); ``pp`` drives by a profile-position move of the
 driver (``move_to``). Speed: ``--speed`` (default a tenth of the drive's ``max_velocity``).
 
-A drive that was not referenced in this run works in its current position frame (the note
-says so); ``--home`` references it first with the configured method.
+A drive that is not referenced (not homed in this run, no ``absolute`` encoder) counts its
+position in an arbitrary frame (where it was switched on), so the software limits cannot be
+checked: it only *creeps*, at most ``creep_distance`` of the drive (default
+:data:`DEFAULT_CREEP_FRACTION` of its range ``max_position - min_position``, e.g. 5.44 deg of a
+544 deg azimuth), and the limits are not applied. ``--home`` references it first with the
+configured method (then any distance inside the limits); ``--unreferenced`` jogs it further
+anyway, with the limits counted in the current frame — only when you know where the axis
+stands (the limit switches are then the protection).
 
-Exit codes: 0 moved, 1 the move failed, 2 refused (outside the limits, bad speed),
+Exit codes: 0 moved, 1 the move failed, 2 refused (outside the limits, unreferenced beyond the
+creep distance, bad speed),
 3 the drive does not answer.
 """
 
@@ -29,6 +36,7 @@ from tcs.commission.progress import ProgressBar
 from tcs.commission.session import DriveSession, prepare_config
 
 DEFAULT_SPEED_FRACTION = 0.1
+DEFAULT_CREEP_FRACTION = 0.01  # of the drive's range: how far an unreferenced drive may creep
 
 
 def add_parser(subparsers, parents) -> None:
@@ -38,6 +46,9 @@ def add_parser(subparsers, parents) -> None:
     p.add_argument("distance", type=float, help="signed distance in user units (degrees, mm)")
     p.add_argument("--speed", type=float, help="units/s (default: a tenth of the drive's max_velocity)")
     p.add_argument("--home", action="store_true", help="reference the drive first")
+    p.add_argument("--unreferenced", action="store_true",
+                   help="jog an unreferenced drive further than its creep distance (limits are then "
+                        "counted in its arbitrary current frame)")
 
 
 def jog_speed(target, speed: float | None) -> float:
@@ -49,6 +60,14 @@ def jog_speed(target, speed: float | None) -> float:
         raise CommissionError(f"--speed {speed:g} is not in (0, {vmax:g}] (max_velocity of drive "
                               f"{target.drive})", ExitCode.USAGE)
     return speed
+
+
+def creep_distance(target) -> float:
+    """How far an unreferenced drive may jog: ``creep_distance`` or 1 % of its range."""
+    section = target.section
+    if section.creep_distance is not None:
+        return section.creep_distance
+    return DEFAULT_CREEP_FRACTION * abs(section.max_position - section.min_position)
 
 
 def move_csp(session: DriveSession, target, destination: float, speed: float,
@@ -127,7 +146,7 @@ def run(args, config) -> Outcome:
         cleared = session.clear_faults([name])
         if cleared:
             out.lines.append(f"{target.label}: fault reset ({'; '.join(cleared)})")
-        referenced = False
+        referenced = session.status(name).homed  # an absolute encoder is referenced by configuration
         if args.home:
             result = home_group(session, [target], bar)[0]
             if result["result"] != "done":
@@ -135,8 +154,20 @@ def run(args, config) -> Outcome:
             referenced = True
         start = session.status(name).position
         destination = start + args.distance
-        out.data.update(start=start, target=destination, referenced=referenced)
-        if not lo <= destination <= hi:
+        creep = creep_distance(target)
+        out.data.update(start=start, target=destination, referenced=referenced, creep_distance=creep)
+        limits = (lo, hi)
+        if not referenced and not args.unreferenced:
+            if abs(args.distance) > creep:
+                raise CommissionError(
+                    f"refused: {target.label} is not referenced (not homed in this run, no absolute "
+                    f"encoder): its position {start:.4f} is counted from where it was switched on, so "
+                    f"the software limits [{lo:g}, {hi:g}] cannot be checked and it may only creep "
+                    f"{creep:g} (creep_distance): reference it with --home, or give --unreferenced "
+                    f"to jog {args.distance:+g} with the limits counted in that frame",
+                    ExitCode.USAGE, out.data)
+            limits = (start - creep, start + creep)  # the limits mean nothing in this frame
+        elif not lo <= destination <= hi:
             raise CommissionError(
                 f"refused: {target.label} target {destination:.4f} (from {start:.4f} by "
                 f"{args.distance:+g}) is outside the software limits [{lo:g}, {hi:g}]",
@@ -144,12 +175,13 @@ def run(args, config) -> Outcome:
         if target.section.default_mode == "pp":
             reached = move_pp(session, target, destination, speed, bar)
         else:
-            reached = move_csp(session, target, destination, speed, (lo, hi), bar)
+            reached = move_csp(session, target, destination, speed, limits, bar)
         session.disable([name])
     out.data["position"] = reached
     out.lines.append(f"{target.label}: moved {args.distance:+g} from {fmt(start)} to {fmt(reached)} "
                      f"(target {fmt(destination)}, speed {speed:g}/s)")
     if not referenced:
-        out.lines.append("  note: not referenced in this run: positions are in the drive's "
-                         "current frame (use --home to reference first)")
+        out.lines.append("  note: not referenced: positions are in the drive's current frame "
+                         + ("(limits counted in it: --unreferenced)" if args.unreferenced else
+                            f"(a creep of at most {creep:g}; use --home to reference first)"))
     return out

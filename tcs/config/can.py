@@ -250,6 +250,10 @@ class DriveSection:
     min_position: float = setting(doc="software limit written to 0x607D:1, units")
     max_position: float = setting(doc="software limit written to 0x607D:2, units")
     following_error_window: float = setting(doc="0x6065 following-error window, units")
+    creep_distance: float | None = setting(
+        None, min=0.0, max=1e9, doc="longest tcs-commission jog of this drive while it is not referenced "
+        "(its position frame is arbitrary, so the limits cannot be checked), units; default 1 % of "
+        "max_position - min_position; --unreferenced lifts it")
     following_error_timeout: float = setting(0.05, min=0.0, max=65.535,
                                              doc="0x6066 following-error time-out, s")
     max_velocity: float = setting(doc="0x6081 profile velocity for PP moves, units/s")

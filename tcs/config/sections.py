@@ -30,20 +30,29 @@ class ServerSection:
                                  "level-0 users (anyone else who lands there is dropped at login)")
     max_per_address: int = setting(300, min=1, max=10000, doc="connections from one client address")
     max_pending_per_address: int = setting(
-        64, min=1, max=10000, doc="connections from one address not logged in yet")
+        256, min=1, max=10000, doc="connections from one address not logged in yet (a burst of "
+        "clients reconnecting through one SSH tunnel logs in within it)")
     login_timeout: float = setting(10.0, min=0.5, max=3600.0,
                                    doc="seconds a connection may stay without logging in")
     idle_timeout: float = setting(0.0, min=0.0, max=1e7,
                                   doc="seconds without a command before a connection is closed (0 = never)")
     max_in_flight: int = setting(64, min=1, max=100000, doc="commands in flight per connection (TOOMANY past it)")
     max_line_length: int = setting(65536, min=256, max=16 * 1024 * 1024, doc="longest accepted line in bytes")
-    auth_fail_delay: float = setting(1.0, min=0.0, max=60.0, doc="seconds before answering AUTH FAILED")
+    auth_fail_delay: float = setting(1.0, min=0.0, max=60.0, doc="seconds before answering AUTH FAILED "
+                                     "(doubles with each failure on the connection, up to auth_backoff_max)")
     auth_max_failures: int = setting(3, min=1, max=100, doc="failed logins before the connection is dropped")
+    auth_backoff_failures: int = setting(
+        5, min=0, max=100000, doc="failed logins of one user name (any address, any port) within "
+        "auth_backoff_window after which its logins are checked only after a back-off")
+    auth_backoff_window: float = setting(300.0, min=0.0, max=86400.0,
+                                         doc="seconds in which failed logins of a name are counted")
+    auth_backoff_max: float = setting(
+        8.0, min=0.0, max=600.0, doc="longest back-off (seconds) before a login of a name under attack "
+        "is checked; the right password then logs in (late, never refused)")
     auth_lockout_failures: int = setting(
-        10, min=1, max=100000, doc="failed logins from one address within auth_lockout_time that lock it out")
-    auth_lockout_time: float = setting(
-        300.0, min=0.0, max=86400.0, doc="seconds a locked-out address gets AUTH FAILED for every login; "
-        "also the window in which failures are counted")
+        0, min=0, max=100000, doc="no longer used (the address lock-out is gone: see auth_backoff_*); "
+        "accepted so that older hardware files still load")
+    auth_lockout_time: float = setting(0.0, min=0.0, max=86400.0, doc="no longer used (see auth_lockout_failures)")
     tls_cert: str = setting("", doc="PEM certificate chain; with tls_key, TLS is served (see tls_port)")
     tls_key: str = setting("", doc="PEM private key of tls_cert")
     tls_port: int = setting(0, min=0, max=65535, doc="with TLS: 0 = the port itself speaks TLS only; "

@@ -10,7 +10,7 @@ of the ``SERVER`` module (``UPTIME``, ``STARTTIME``, ``VERSION``, ``INFO.*``).
 Exposure limits live with each server instance (a second listener serving another tree gets
 the same protections from its own ``[server]`` settings): the
 :class:`~tcs.opentci_server.guard.ConnectionGuard` (connection slots, the level-0 reserve,
-per-address limits, login lock-out), TLS when ``tls_cert``/``tls_key`` are set (the port itself
+per-address limits, the per-name login back-off), TLS when ``tls_cert``/``tls_key`` are set (the port itself
 TLS-only, or a second TLS-only listener on ``tls_port``), and a loud warning at start when the
 server is reachable beyond loopback with a well-known password, implicit logins or no TLS.
 Unknown user names are checked against a dummy hash of the same cost, so the time a failed

@@ -74,7 +74,8 @@ class ServerModule:
         self.file_users = dict(server.users)  # the hardware file's, as loaded
         state_dir = getattr(telescope, "state_dir", None)
         # the servers of one telescope (OpenTCI and OpenTSI ports) share one set of accounts:
-        # a user blocked (added, changed) on one port is so on every port at once
+        # a user blocked (added, changed) on one port is so on every port at once, and the
+        # failed logins of a name on one port slow its logins on every port (guard.py)
         peers = getattr(telescope, "_server_modules", None)
         if peers is None and telescope is not None:
             peers = []
@@ -87,6 +88,9 @@ class ServerModule:
         if len(self._peers) > 1:
             first = self._peers[0]
             self.store, self.accounts = first.store, first.accounts  # (the same objects)
+            guard = getattr(server, "guard", None)
+            if guard is not None and getattr(first.server, "guard", None) is not None:
+                guard.logins = first.server.guard.logins  # one per-name back-off for all ports
             self._apply_all()
         else:
             self.store = StateStore(state_dir, "accounts") if state_dir is not None else None

@@ -376,27 +376,28 @@ class Session(asyncio.Protocol):
         self._auth_task = asyncio.get_running_loop().create_task(self._verify(msg))
 
     async def _verify(self, msg: m.Auth) -> None:
-        guard = self.server.guard
+        """Check a login; failures slow the attacker, never the user with the password
+        (``guard.py``: per-connection delay, per-name back-off before the check)."""
+        logins = self.server.guard.logins
         try:
-            locked = guard.locked_out(self.host)
-            user = None if locked else await self.server.authenticate(msg.user, msg.password)
+            backoff = logins.wait_before_check(msg.user)
+            if backoff > 0:  # right and wrong passwords alike: no early answer to read
+                await asyncio.sleep(backoff)
+            user = await self.server.authenticate(msg.user, msg.password)
             if user is None:
                 self._auth_failures += 1
-                log.warning("connection %d (%s): failed login as %r", self.id, self.address, msg.user)
-                if not locked and guard.failed(self.host):
-                    log.warning("%s: %d failed logins, locked out for %.0f s", self.host,
-                                self.server.settings.auth_lockout_failures,
-                                self.server.settings.auth_lockout_time)
-                    locked = True
-                await asyncio.sleep(self.server.settings.auth_fail_delay)
+                count = logins.failed(msg.user)
+                log.warning("connection %d (%s): failed login as %r (%d of that name within %.0f s)",
+                            self.id, self.address, msg.user, count,
+                            self.server.settings.auth_backoff_window)
+                await asyncio.sleep(logins.fail_delay(self._auth_failures))
                 self.send(m.AuthFailed())
-                if locked or self._auth_failures >= self.server.settings.auth_max_failures:
+                if self._auth_failures >= self.server.settings.auth_max_failures:
                     log.warning("connection %d (%s): %d failed logins, dropping it",
                                 self.id, self.address, self._auth_failures)
                     self._closed = True
                     self.close()
                 return
-            guard.succeeded(self.host)
             rlevel = max(user.rlevel, msg.rlevel if msg.rlevel is not None else 0)
             wlevel = max(user.wlevel, msg.wlevel if msg.wlevel is not None else 0)
             self._login(user.name, rlevel, wlevel)
@@ -416,7 +417,8 @@ class Session(asyncio.Protocol):
         self._arm_timer(self.server.settings.idle_timeout)
         self.authenticated = True
         self.send(m.AuthOk(rlevel, wlevel))
-        log.info("connection %d (%s) logged in as %s (%d %d)", self.id, self.address, name, rlevel, wlevel)
+        # DEBUG: tcs-client opens a connection per call (failed logins stay WARNING)
+        log.debug("connection %d (%s) logged in as %s (%d %d)", self.id, self.address, name, rlevel, wlevel)
 
     # -- time-outs -----------------------------------------------------------------------------
     def _arm_timer(self, seconds: float) -> None:
@@ -432,6 +434,12 @@ class Session(asyncio.Protocol):
         if self._closed:
             return
         cfg = self.server.settings
+        if not self.authenticated and self._auth_task is not None:
+            # a login being checked (back-off, hash queue): its answer comes in bounded time
+            # (auth_backoff_max + the check + auth_fail_delay), and a right password must not
+            # be cut off by the server's own slowness
+            self._arm_timer(1.0)
+            return
         if not self.authenticated:
             log.info("connection %d (%s): no login within %.1f s, closing it", self.id, self.address,
                      cfg.login_timeout)
