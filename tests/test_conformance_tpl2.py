@@ -253,3 +253,20 @@ async def test_sensor_values_print_at_their_resolution(service):
             assert len(v.lstrip("-").replace(".", "").strip("0")) <= 9, values
         await asyncio.sleep(0.05)
     await c.close()
+
+
+# ------------------------------------------------------------------ pass 3, item 8
+
+
+async def test_placeholder_elements_share_the_configured_elements_substructure(service):
+    """TPL2 §8.3: the elements of a module array have one substructure. FILTER[2] (a discrete
+    wheel) has no TRAJECTORY, so neither have the placeholders FILTER[0] and FILTER[1]; the
+    derotators, which stream, have it in every element."""
+    _, port = service
+    c = await RawClient.connect(port)
+    assert await c.get("FILTER[0]!MEMBERS") == await c.get("FILTER[2]!MEMBERS")
+    assert await c.get("FILTER[2].TRAJECTORY.RUN") == await c.get("FILTER[0].TRAJECTORY.RUN")
+    assert await c.get("FILTER[0].TRAJECTORY.RUN") in ("UNKNOWN", "INVALID")
+    assert await c.get("DEROTATOR[0]!MEMBERS") == await c.get("DEROTATOR[2]!MEMBERS")
+    assert await c.get("DEROTATOR[0].TRAJECTORY.FREEPOINTS") == "FAILED 4"
+    await c.close()

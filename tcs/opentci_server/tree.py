@@ -575,21 +575,30 @@ def _format_float_or_null(value) -> str:
     return "NULL" if value is None else format_float(value)
 
 
-def _build_members(parent: ModuleNode, members, obj, absent: bool = False) -> None:
+def _build_members(parent: ModuleNode, members, obj, absent: bool = False,
+                   shape: "ModuleNode | None" = None) -> None:
     """Add the declared ``members`` bound to ``obj``; ``absent``: the parent is a module-array
-    element with no hardware, which still gets every declared member (TPL2 §8.3: all elements
-    of a module array have the same substructure) whose variables answer their ``absent``."""
+    element with no hardware, which still gets the members (TPL2 §8.3: all elements of a
+    module array have the same substructure) whose variables answer their ``absent``. Its
+    submodules are those of ``shape``, a configured sibling (a filter wheel without
+    TRAJECTORY has placeholders without one), or every declared one when none is configured."""
     for spec in members:
         index = len(parent.members)
         if isinstance(spec, VarSpec):
             parent.add(VarNode(spec.name, index, spec.info, parent, spec, obj, absent=absent))
             continue
         if absent:
+            model = None
+            if shape is not None:
+                model = next((m for m in shape.members if m.name == spec.name), None)
+                if model is None:
+                    continue  # the configured elements have no such submodule
             if spec.array:
                 parent.add(ArrayNode(spec.name, index, spec.info, parent))  # COUNT 0
             else:
                 child = ModuleNode(spec.name, index, spec.info, parent, None)
-                _build_members(child, spec.members, None, absent=True)
+                _build_members(child, spec.members, None, absent=True,
+                               shape=model if isinstance(model, ModuleNode) else None)
                 parent.add(child)
             continue
         bound = obj if spec.bind is None else _call(spec.bind, obj)
@@ -601,7 +610,7 @@ def _build_members(parent: ModuleNode, members, obj, absent: bool = False) -> No
             if all(isinstance(m, VarSpec) for m in spec.members):
                 array.elements = _LazyElements(array, spec, objs)
             else:  # submodules bind to their objects now, as every other module does
-                array.elements = [_element(array, spec, i, o) for i, o in enumerate(objs)]
+                array.elements = _elements(array, spec, objs)
             parent.add(array)
         else:
             if bound is None:
@@ -611,12 +620,22 @@ def _build_members(parent: ModuleNode, members, obj, absent: bool = False) -> No
             parent.add(child)
 
 
-def _element(array: ArrayNode, spec: ModuleSpec, i: int, obj: Any) -> ModuleNode:
+def _element(array: ArrayNode, spec: ModuleSpec, i: int, obj: Any,
+             shape: ModuleNode | None = None) -> ModuleNode:
     """Element ``i`` of ``array``, bound to ``obj``; None: an index with nothing configured,
-    which has the members all the same, answering their ``absent`` value or FAILED 4."""
+    which has the members all the same (those of ``shape``, a configured sibling), answering
+    their ``absent`` value or FAILED 4."""
     element = ModuleNode(f"{spec.name}[{i}]", i, spec.info, array, obj)
-    _build_members(element, spec.members, obj, absent=obj is None)
+    _build_members(element, spec.members, obj, absent=obj is None, shape=shape)
     return element
+
+
+def _elements(array: ArrayNode, spec: ModuleSpec, objs: list) -> list[ModuleNode]:
+    """Every element of ``array``: the configured ones first, so the placeholders can take the
+    substructure of the first of them (TPL2 §8.3)."""
+    built = {i: _element(array, spec, i, o) for i, o in enumerate(objs) if o is not None}
+    shape = next(iter(built.values()), None)
+    return [built[i] if i in built else _element(array, spec, i, None, shape) for i in range(len(objs))]
 
 
 def _walk(node: Node, prefix: str) -> Iterator[tuple[str, Node]]:
