@@ -20,7 +20,7 @@ import pytest
 alpaca = pytest.importorskip("alpaca", reason="alpyca (the 'dev' extra) is not installed")
 from alpaca import discovery, management  # noqa: E402
 from alpaca.exceptions import (InvalidOperationException, InvalidValueException,  # noqa: E402
-                               NotConnectedException, ParkedException)
+                               NotConnectedException, NotImplementedException, ParkedException)
 from alpaca.telescope import GuideDirections, Telescope  # noqa: E402
 
 from support.live import live_service  # noqa: E402
@@ -309,6 +309,10 @@ def test_focuser_filter_cover_dome_switch_weather(live):
     assert abs(live.telescope.axis("FOCUS").real_position - 12.345) < 0.002
     with pytest.raises(InvalidValueException):
         focuser.Move(focuser.MaxStep + 1)
+    assert not focuser.TempCompAvailable and not focuser.TempComp
+    focuser.TempComp = False
+    with pytest.raises(NotImplementedException):  # IFocuserV4: no compensation to switch on
+        focuser.TempComp = True
 
     wheel = FilterWheel(a, 0)
     wheel.Connect()

@@ -5,7 +5,7 @@ What maps to what
 * **Focuser** (IFocuserV4): the ``FOCUS`` axis. Absolute; one step = 1 µm of the axis's user
   unit (mm): ``Position`` = round(CURRPOS × 1000), ``MaxStep`` = its upper limit in µm,
   ``Move(Position)`` = TARGETPOS. No temperature compensation (``TempComp`` False, setting it
-  True is InvalidValue); ``Temperature`` is not implemented.
+  True is NotImplemented, as IFocuserV4 asks); ``Temperature`` is not implemented.
 * **FilterWheel** (IFilterWheelV3), one per ``FILTER[]`` wheel: slot i = the i-th position of
   the hardware file's ``positions`` (sorted as OpenTSI sorts them), ``Names`` from ``names``;
   ``Position`` is -1 while the wheel moves. Focus offsets are all 0 (none configured).
@@ -85,7 +85,7 @@ class FocuserDevice(Device):
 
     def put_tempcomp(self, r) -> None:
         if r.bool("TempComp"):
-            raise AscomError(Code.INVALID_VALUE, "no temperature compensation (TempCompAvailable is False)")
+            raise AscomError(Code.NOT_IMPLEMENTED, "no temperature compensation (TempCompAvailable is False)")
 
     def get_tempcompavailable(self, r) -> bool:
         return False
