@@ -125,3 +125,33 @@ def test_troubleshooting_quotes_messages_the_code_writes():
                 part = part.strip(" :;,()")
                 if len(part) >= 6 and part not in ("tcs-server", "tcs-client"):
                     assert part in code, f"troubleshooting heading {heading!r}: {part!r} is not in tcs/"
+
+
+def _sections(cls, seen=None):
+    """Every section dataclass reachable from ``cls`` through its field types."""
+    import dataclasses
+    import typing
+
+    seen = seen if seen is not None else {}
+    if cls in seen:
+        return seen
+    seen[cls] = True
+    for tp in typing.get_type_hints(cls).values():
+        stack = [tp]
+        while stack:
+            t = stack.pop()
+            if dataclasses.is_dataclass(t):
+                _sections(t, seen)
+            stack.extend(typing.get_args(t))
+    return seen
+
+
+def test_every_key_of_the_hardware_file_has_a_description():
+    """The reference shows each key's doc string: a key added without one is a gap in it."""
+    import dataclasses
+
+    from tcs.config.hwconfig import HwConfig
+
+    missing = [f"{cls.__name__}.{f.name}" for cls in _sections(HwConfig)
+               for f in dataclasses.fields(cls) if f.init and not f.metadata.get("doc")]
+    assert not missing, f"keys without setting(doc=...): {missing}"
