@@ -39,10 +39,13 @@ def rst_to_md(text: str) -> str:
     text = re.sub(r":\w+:`~?([^`]+)`", lambda m: "`" + m.group(1).split(".")[-1] + "`", text)
     lines = text.splitlines()
     out: list[str] = []
-    for i, line in enumerate(lines):
+    for line in lines:
         if re.fullmatch(r"[-=~]{3,}", line.strip()) and out and out[-1].strip():
             out[-1] = f"**{out[-1].strip()}**"
+            out.append("")
             continue
+        if re.match(r"[*-] ", line) and out and out[-1].strip() and not re.match(r"[*-] |\s", out[-1]):
+            out.append("")   # Markdown needs a blank line before a list
         out.append(line)
     parts = re.split(r"(``[^`]+``)", "\n".join(out))
     md = []
