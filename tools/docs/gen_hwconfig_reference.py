@@ -163,7 +163,9 @@ def walk(cls: Any, path: str, header: str, doc: str, out: list[Table]) -> None:
         origin = get_origin(tp)
         if dataclasses.is_dataclass(tp):
             nested.append((tp, key, f"[{key}]", _join(text, "optional table: absent = none" if optional else "")))
-            table.rows.append((key, "table", "absent" if optional else "(its keys' defaults)", "",
+            required = f.default is MISSING and f.default_factory is MISSING
+            table.rows.append((key, "table", "**required**" if required else
+                               "absent" if optional else "(its keys' defaults)", "",
                                _join(md_text(text), _link(f"[{key}]", key))))
             continue
         if origin is dict and dataclasses.is_dataclass(get_args(tp)[1]):
