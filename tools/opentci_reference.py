@@ -1,11 +1,14 @@
 """Print the OpenTCI (or OpenTSI) variable reference of a hardware file, derived from the one declaration.
 
-    python3 tools/opentci_reference.py [--config hwconfig/sim.toml] > docs/opentci-reference.md
-    python3 tools/opentci_reference.py --tree opentsi > docs/opentsi-reference.md
+    python3 tools/opentci_reference.py [--config hwconfig/sim.toml] > opentci-reference.md
+    python3 tools/opentci_reference.py --tree opentsi > opentsi-reference.md
 
 Every object of the built tree with its class, type, access levels, range and description —
 what a client will find when it walks the tree with ``!MEMBERS``. Nothing here is written by
-hand: add a variable to ``tcs/opentci_server/opentci.py`` and it appears.
+hand: add a variable to ``tcs/opentci_server/opentci.py`` and it appears. The documentation
+build uses :func:`reference_service` and :func:`rows` for its reference pages
+(``tools/docs/gen_frontend_reference.py``). The service it starts listens on free loopback
+ports and serves no Alpaca (it would take port 11111 from a running server).
 """
 
 from __future__ import annotations
