@@ -1,17 +1,22 @@
 """Print the OpenTCI (or OpenTSI) variable reference of a hardware file, derived from the one declaration.
 
-    python3 tools/opentci_reference.py [--config hwconfig/sim.toml] > docs/opentci-reference.md
-    python3 tools/opentci_reference.py --tree opentsi > docs/opentsi-reference.md
+    python3 tools/opentci_reference.py [--config hwconfig/sim.toml] > opentci-reference.md
+    python3 tools/opentci_reference.py --tree opentsi > opentsi-reference.md
 
 Every object of the built tree with its class, type, access levels, range and description —
 what a client will find when it walks the tree with ``!MEMBERS``. Nothing here is written by
-hand: add a variable to ``tcs/opentci_server/opentci.py`` and it appears.
+hand: add a variable to ``tcs/opentci_server/opentci.py`` and it appears. The documentation
+build uses :func:`reference_service` and :func:`rows` for its reference pages
+(``tools/docs/gen_frontend_reference.py``). The service it starts listens on free loopback
+ports and serves no Alpaca (it would take port 11111 from a running server).
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
+import re
 import tempfile
 from pathlib import Path
 
@@ -31,7 +36,8 @@ def _shown_element(array: ArrayNode) -> int | None:
     return array.elements[0].index if array.elements else None
 
 
-def rows(tree):
+def cells(tree):
+    """One tuple per shown object: (object, type, access, range, notes, description)."""
     shown: dict[str, int | None] = {}
     for path, node in tree.walk():
         if not _is_shown(path, shown):
@@ -41,10 +47,10 @@ def rows(tree):
             absent = [e.index for e in node.elements if e.index != shown[path] and any(
                 getattr(m, "absent", False) for m in e.members)]
             note = f"; no hardware at {absent} (VERSION 0, else FAILED 4)" if absent else ""
-            yield f"| `{path}[]` | module array ({len(node.elements)}{note}) | | | | {node.info} |"
+            yield (f"{path}[]", f"module array ({len(node.elements)}{note})", "", "", "", node.info)
             continue
         if isinstance(node, ModuleNode):
-            yield f"| `{path}` | module | | | | {node.info} |"
+            yield (path, "module", "", "", "", node.info)
         elif isinstance(node, VarNode):
             spec = node.spec
             wlevel = node.wlevel
@@ -55,10 +61,24 @@ def rows(tree):
             lo, hi = node.limit("min"), node.limit("max")
             rng = "" if lo is None and hi is None else f"{'' if lo is None else lo} … {'' if hi is None else hi}"
             kind = "per connection" if spec.per_connection else ("long SET" if spec.long else "")
-            yield (f"| `{path}` | {TYPE_NAMES[int(spec.type)]} | {access} | {rng} | {kind} | {spec.info} |")
+            yield (path, TYPE_NAMES[int(spec.type)], access, rng, kind, spec.info)
 
 
-async def build(config_path: Path, tree: str = "opentci"):
+def md_cell(text) -> str:
+    """Text safe in a Markdown table cell (no HTML, emphasis, links or cell breaks)."""
+    text = re.sub(r"([\\`*_\[\]|])", r"\\\1", str(text))
+    return text.replace("<", "&lt;").replace(">", "&gt;").replace("\n", " ")
+
+
+def rows(tree):
+    for obj, *rest in cells(tree):
+        yield "| `" + obj + "` | " + " | ".join(md_cell(c) for c in rest) + " |"
+
+
+@contextlib.asynccontextmanager
+async def reference_service(config_path: Path):
+    """The service of ``config_path`` on free loopback ports (OpenTSI too, Alpaca off: only
+    the trees are read) with a throw-away state directory; stopped on exit."""
     import dataclasses
 
     from tcs.app import Service
@@ -68,13 +88,18 @@ async def build(config_path: Path, tree: str = "opentci"):
         cfg = dataclasses.replace(config, server=dataclasses.replace(config.server, port=0, opentsi_port=0),
                                   state=StateSection(path=state))
         object.__setattr__(cfg, "source", config.source)
-        service = Service(cfg, host="127.0.0.1", port=0)
+        service = Service(cfg, host="127.0.0.1", port=0, alpaca_port=-1)
         await service.start()
         try:
-            server = service.opentsi_server if tree == "opentsi" else service.server
-            return list(rows(server.tree))
+            yield service
         finally:
             await service.stop()
+
+
+async def build(config_path: Path, tree: str = "opentci"):
+    async with reference_service(config_path) as service:
+        server = service.opentsi_server if tree == "opentsi" else service.server
+        return list(rows(server.tree))
 
 
 def _is_shown(path: str, shown: dict[str, int | None]) -> bool:

@@ -78,12 +78,18 @@ class SimDriveSection:
     max_velocity: float = setting(5.0, min=1e-9, doc="motor limit, units/s")
     max_acceleration: float = setting(5.0, min=1e-9, doc="motor limit, units/s²")
     position: float = setting(0.0, doc="position at power-up, units")
-    negative_limit_switch: float | None = setting(None)
-    positive_limit_switch: float | None = setting(None)
-    home_switch: float | None = setting(None)
-    home_switch_active_below: bool = setting(False)
-    index_pulse_spacing: float = setting(1.0, min=1e-9)
-    serial: int = setting(1, min=0, max=0xFFFFFFFF)
+    negative_limit_switch: float | None = setting(
+        None, doc="position of the negative limit switch, units (active at and below it); absent: none")
+    positive_limit_switch: float | None = setting(
+        None, doc="position of the positive limit switch, units (active at and above it); absent: none")
+    home_switch: float | None = setting(
+        None, doc="position of the home switch's edge, units (active at and above it); absent: none")
+    home_switch_active_below: bool = setting(
+        False, doc="the home switch is active at and below its edge instead (homing methods 5/6/21/22)")
+    index_pulse_spacing: float = setting(1.0, min=1e-9, doc="the encoder's index pulse comes at every "
+                                                             "multiple of this, units")
+    serial: int = setting(1, min=0, max=0xFFFFFFFF, doc="0x1018:4 serial number of the simulated drive "
+                                                       "(when [drives] identity gives none)")
     revision: int | None = setting(None, min=0, max=0xFFFFFFFF,
                                    doc="0x1018:3 of the simulated drive (default: [drives] identity, "
                                        "else the EDS's RevisionNumber): another firmware")

@@ -291,9 +291,9 @@ class SimSwitchSection:
 class PlcSimSection:
     """What the simulated PLC does behind the register map; the driver ignores it."""
 
-    axes: dict[str, SimAxisSection] = setting(factory=dict)
-    sensors: dict[str, SimSensorSection] = setting(factory=dict)
-    switches: dict[str, SimSwitchSection] = setting(factory=dict)
+    axes: dict[str, SimAxisSection] = setting(factory=dict, doc="physics of each PLC axis, by axis name")
+    sensors: dict[str, SimSensorSection] = setting(factory=dict, doc="simulated sensors, by point name")
+    switches: dict[str, SimSwitchSection] = setting(factory=dict, doc="simulated switches, by point name")
     seed: int = setting(1, doc="seed of the sensors' slow variations")
     watchdog_timeout: float = setting(
         2.0, min=0.0, max=3600.0, doc="seconds (wall clock) without a change of the PLC's watchdog point "
