@@ -24,7 +24,8 @@ Faults handled here, while the service runs (no restart):
   (:meth:`Cia402Drive.needs_reboot`) is booted again in a worker thread (``tcs-reboot``, up
   to four drives at once) — never in the cycle —
   with its TPDOs out of the cycle's barrier meanwhile. A failed attempt is retried with
-  back-off (1 s doubling to 30 s). The axis stays off; the operator's ``ERROR_STATE=0`` and
+  back-off (1 s doubling to 30 s) for as long as it fails, also when the node is silent (a
+  drive that failed its boot at start-up too). The axis stays off; the operator's ``ERROR_STATE=0`` and
   ``POWER=1`` bring it back.
 * **Bus faults** — bus-off and error passive (error frames, :class:`~tcs.drivers.canbus.BusHealth`)
   are a fault of every drive on the bus (:meth:`Cia402Drive.set_bus_fault`: its axis makes a
