@@ -86,6 +86,7 @@ class CanDrives:
                  resolve: Callable[[str], Path] = Path, file: str = "<hardware file>",
                  clock: Callable[[], float] = time.monotonic):
         self.can = can
+        self._clock = clock
         self.bus = CanBus(can)
         self.worker = SdoWorker()
         self.cycle = CycleSource(self.bus, can.sync_period, tpdo_deadline=can.tpdo_deadline,
@@ -102,6 +103,7 @@ class CanDrives:
                 raise ConfigError(file, f"drives.{name}.eds", f"EDS file {eds} not found")
             self.drives[name] = Cia402Drive(self.bus, name, section, can, eds=eds,
                                             worker=self.worker, clock=clock)
+        self.cycle.add_callback(self._note_cycle)  # (first: before any status is read)
         self.bus.add_error_callback(self._on_bus_error)
         self.bus.add_reconnect_callback(self._on_reconnect)
         self._supervisor: threading.Thread | None = None
@@ -225,6 +227,12 @@ class CanDrives:
         self.recoveries += 1
         log.warning("%s booted again; its axis stays off until ERROR_STATE=0 and POWER=1",
                     drive.device)
+
+    def _note_cycle(self, cycle: Cycle) -> None:
+        """Each cycle, first: the drives notice a stall of this process (heartbeat window)."""
+        now = self._clock()
+        for drive in self.drives.values():
+            drive.note_cycle(now)
 
     def _on_bus_error(self, error: TcsError) -> None:
         """Bus health changed (notifier thread): bus-off / error passive fault every drive."""

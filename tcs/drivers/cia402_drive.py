@@ -36,8 +36,8 @@ Safety rules kept here
   cycles in a row without its synchronous TPDOs (default 30). A genuine loss therefore stops
   the axis within tolerance × period (detection) + ``stop_timeout``.
 * Setpoints and move targets are clamped to the software limits of the hardware file.
-* The TCS's own stall is no silence of the drive: when :meth:`step` comes more than
-  :data:`HOST_STALL` s after the previous one (the process was starved or stopped), the
+* The TCS's own stall is no silence of the drive: when a cycle (:meth:`note_cycle`) comes
+  more than :data:`HOST_STALL` s after the previous one (the process was starved or stopped), the
   heartbeat window restarts at that step — heartbeats the drive sent meanwhile may still wait
   unread in the receive queue. A drive silent while the TCS runs is lost as before.
 
@@ -493,7 +493,6 @@ class Cia402Drive:
             return
         now = self._clock()
         self.steps += 1
-        self._note_own_stall(now)
         self._watch_tpdos()
         state, fault, hb_ok = self._observe(now)
         self._fetch_error_code(state)
@@ -590,13 +589,14 @@ class Cia402Drive:
                 self._move_ended(move)
         self._send(cw, target)
 
-    def _note_own_stall(self, now: float) -> None:
-        """A step long after the previous one: this process stalled (see the docstring)."""
+    def note_cycle(self, now: float) -> None:
+        """The cycle thread starts a cycle (before anything reads this drive's status in it):
+        a cycle long after the previous one means this process stalled (see the docstring)."""
         last, self._last_step = self._last_step, now
         if last is not None and now - last > HOST_STALL:
             self._stall_mark = now
-            log.info("%s: the TCS stalled for %.2f s; the heartbeat window restarts", self.device,
-                     now - last)
+            log.debug("%s: the TCS stalled for %.2f s; the heartbeat window restarts", self.device,
+                      now - last)
 
     def _fetch_error_code(self, state: DriveState) -> None:
         """0x603F not in a TPDO (not mappable on this drive): read it by SDO once per fault

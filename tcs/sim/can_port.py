@@ -21,7 +21,11 @@ port was given) and one timer thread, whatever N is.
   (the receive thread fell behind), it counts a stall in ``stalls`` (``last_stall``: its
   length). The nodes restart their supervision windows on it (see
   :class:`tcs.sim.cia402_drive.SimDrive`). ``receive_backlog()`` tells whether frames wait
-  unread (python-can's ``virtual`` bus; 0 where it cannot be known).
+  unread (python-can's ``virtual`` bus; 0 where it cannot be known). ``awake`` is the port's
+  *awake clock* (s): real time, except that a wake-up late by more than
+  :data:`AWAKE_STEP` counts only that much — on a starved host (where a master in the same
+  process starves as well) supervision windows measured on it run slower, on an idle host at
+  real speed.
 
 Ports are made by :func:`open_port` from a python-can bus, a canopen ``Network``, an existing
 port, or a dict of ``can.Bus`` keyword arguments; ports made for the same bus object are
@@ -51,6 +55,8 @@ RECEIVE_CYCLE = 0.05
 POLL_PERIOD = 0.01
 #: A gap (s) in the port's own threads longer than this is a stall of the simulator's host.
 HOST_STALL = 0.1
+#: Most (s) the awake clock advances from one wake-up of the port's threads to the next.
+AWAKE_STEP = 2 * POLL_PERIOD
 
 
 class TimerHandle:
@@ -101,6 +107,8 @@ class SimCanPort:
         self.last_stall = 0.0      # length of the latest one, s
         self.last_gap = 0.0        # of it, the time no thread of the port ran at all, s
         self._alive: float | None = None  # monotonic time a port thread last ran
+        self._stall_noted = float("-inf")  # when the latest stall was counted
+        self.awake = 0.0  # the awake clock (see the module docstring)
 
     # -- receive -----------------------------------------------------------------------------
     def subscribe(self, cob_id: int, callback: FrameCallback) -> None:
@@ -183,11 +191,15 @@ class SimCanPort:
         now = time.monotonic()
         gap = 0.0 if self._alive is None else now - self._alive
         self._alive = now
+        self.awake += min(gap, AWAKE_STEP)
         stall = max(gap, lag if lag < 60.0 else 0.0)  # (a frame stamped by another clock)
-        if stall > HOST_STALL:
+        if stall > HOST_STALL and now - self._stall_noted > HOST_STALL:
+            self._stall_noted = now  # (one stall, not one per frame of the backlog behind it)
             self.stalls += 1
             self.last_stall = stall
             self.last_gap = gap if gap > HOST_STALL else 0.0  # nothing of the port ran
+            log.info("simulated CAN nodes: their host stalled for %.2f s (a busy machine?); "
+                     "their supervision restarts, no fault", stall)
 
     def receive_backlog(self) -> int:
         """Frames received but not yet handled (0 where the bus does not tell)."""

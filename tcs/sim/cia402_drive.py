@@ -41,7 +41,10 @@ the port ran, or a frame waited that long unread); on one the drive *restarts* i
 supervision windows (last SYNC and every consumed heartbeat count from now, the RPDO count
 from 0) instead of faulting, and — with the real clock — its physics does not jump: the clock
 of the physics leaves out the time nothing ran, so a move, a ramp or the following-error
-timer resumes where it was. Supervision is also not judged while received frames wait unread.
+timer resumes where it was. Supervision is also not judged while received frames wait unread,
+and its windows are measured on the port's awake clock (``SimCanPort.awake``): on a host so
+busy that the simulator's own wake-ups come late — which starves a master in the same
+process (the ``virtual`` bus) just as much — they last longer in real time.
 A master that is silent while the drive runs still faults it exactly as before (0x8250,
 0x8130); so do :meth:`inject_fault`, :meth:`hold_heartbeat` and :meth:`set_responding`.
 
@@ -400,7 +403,7 @@ class SimDrive:
         if kind == "nmt":
             self._on_nmt(data)
         elif kind == "heartbeat":
-            self._consumer_seen[cob_id - 0x700] = time.monotonic()
+            self._consumer_seen[cob_id - 0x700] = self._port.awake
         elif self.nmt_state in (PRE_OPERATIONAL, OPERATIONAL):
             if kind == "sdo":
                 self._on_sdo(data)
@@ -466,7 +469,7 @@ class SimDrive:
         self.logic.update(self.clock())
         if self.nmt_state != OPERATIONAL:
             return
-        self._last_sync = time.monotonic()
+        self._last_sync = self._port.awake
         self.pdo.apply_sync_rpdos()
         fresh, self._rpdo_since_sync = self._rpdo_since_sync, False
         self.logic.on_sync(fresh)
@@ -486,7 +489,7 @@ class SimDrive:
         self.logic.update(self.clock())
         if not self.responding or self._port.receive_backlog():
             return  # (frames wait unread: the master is not judged silent meanwhile)
-        now = time.monotonic()
+        now = self._port.awake  # supervision runs on the port's awake clock
         if self.nmt_state == OPERATIONAL:
             self._watch_sync(now)  # (the shorter time-out first, should a poll come late)
         for node, last in list(self._consumer_seen.items()):
@@ -499,7 +502,7 @@ class SimDrive:
                     self.nmt_state = PRE_OPERATIONAL
                     self._update_comm()
         if self.nmt_state == OPERATIONAL:
-            for cob, payload in self.pdo.poll_events(now):
+            for cob, payload in self.pdo.poll_events(time.monotonic()):
                 self._send(cob, payload)
 
     def _check_stall(self) -> None:
@@ -513,7 +516,7 @@ class SimDrive:
         """This drive's own host did not run for ``stall`` s (``gap`` of it nothing of the
         port ran): no silence of the master. Restart the supervision windows; leave the time
         nothing ran out of the physics (see the module docstring)."""
-        now = time.monotonic()
+        now = self._port.awake
         if self._compensate and gap > POLL_PERIOD:
             self._stall_offset += gap - POLL_PERIOD
         if self._last_sync is not None:
@@ -522,8 +525,8 @@ class SimDrive:
             self._consumer_seen[node] = now
         self.logic.missed_in_row = 0
         self.host_stalls += 1
-        log.info("simulated drive %d: its host stalled for %.2f s; supervision windows restarted",
-                 self.node_id, stall)
+        log.debug("simulated drive %d: its host stalled for %.2f s; supervision windows restarted",
+                  self.node_id, stall)
 
     def _watch_sync(self, now: float) -> None:
         """SYNC stopped while enabled (0x1006 > 0): the master is gone, react per 0x6007."""
