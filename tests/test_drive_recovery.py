@@ -285,3 +285,27 @@ async def test_a_slew_failed_by_its_drive_tells_the_client_why(tmp_path):
     finally:
         await c.close()
         await svc.stop()
+
+
+async def test_cabinet_acknowledge_fails_when_an_axis_cannot_be_reset(tmp_path):
+    """CABINET.ERROR_STATE=0 while ZD's drive is in fault and silent: ZD's fault reset cannot
+    be done, so the cabinet's acknowledge fails with that reason (it answered done while
+    ZD.ERROR_STATE stayed 2)."""
+    svc = Service(fast_config(tmp_path))
+    port = await svc.start()
+    c = await Client.connect(port)
+    sim = svc.telescope.sims[2]
+    try:
+        await ready(c, "ZD")
+        sim.inject_fault("overcurrent")
+        await c.wait("ZD.ERROR_STATE", lambda v: int(v) & 2)
+        sim.set_responding(False)
+        await c.wait("ZD.REALPOS", lambda v: v == "FAILED 4")     # offline: cannot be reset
+        lines = await c.set("CABINET.ERROR_STATE=0")
+        assert "DATA ERROR CABINET.ERROR_STATE FAILED" in lines[-2], lines
+        assert "cannot reset" in " ".join(lines), lines
+        assert int(await c.num("ZD.ERROR_STATE")) & 2
+    finally:
+        sim.set_responding(True)
+        await c.close()
+        await svc.stop()
