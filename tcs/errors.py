@@ -10,10 +10,14 @@ hear about. An error carries
 
 The TPL2 server turns these into reply text at exactly one place (``TcsError.reply``); drivers
 and the telescope model never format protocol lines themselves.
+
+:func:`gather_all` awaits several requests (two axes of a slew) and raises the first error only
+once all have ended, so no error is left unretrieved in a future nobody awaits.
 """
 
 from __future__ import annotations
 
+import asyncio
 import enum
 
 
@@ -170,3 +174,16 @@ class CommunicationError(HardwareError):
     """No communication with a device (timeout, closed connection, missing heartbeat)."""
 
     default_number = ErrorNumber.NOCON
+
+
+async def gather_all(*awaitables) -> list:
+    """Await every one of ``awaitables``; raise the first error after all have ended.
+
+    ``asyncio.gather`` raises as soon as one fails and leaves the others' errors in futures
+    nobody retrieves (``Future exception was never retrieved … drive left operation enabled``
+    when a stop ends both axes of a slew)."""
+    results = await asyncio.gather(*awaitables, return_exceptions=True)
+    for result in results:
+        if isinstance(result, BaseException):
+            raise result
+    return results

@@ -500,6 +500,42 @@ async def test_status_list_survives_a_restart(make_rig):
         '101:fan_failed:4:1:1:0:CABINET"')
 
 
+async def test_status_list_causes_differing_only_in_a_number_are_one_entry(make_rig):
+    """A cause whose text differs only in a number (a reading, a duration) is the same cause
+    kind: one entry, counted, showing the newest text — the list grew to 94 entries in 40 min
+    of a busy machine. Entries saved that way before are merged when loaded; codes in hex
+    (0x8130, 0x8250) stay apart."""
+    clock = Clock(1_700_000_000.0)
+    rig, c = await make_rig(clock)
+    for n, seconds in enumerate((6.6, 7.25, 12.0)):
+        rig.local.raise_condition("nocon", ERROR, f"no valid sentence for {seconds} s")
+        rig.local.clear_condition("nocon")
+        rig.dome.raise_condition("nocon", ERROR, f"within 1 s (reading {35 + n} input at 0)")
+        rig.dome.clear_condition("nocon")
+        clock.t += 1
+    rig.az.raise_condition("drive fault", ERROR, "drive az (node 1): heartbeat lost (0x8130)")
+    rig.az.clear_condition("drive fault")
+    clock.t += 1
+    rig.az.raise_condition("drive fault", ERROR, "drive az (node 1): RPDO time-out (0x8250)")
+    assert await c.get("CABINET.STATUS.LIST") == (
+        '"0:drive fault:2:1:1:1:AZ:drive az (node 1); RPDO time-out (0x8250),'
+        '1:drive fault:2:1:1:0:AZ:drive az (node 1); heartbeat lost (0x8130),'
+        '2:nocon:2:3:3:0:LOCAL:no valid sentence for 12.0 s,'
+        '2:nocon:2:3:3:0:DOME:within 1 s (reading 37 input at 0)"')
+    # entries one per number, as older versions saved them: merged at the next start
+    saved = StateStore(rig.state_dir).get("cabinet_status")
+    dome = next(e for e in saved if e["device"] == "DOME")
+    extra = dict(dome, comment=dome["comment"].replace("37", "99"), total=5, count=0,
+                 last=dome["last"] - 50)
+    StateStore(rig.state_dir).update(cabinet_status=saved + [extra])
+    await rig.close()
+    rig2, c2 = await make_rig(clock)
+    listed = (await c2.get("CABINET.STATUS.LIST")).strip('"').split(",")
+    assert len(listed) == 4
+    merged = [e for e in listed if "DOME" in e]
+    assert len(merged) == 1 and ":8:3:0:" in merged[0] and "reading 37" in merged[0]
+
+
 def test_orphan_temporary_files_of_a_killed_write_are_removed(tmp_path):
     """A kill -9 between the temporary file and the rename leaves ``.state.json.<random>``:
     the store removes such files when it opens, and nothing else."""

@@ -226,3 +226,86 @@ async def test_axis_waits_for_a_slow_drives_own_enable_timeout(tmp_path):
     finally:
         await c.close()
         await svc.stop()
+
+
+async def test_a_drive_that_drops_out_without_a_fault_latches_an_error(tmp_path):
+    """ZD's drive leaves Operation enabled by itself without a fault (its 0x6007 reaction to
+    a lost master set to quick stop, 3): the power loss is an error the operator sees —
+    ZD.ERROR_STATE and CABINET.ERROR_STATE, a STATUS.LIST entry — and only ERROR_STATE=0, then
+    POWER=1, bring the axis back (it used to read POWER_STATE=0 with ERROR_STATE=0)."""
+    svc = Service(fast_config(tmp_path))
+    port = await svc.start()
+    c = await Client.connect(port)
+    sim = svc.telescope.sims[2]
+    try:
+        await ready(c, "ZD")
+        with sim.lock:
+            sim.store.set(0x6007, 0, 3)
+            sim.logic.update(sim.clock())
+            sim.logic.connection_lost(None)
+        await c.wait("ZD.POWER_STATE", lambda v: v == 0.0)
+        await c.wait("ZD.ERROR_STATE", lambda v: int(v) & 2)
+        assert sim.error_code == 0                      # no drive fault: the TCS latched it
+        assert int(await c.num("CABINET.ERROR_STATE")) & 2
+        listed = await c.value("CABINET.STATUS.LIST")
+        assert "ZD:drive left operation enabled by itself" in listed, listed
+        lines = await c.set("ZD.POWER=1")
+        assert not done_ok(lines, "ZD.POWER") and "acknowledge with ERROR_STATE=0" in " ".join(lines)
+        assert "ZD: ZD:" not in " ".join(lines)
+        await acknowledge(c, "ZD")
+        assert await c.num("ZD.ERROR_STATE") == 0
+        await power_on_and_move(c, "ZD", 4.0)
+    finally:
+        await c.close()
+        await svc.stop()
+
+
+async def test_a_slew_failed_by_its_drive_tells_the_client_why(tmp_path):
+    """AZ's drive faults during a slew: ``AZ.TARGETPOS FAILED 2`` comes with its reason as an
+    event under the command's id. The drive-fault event the control loop sends is
+    unsolicited (id 0), which a client waiting for its command does not show; it used to
+    count as "already told" and the command's own event was left out."""
+    svc = Service(fast_config(tmp_path))
+    port = await svc.start()
+    c = await Client.connect(port)
+    az_sim = svc.telescope.sims[1]
+    try:
+        await ready(c, "AZ")
+        start = await c.num("AZ.REALPOS")
+        cmd = await c.start(f"AZ.TARGETPOS={start - 100 if start > 0 else start + 100}")
+        deadline = time.monotonic() + WAIT
+        while abs(az_sim.velocity) < 10:
+            assert time.monotonic() < deadline
+            await asyncio.sleep(0.01)
+        az_sim.inject_fault("overcurrent")
+        lines = await c.until(cmd, WAIT)
+        assert lines[-2] == f"{cmd} DATA ERROR AZ.TARGETPOS FAILED 2", lines
+        reasons = [line for line in lines if line.startswith(f"{cmd} EVENT ERROR AZ:2 ")]
+        assert reasons and "over-current" in reasons[0], lines
+    finally:
+        await c.close()
+        await svc.stop()
+
+
+async def test_cabinet_acknowledge_fails_when_an_axis_cannot_be_reset(tmp_path):
+    """CABINET.ERROR_STATE=0 while ZD's drive is in fault and silent: ZD's fault reset cannot
+    be done, so the cabinet's acknowledge fails with that reason (it answered done while
+    ZD.ERROR_STATE stayed 2)."""
+    svc = Service(fast_config(tmp_path))
+    port = await svc.start()
+    c = await Client.connect(port)
+    sim = svc.telescope.sims[2]
+    try:
+        await ready(c, "ZD")
+        sim.inject_fault("overcurrent")
+        await c.wait("ZD.ERROR_STATE", lambda v: int(v) & 2)
+        sim.set_responding(False)
+        await c.wait("ZD.REALPOS", lambda v: v == "FAILED 4")     # offline: cannot be reset
+        lines = await c.set("CABINET.ERROR_STATE=0")
+        assert "DATA ERROR CABINET.ERROR_STATE FAILED" in lines[-2], lines
+        assert "cannot reset" in " ".join(lines), lines
+        assert int(await c.num("ZD.ERROR_STATE")) & 2
+    finally:
+        sim.set_responding(True)
+        await c.close()
+        await svc.stop()

@@ -671,9 +671,13 @@ class Axis(ModuleHealth):
             self._resolve("power", error)
             self._want_power = None
         if self._powered and not st.enabled and not self._homing and self._fault is None:
-            self._powered = False  # dropped out (e.g. limit switch quick stop)
-            self._stop_motion(TcsError(f"{self.module_name}: drive left operation enabled", ErrorNumber.LIMIT))
-            self.emit(ERROR, ErrorNumber.POWERCHANGE, f"drive {st.state.value}")
+            if self._want_power is False:  # on its way off as asked (POWER=0, given up)
+                self._powered = False
+                self._stop_motion(TcsError(f"{self.module_name}: drive left operation enabled",
+                                           ErrorNumber.LIMIT))
+                self.emit(ERROR, ErrorNumber.POWERCHANGE, f"drive {st.state.value}")
+            else:
+                self._power_lost(st)
         # homing: the status shows the drive's previous run (done, long ago) until the drive
         # took this request; only an end seen after "in progress" is this run's
         if self._homing and not self._homing_started:
@@ -709,6 +713,20 @@ class Axis(ModuleHealth):
                 self.emit(ERROR, ErrorNumber.REFERENCE_BAD, error.message, self._reference_cause)
             else:
                 self.referenced = min(0.99, st.homing_progress)
+
+    def _power_lost(self, st: DriveStatus) -> None:
+        """The drive dropped out of Operation enabled by itself, without a fault (a quick stop
+        of its own, a reaction to a lost master): latched like a fault — ERROR_STATE shows it,
+        STATUS.LIST records it, and only ERROR_STATE=0, then POWER=1, bring the axis back."""
+        error = TcsError(f"drive left operation enabled by itself (now {st.state.value})",
+                         ErrorNumber.LIMIT)  # (no module prefix: the messages add it)
+        self._powered = False
+        self._fault = error
+        self._want_power = None
+        self.raise_condition("drive fault", ERROR_BIT, error.message)
+        self._stop_motion(error)
+        self.emit(ERROR, ErrorNumber.POWERCHANGE, f"drive {st.state.value}")
+        self.drive.disable()
 
     def _motion(self, st: DriveStatus, t: float) -> Setpoint | None:
         if not self._powered or self._homing or self.discrete or not st.enabled:

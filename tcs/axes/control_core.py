@@ -22,7 +22,8 @@ pickled tuples; the service is the only peer):
 * out: ``("claimed",)``, then ``("ready", info)``, or ``("refused", kind, error)``; one
   ``("batch", snapshots, items, stats)`` per cycle with the readbacks of every axis, then the
   cycle's events, error conditions and completions in the order they happened (so a client
-  that gets ``DATA OK`` reads the new state); ``("reply", rid, ok, value)``; ``("log",
+  that gets ``DATA OK`` reads the new state; every 10th cycle's readbacks also carry each
+  drive's status for ``CABINET.CORE.DRIVE[]``); ``("reply", rid, ok, value)``; ``("log",
   name, level, text)``; ``("closed",)``.
 
 The loop thread never blocks on the service: it appends to an outbox that a sender thread
@@ -52,6 +53,18 @@ log = logging.getLogger("tcs.control")
 READBACKS = ("power_state", "referenced", "real_position", "current_speed", "current_acc",
              "current_jerk", "motion_state", "limit_state", "target_position", "offset",
              "measured_ut1")
+
+
+def drive_tuple(st) -> tuple | None:
+    """The drive's status as ``CABINET.CORE.DRIVE[]`` shows it, as plain data (or None):
+    (name, state, statusword, fault as :func:`error_tuple`, fault code, position, velocity,
+    following error, heartbeat ok)."""
+    if st is None:
+        return None
+    fault = st.fault
+    return (st.name, st.state.value, st.statusword, error_tuple(fault),
+            getattr(fault, "code", None), st.position, st.velocity, st.following_error,
+            st.heartbeat_ok)
 
 
 def error_tuple(error: BaseException | None):
@@ -130,6 +143,7 @@ class CoreAxis(Axis):
         self.received_seq = 0   # newest command put into the queue (receiver thread)
         self.applied_seq = 0    # newest command the loop has taken (a readback is after it)
         self._active: dict[str, int] = {}  # conditions raised here and still active
+        self.send_drive = False  # this cycle's snapshot carries the drive status (CORE.DRIVE[])
 
     def receive(self, seq: int, kind: str, value, future_id, cause) -> None:
         with self._lock:
@@ -181,7 +195,7 @@ class CoreAxis(Axis):
                 self._homing, self._ack_pending,
                 (len(q), q.start_time, q.end_time, q.free_points_at(t)),
                 None if follower is None else (follower.state.value, follower.end_reason),
-                path)
+                path, drive_tuple(self.last_status) if self.send_drive else None)
 
 
 class Core:
@@ -265,8 +279,11 @@ class Core:
 
     def _publish(self, cycle) -> None:
         """After the loop's step (same thread): readbacks and counters to the outbox."""
-        snaps = {axis.index: axis.snapshot() for axis in self.axes}
         self._cycles += 1
+        drives = self._cycles % self._stats_every == 1  # CORE.DRIVE[]: 10 times a second
+        for axis in self.axes:
+            axis.send_drive = drives
+        snaps = {axis.index: axis.snapshot() for axis in self.axes}
         stats = None
         if self._cycles % self._stats_every == 0:
             stats = dict(self.loop.stats(), last_cycle=self.loop.last_cycle)

@@ -38,6 +38,7 @@ from tcs.axes import trajectory as trajectory_module
 from tcs.axes.axis import Axis, complete_futures
 from tcs.axes.control_core import READBACKS
 from tcs.axes.trajectory import AddResult
+from tcs.drivers.drive import DriveState, DriveStatus
 from tcs.errors import CommunicationError, ErrorNumber, TcsError
 
 log = logging.getLogger(__name__)
@@ -417,11 +418,27 @@ class RemoteAxis(Axis):
     def cycle(self, t: float, now: float, measured: float | None = None) -> None:
         raise RuntimeError("a RemoteAxis is stepped in the control process")
 
+    def drive_status(self) -> DriveStatus | None:
+        """The drive's status from the child's readbacks (``CABINET.CORE.DRIVE[]``, ten
+        times a second); None once the control process is gone (never the last value)."""
+        raw = getattr(self, "_drive_readback", None)
+        if raw is None or self.process._gone is not None:
+            return None
+        name, state, statusword, fault, code, position, velocity, following, hb_ok = raw
+        error = rebuild_error(fault)
+        if error is not None and code is not None:
+            error.code = code
+        return DriveStatus(name, DriveState(state), position=position, velocity=velocity,
+                           following_error=following, statusword=statusword, fault=error,
+                           heartbeat_ok=hb_ok)
+
     def apply(self, snap) -> None:
         """One cycle's readbacks from the child (receiver thread)."""
         applied = snap[0]
         values = snap[1:1 + len(READBACKS)]
-        stale, fault, homing, ack, queue, follower, path = snap[1 + len(READBACKS):]
+        stale, fault, homing, ack, queue, follower, path, drive = snap[1 + len(READBACKS):]
+        if drive is not None:
+            self._drive_readback = drive
         for name, value in zip(READBACKS, values):
             if name == "referenced" and applied < self._reference_seq:
                 continue  # the child has not taken the REINIT yet: it still reads the old value

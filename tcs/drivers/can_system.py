@@ -24,7 +24,8 @@ Faults handled here, while the service runs (no restart):
   (:meth:`Cia402Drive.needs_reboot`) is booted again in a worker thread (``tcs-reboot``, up
   to four drives at once) — never in the cycle —
   with its TPDOs out of the cycle's barrier meanwhile. A failed attempt is retried with
-  back-off (1 s doubling to 30 s). The axis stays off; the operator's ``ERROR_STATE=0`` and
+  back-off (1 s doubling to 30 s) for as long as it fails, also when the node is silent (a
+  drive that failed its boot at start-up too). The axis stays off; the operator's ``ERROR_STATE=0`` and
   ``POWER=1`` bring it back.
 * **Bus faults** — bus-off and error passive (error frames, :class:`~tcs.drivers.canbus.BusHealth`)
   are a fault of every drive on the bus (:meth:`Cia402Drive.set_bus_fault`: its axis makes a
@@ -85,6 +86,7 @@ class CanDrives:
                  resolve: Callable[[str], Path] = Path, file: str = "<hardware file>",
                  clock: Callable[[], float] = time.monotonic):
         self.can = can
+        self._clock = clock
         self.bus = CanBus(can)
         self.worker = SdoWorker()
         self.cycle = CycleSource(self.bus, can.sync_period, tpdo_deadline=can.tpdo_deadline,
@@ -101,6 +103,7 @@ class CanDrives:
                 raise ConfigError(file, f"drives.{name}.eds", f"EDS file {eds} not found")
             self.drives[name] = Cia402Drive(self.bus, name, section, can, eds=eds,
                                             worker=self.worker, clock=clock)
+        self.cycle.add_callback(self._note_cycle)  # (first: before any status is read)
         self.bus.add_error_callback(self._on_bus_error)
         self.bus.add_reconnect_callback(self._on_reconnect)
         self._supervisor: threading.Thread | None = None
@@ -224,6 +227,12 @@ class CanDrives:
         self.recoveries += 1
         log.warning("%s booted again; its axis stays off until ERROR_STATE=0 and POWER=1",
                     drive.device)
+
+    def _note_cycle(self, cycle: Cycle) -> None:
+        """Each cycle, first: the drives notice a stall of this process (heartbeat window)."""
+        now = self._clock()
+        for drive in self.drives.values():
+            drive.note_cycle(now)
 
     def _on_bus_error(self, error: TcsError) -> None:
         """Bus health changed (notifier thread): bus-off / error passive fault every drive."""

@@ -36,6 +36,10 @@ Safety rules kept here
   cycles in a row without its synchronous TPDOs (default 30). A genuine loss therefore stops
   the axis within tolerance × period (detection) + ``stop_timeout``.
 * Setpoints and move targets are clamped to the software limits of the hardware file.
+* The TCS's own stall is no silence of the drive: when a cycle (:meth:`note_cycle`) comes
+  more than :data:`HOST_STALL` s after the previous one (the process was starved or stopped), the
+  heartbeat window restarts at that step — heartbeats the drive sent meanwhile may still wait
+  unread in the receive queue. A drive silent while the TCS runs is lost as before.
 
 Units: the interface is in user units; the wire in increments (``increments_per_unit``).
 """
@@ -68,6 +72,8 @@ log = logging.getLogger(__name__)
 ENABLE_TIMEOUT = 2.0          # default of [drives.x] enable_timeout (s to Operation enabled)
 FAULT_RESET_TIMEOUT = 1.0     # default of [drives.x] fault_reset_timeout (s to leave Fault)
 EMCY_BASE = 0x080
+#: A gap (s) between two cycles' steps longer than this is a stall of the TCS's own host.
+HOST_STALL = 0.1
 
 
 class Cia402Drive:
@@ -117,6 +123,8 @@ class Cia402Drive:
         self._raw_time = float("-inf")
         self._hb = HeartbeatWatch(clock)
         self._hb_timeout = can.heartbeat_tolerance * section.heartbeat_period
+        self._last_step: float | None = None   # the previous step (cycle thread)
+        self._stall_mark = float("-inf")       # the step after the latest own stall
         self._sync_time = float("-inf")   # last synchronous TPDO (notifier)
         self._seen_sync_time = float("-inf")
         self._stale_cycles = 0
@@ -221,6 +229,7 @@ class Cia402Drive:
         if result.error_code and not self._emcy:
             self._emcy = DriveFault(self.device, result.error_code)
         self._bootups_at_boot = self._hb.bootups
+        self._last_step = None
         self._boot_count += 1
         self._reboot_wanted = False
         self.reboots += self._lost_position
@@ -359,11 +368,13 @@ class Cia402Drive:
             return False
         if self._reboot_wanted:
             return True
+        if not self._booted:
+            # A failed boot is retried (with the supervisor's back-off) for as long as it
+            # fails, silent node or not: a failed boot replaced the heartbeat watch, so
+            # "while it shows life" meant a node silent at that moment was never tried again.
+            return self._boot_error is not None
         if hb.time is None:
             return False
-        if not self._booted:  # failed boot: retry (with back-off) while the node shows life
-            return self._boot_error is not None and (
-                hb.bootups != self._bootups_at_boot or self._clock() - hb.time <= self._hb_timeout)
         if hb.bootups != self._bootups_at_boot:
             return True
         fresh = self._clock() - hb.time <= self._hb_timeout
@@ -417,7 +428,7 @@ class Cia402Drive:
         if not self._booted:
             return DriveState.OFFLINE, self._boot_error, False
         hb = self._hb
-        hb_ok = hb.time is not None and now - hb.time <= self._hb_timeout
+        hb_ok = hb.time is not None and now - max(hb.time, self._stall_mark) <= self._hb_timeout
         if not hb_ok:
             silent = now - hb.time if hb.time is not None else float("inf")
             return DriveState.OFFLINE, CommunicationError(
@@ -471,8 +482,8 @@ class Cia402Drive:
             move=move.progress if move else Progress.IDLE,
             target_reached=bool(sw & sm.SW_TARGET_REACHED),
             setpoint=self._target_sent / k if self._target_sent is not None else None,
-            heartbeat_ok=hb_ok, heartbeat_age=now - self._hb.time if self._hb.time is not None
-            else float("inf"), booted=self._booted, age=now - self._raw_time,
+            heartbeat_ok=hb_ok, heartbeat_age=now - max(self._hb.time, self._stall_mark)
+            if self._hb.time is not None else float("inf"), booted=self._booted, age=now - self._raw_time,
             reboots=self.reboots)
 
     # ================================================================= the cycle
@@ -577,6 +588,15 @@ class Cia402Drive:
             if move.progress is not Progress.RUNNING:
                 self._move_ended(move)
         self._send(cw, target)
+
+    def note_cycle(self, now: float) -> None:
+        """The cycle thread starts a cycle (before anything reads this drive's status in it):
+        a cycle long after the previous one means this process stalled (see the docstring)."""
+        last, self._last_step = self._last_step, now
+        if last is not None and now - last > HOST_STALL:
+            self._stall_mark = now
+            log.debug("%s: the TCS stalled for %.2f s; the heartbeat window restarts", self.device,
+                      now - last)
 
     def _fetch_error_code(self, state: DriveState) -> None:
         """0x603F not in a TPDO (not mappable on this drive): read it by SDO once per fault

@@ -61,8 +61,8 @@ class DriveStatus:
     EMCY / 0x603F, lost heartbeat, failed boot) with its OpenTCI number; ``warning`` the last
     EMCY that did not (yet) stop it; ``request_error`` the last refused or failed request
     (enable time-out, mode switch, homing, move). ``heartbeat_age`` is the time since the
-    drive's last heartbeat (``heartbeat_ok`` turns False past ``can.heartbeat_tolerance``
-    heartbeat periods), ``age``
+    drive's last heartbeat, or since the TCS's own last stall if that came later
+    (``heartbeat_ok`` turns False past ``can.heartbeat_tolerance`` heartbeat periods), ``age``
     the time since its last TPDO; both in seconds at the moment of the snapshot.
     """
 

@@ -457,8 +457,8 @@ class Cabinet(ModuleHealth):
         super().acknowledge_errors(0)
         self.status_list.acknowledged(None)
         self._publish("acknowledged")
-        if resets:  # complete when every reset ended (a reset that failed leaves its error)
-            return asyncio.gather(*resets, return_exceptions=True)
+        if resets:  # complete when every reset ended; fail (why) when one did not reset
+            return _all_reset(resets)
         return None
 
     def _changed(self, before: int, text: str) -> None:  # ModuleHealth hook
@@ -569,3 +569,16 @@ def _as_tcs_error(exc: BaseException, member: Any, what: str) -> TcsError:
 
 
 __all__ = ["Cabinet", "ManualControl", "MAIN_AXES_ORDER"]
+
+
+async def _all_reset(resets: list) -> None:
+    """``CABINET.ERROR_STATE=0``'s wait for the axes' fault resets: done when all ended; a reset
+    that failed fails the acknowledge with its reason (it used to answer done while an
+    ``AZ.ERROR_STATE`` stayed 2)."""
+    results = await asyncio.gather(*resets, return_exceptions=True)
+    errors = [r for r in results if isinstance(r, BaseException)]
+    if errors:
+        first = errors[0]
+        text = "; ".join(getattr(e, "message", str(e)) for e in errors)
+        raise TcsError(f"not every error was reset: {text}",
+                       getattr(first, "number", ErrorNumber.LIBFAIL))

@@ -40,7 +40,7 @@ import math
 
 import erfa
 
-from tcs.errors import ErrorNumber, RangeRefused, TcsError
+from tcs.errors import ErrorNumber, RangeRefused, TcsError, gather_all
 from tcs.model.health import ERROR, PANIC, ModuleHealth
 from tcs.pointing.sky_object import SkyObject
 
@@ -212,7 +212,7 @@ class Operations(ModuleHealth):
         if cab.power_state != 1.0 or any(a.power_state != 1.0 for a in self.telescope.axes):
             await cab.set_power(1)
         for _order, axes in cab.reference_plan(False):
-            await asyncio.gather(*(a.reference(False) for a in axes))
+            await gather_all(*(a.reference(False) for a in axes))
 
     async def _park_off(self) -> None:
         p = self.pointing
@@ -224,7 +224,7 @@ class Operations(ModuleHealth):
             if axis.power_state == 1.0 and axis.referenced >= 1.0:
                 moves.append(axis.set_target(park - axis.offset))
         if moves:
-            await asyncio.gather(*moves)
+            await gather_all(*moves)
         self._parked = True
         await self.cabinet.set_power(0)
 
@@ -347,7 +347,7 @@ class Operations(ModuleHealth):
             p.set_track(0)
             await self._until(lambda: not p.track)
         try:
-            await asyncio.gather(p.axis1.set_target(d1), p.axis2.set_target(d2))
+            await gather_all(p.axis1.set_target(d1), p.axis2.set_target(d2))
         except TcsError as exc:
             self._failed("goto", exc)
             raise
@@ -485,7 +485,7 @@ class Operations(ModuleHealth):
         if p is not None and p.track:
             p.set_track(0)
             await self._until(lambda: not p.track)
-        await asyncio.gather(*(axis.set_target(park - axis.offset) for axis, park in parks))
+        await gather_all(*(axis.set_target(park - axis.offset) for axis, park in parks))
         self._parked = True
 
     def unpark(self):
@@ -541,8 +541,8 @@ class Operations(ModuleHealth):
             if p is not None and p.track:
                 p.set_track(0)
                 await self._until(lambda: not p.track)
-            await asyncio.gather(*(a.reference(False) for a, _h in homes))
-            await asyncio.gather(*(a.set_target(home - a.offset) for a, home in homes))
+            await gather_all(*(a.reference(False) for a, _h in homes))
+            await gather_all(*(a.set_target(home - a.offset) for a, home in homes))
         return self._start("home", run())
 
     @property

@@ -13,6 +13,10 @@ with another cause (text) gets an entry of its own, the older cause stays — th
 * ``count`` — occurrences since the last acknowledge (``ERROR_STATE=0``, see :meth:`acknowledged`);
 * ``active`` — whether the condition is still present; ``comment`` — its cause (the text).
 
+Causes are compared by kind (:func:`cause_kind`): texts that differ only in a number
+(``within 1 s (reading 35 input at 0)``, ``no valid sentence for 6.6 s``) are one entry whose
+comment is the newest text; so are entries saved by older versions, merged when loaded.
+
 A report that the condition went away ends every active entry of that (device, condition).
 
 An occurrence is a report with ``active=True`` (ModuleHealth reports a condition only when it
@@ -53,6 +57,13 @@ log = logging.getLogger(__name__)
 
 STORE_KEY = "cabinet_status"
 _UNSAFE = re.compile(r"[,:\r\n]+")
+_NUMBER = re.compile(r"(0[xX][0-9a-fA-F]+)|[-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
+
+
+def cause_kind(text: str) -> str:
+    """A cause with its numbers left out (``no valid sentence for 6.6 s`` → ``no valid sentence
+    for # s``); hexadecimal codes (``0x8130``) are kept: they name different causes."""
+    return _NUMBER.sub(lambda m: m.group(1) or "#", str(text))
 
 
 def _clean(text: str) -> str:
@@ -107,9 +118,21 @@ class StatusList:
             try:
                 entry = StatusEntry(**raw)
                 entry.active = False
-                self._entries[(entry.device, entry.error, entry.comment)] = entry
+                self._load(entry)
             except (TypeError, ValueError) as exc:
                 log.error("ignoring a saved status entry %r: %s", raw, exc)
+
+    def _load(self, entry: StatusEntry) -> None:
+        """A saved entry; one of the same cause kind already loaded absorbs it."""
+        key = (entry.device, entry.error, cause_kind(entry.comment))
+        old = self._entries.get(key)
+        if old is None:
+            self._entries[key] = entry
+            return
+        newer = entry if entry.last >= old.last else old
+        self._entries[key] = StatusEntry(entry.device, entry.error, newer.bits, newer.last,
+                                         old.total + entry.total, old.count + entry.count,
+                                         False, newer.comment)
 
     # -- threads -------------------------------------------------------------------------------
     def bind_loop(self, loop: asyncio.AbstractEventLoop | None = None) -> None:
@@ -139,12 +162,13 @@ class StatusList:
                 for entry in ended:
                     entry.active = False
             else:
-                key = (device, name, str(text))
+                key = (device, name, cause_kind(text))
                 entry = self._entries.get(key)
                 if entry is None:
                     entry = StatusEntry(device, name, int(bits), self._clock(), comment=str(text))
                     self._entries[key] = entry
                     self._trim()
+                entry.comment = str(text)  # the newest cause of this kind
                 entry.bits = int(bits)
                 entry.last = self._clock()
                 entry.total += 1
@@ -227,4 +251,4 @@ class StatusList:
                     self._dirty = True
 
 
-__all__ = ["StatusList", "StatusEntry"]
+__all__ = ["StatusList", "StatusEntry", "cause_kind"]

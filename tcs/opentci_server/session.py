@@ -242,9 +242,6 @@ class Session(asyncio.Protocol):
     def deliver_event(self, event: Event) -> None:
         """Send ``event`` if this connection is logged in and its mask lets it through."""
         cause = event.cause
-        if self._running:  # what the client heard while its commands ran (_announce_failure)
-            for cmd_id in self._running:
-                self._announced.setdefault(cmd_id, set()).add((event.source, event.number))
         if not self.authenticated or not (self.eventmask & LEVEL_BITS.get(event.level, 0)):
             return
         cid = 0  # TPL2 §5: only an event of a command still executing carries its id
@@ -252,6 +249,9 @@ class Session(asyncio.Protocol):
             owner = self if cause[0] == self.id else self.server.sessions.get(cause[0])
             if owner is not None and owner.executing(cause):
                 cid = cause[1] if owner is self else (cause[0] << 32) | cause[1]
+        if cid and self._running:  # what the client was told under an id (_announce_failure)
+            for cmd_id in self._running:
+                self._announced.setdefault(cmd_id, set()).add((event.source, event.number))
         self.send(m.Event(cid, event.level, event.source, event.number, ascii_text(event.text)))
 
     def executing(self, cause: tuple) -> bool:
@@ -543,7 +543,10 @@ class Session(asyncio.Protocol):
     def _announce_failure(self, cmd_id: int, source: str, exc: TcsError) -> None:
         """OpenTCI §4: a request the domain refused or failed (``FAILED n``) also sends its
         event ``ERROR <module>:<n>``, under the command's id, unless this connection already
-        got an event of that number for that module while the command ran."""
+        got an event of that number for that module under a command id while the command
+        ran. (An unsolicited event, id 0, of the same number — a drive fault seen by the
+        control loop — does not count: a client waiting for its command shows the events of
+        commands, and a slew's ``FAILED 2`` came without a reason.)"""
         if exc.keyword is not None or (source, exc.number) in self._announced.get(cmd_id, ()):
             return
         self.server.events.emit(ERROR, source, exc.number, exc.message)

@@ -13,7 +13,7 @@ import re
 
 import erfa
 
-from tcs.errors import RangeRefused, TcsError, ErrorNumber
+from tcs.errors import ErrorNumber, RangeRefused, TcsError, gather_all
 from tcs.pointing.orientation import to_normal
 
 _UNSAFE = re.compile(r"[,:;|\r\n\"\\]+")
@@ -278,7 +278,7 @@ class DomeShutters:
             waits.append(f.set_targetpos(1 if want else 0))
 
         async def run() -> None:
-            await asyncio.gather(*waits)
+            await gather_all(*waits)
         return run()
 
     @property

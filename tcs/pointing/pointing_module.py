@@ -61,7 +61,7 @@ from pathlib import Path
 import erfa
 
 from tcs.axes.profile import theoretical_minimum_time
-from tcs.errors import ErrorNumber, RangeRefused, TcsError
+from tcs.errors import ErrorNumber, RangeRefused, TcsError, gather_all
 from tcs.model.events import current_cause
 from tcs.model.health import ModuleHealth
 from tcs.pointing.astrometry import Astrometry, Refraction, Site, TimeBase
@@ -589,7 +589,7 @@ class Pointing(ModuleHealth):
             return None
 
         async def run() -> None:
-            await asyncio.gather(*waits)
+            await gather_all(*waits)
 
         return run()
 

@@ -324,6 +324,9 @@ class TrackSession:
         self._wake.set()
 
     def _lane_done(self, fut: asyncio.Future) -> None:
+        if not fut.cancelled():
+            fut.exception()  # retrieved: only the first lane's error ends tracking (_ended);
+            # the others' would be "Future exception was never retrieved" at garbage collection
         self._wake.set()
 
     # -- the task -------------------------------------------------------------------------------
@@ -542,8 +545,9 @@ class TrackSession:
         if fut.cancelled():
             return TcsError(f"{name}: trajectory cancelled", ErrorNumber.TARGETCHANGE)
         exc = fut.exception()
-        if isinstance(exc, TcsError):
-            return TcsError(f"{name}: {exc.message}", exc.number)
+        if isinstance(exc, TcsError):  # (the axis's own errors name it already)
+            text = exc.message if exc.message.startswith(f"{name}:") else f"{name}: {exc.message}"
+            return TcsError(text, exc.number)
         if exc is not None:
             return TcsError(f"{name}: {exc!r}", ErrorNumber.INTERNAL)
         reason = getattr(lane.axis.follower, "end_reason", None)

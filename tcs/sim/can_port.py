@@ -14,6 +14,18 @@ port was given) and one timer thread, whatever N is.
 * ``lock`` — one re-entrant lock held around every callback (received frames and timers), so
   the nodes' state is only ever touched by one thread at a time; code outside the port that
   touches a node (tests, fault injection) takes it too.
+* Host stalls — real drive hardware never stops; the simulator's threads do when their host
+  is busy (or the process is stopped). The port notices: when none of its threads ran for
+  more than :data:`HOST_STALL` s (the gap between two wake-ups of the poll timer or the
+  receive thread), or a frame is handled more than :data:`HOST_STALL` s after it was sent
+  (the receive thread fell behind), it counts a stall in ``stalls`` (``last_stall``: its
+  length). The nodes restart their supervision windows on it (see
+  :class:`tcs.sim.cia402_drive.SimDrive`). ``receive_backlog()`` tells whether frames wait
+  unread (python-can's ``virtual`` bus; 0 where it cannot be known). ``awake`` is the port's
+  *awake clock* (s): real time, except that a wake-up late by more than
+  :data:`AWAKE_STEP` counts only that much — on a starved host (where a master in the same
+  process starves as well) supervision windows measured on it run slower, on an idle host at
+  real speed.
 
 Ports are made by :func:`open_port` from a python-can bus, a canopen ``Network``, an existing
 port, or a dict of ``can.Bus`` keyword arguments; ports made for the same bus object are
@@ -41,6 +53,10 @@ FrameCallback = Callable[[int, bytes], None]
 RECEIVE_CYCLE = 0.05
 #: Real-time period (s) of the pollers (one timer wake-up for all the nodes of a bus).
 POLL_PERIOD = 0.01
+#: A gap (s) in the port's own threads longer than this is a stall of the simulator's host.
+HOST_STALL = 0.1
+#: Most (s) the awake clock advances from one wake-up of the port's threads to the next.
+AWAKE_STEP = 2 * POLL_PERIOD
 
 
 class TimerHandle:
@@ -87,6 +103,12 @@ class SimCanPort:
         self._timer.start()
         self.frames_sent = 0
         self.send_errors = 0
+        self.stalls = 0            # host stalls noticed (see the module docstring)
+        self.last_stall = 0.0      # length of the latest one, s
+        self.last_gap = 0.0        # of it, the time no thread of the port ran at all, s
+        self._alive: float | None = None  # monotonic time a port thread last ran
+        self._stall_noted = float("-inf")  # when the latest stall was counted
+        self.awake = 0.0  # the awake clock (see the module docstring)
 
     # -- receive -----------------------------------------------------------------------------
     def subscribe(self, cob_id: int, callback: FrameCallback) -> None:
@@ -114,15 +136,17 @@ class SimCanPort:
     def _on_message(self, msg: can.Message) -> None:
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
             return
-        self._dispatch(msg.arbitration_id, bytes(msg.data))
+        lag = time.time() - msg.timestamp if msg.timestamp else 0.0
+        self._dispatch(msg.arbitration_id, bytes(msg.data), lag)
 
     def _on_network_frame(self, cob_id: int, data: bytearray, timestamp: float) -> None:
         self._dispatch(cob_id, bytes(data))
 
-    def _dispatch(self, cob_id: int, data: bytes) -> None:
+    def _dispatch(self, cob_id: int, data: bytes, lag: float = 0.0) -> None:
         with self.lock:
             if self._closed:
                 return
+            self._note_alive(lag)
             for callback in list(self._subscribers.get(cob_id, ())):
                 try:
                     callback(cob_id, data)
@@ -150,6 +174,7 @@ class SimCanPort:
         with self.lock:
             self._pollers.append(callback)
             if self._poll_timer is None:
+                self._alive = None  # (the time without pollers was no stall)
                 self._poll_timer = self.call_every(POLL_PERIOD, self._poll_all)
 
     def remove_poller(self, callback: Callable[[], None]) -> None:
@@ -160,7 +185,32 @@ class SimCanPort:
                 self._poll_timer.cancel()
                 self._poll_timer = None
 
+    def _note_alive(self, lag: float = 0.0) -> None:
+        """A port thread runs (under the lock): count a host stall if none ran for longer than
+        :data:`HOST_STALL`, or the frame in hand waited that long (``lag``)."""
+        now = time.monotonic()
+        gap = 0.0 if self._alive is None else now - self._alive
+        self._alive = now
+        self.awake += min(gap, AWAKE_STEP)
+        stall = max(gap, lag if lag < 60.0 else 0.0)  # (a frame stamped by another clock)
+        if stall > HOST_STALL and now - self._stall_noted > HOST_STALL:
+            self._stall_noted = now  # (one stall, not one per frame of the backlog behind it)
+            self.stalls += 1
+            self.last_stall = stall
+            self.last_gap = gap if gap > HOST_STALL else 0.0  # nothing of the port ran
+            log.info("simulated CAN nodes: their host stalled for %.2f s (a busy machine?); "
+                     "their supervision restarts, no fault", stall)
+
+    def receive_backlog(self) -> int:
+        """Frames received but not yet handled (0 where the bus does not tell)."""
+        q = getattr(self._bus, "queue", None)
+        try:
+            return q.qsize() if q is not None else 0
+        except (AttributeError, NotImplementedError):
+            return 0
+
     def _poll_all(self) -> None:
+        self._note_alive()
         for callback in list(self._pollers):
             try:
                 callback()

@@ -33,6 +33,21 @@ CANopen behaviour (CiA-301):
   pre-operational takes it out of operational while enabled. Missing RPDOs: see drive_logic.
 * EMCY (0x1014, default 0x80 + id): ``[code lo, code hi, error register, 0, 0, 0, 0, 0]``.
 
+Host stalls (what real drive hardware never has): the SYNC-loss, RPDO-time-out and heartbeat
+consumer supervision above judge the master by real time, so a simulator thread that did not
+run (a busy host, a stopped process) would see a "silent master" that was in fact its own
+silence. The bus's port counts such stalls (:data:`tcs.sim.can_port.HOST_STALL`: no thread of
+the port ran, or a frame waited that long unread); on one the drive *restarts* its
+supervision windows (last SYNC and every consumed heartbeat count from now, the RPDO count
+from 0) instead of faulting, and — with the real clock — its physics does not jump: the clock
+of the physics leaves out the time nothing ran, so a move, a ramp or the following-error
+timer resumes where it was. Supervision is also not judged while received frames wait unread,
+and its windows are measured on the port's awake clock (``SimCanPort.awake``): on a host so
+busy that the simulator's own wake-ups come late — which starves a master in the same
+process (the ``virtual`` bus) just as much — they last longer in real time.
+A master that is silent while the drive runs still faults it exactly as before (0x8250,
+0x8130); so do :meth:`inject_fault`, :meth:`hold_heartbeat` and :meth:`set_responding`.
+
 Fault injection (for tests): :meth:`inject_fault` ("overcurrent" 0x2310, "following_error"
 0x8611, "encoder" 0x7305, "position_limit" 0x8612, "heartbeat" 0x8130, "rpdo_timeout"
 0x8250, or any int code), :meth:`set_responding` (False = a dead node: sends nothing,
@@ -50,7 +65,7 @@ from typing import Any
 
 import canopen
 
-from tcs.sim.can_port import SimCanPort, TimerHandle, open_port
+from tcs.sim.can_port import POLL_PERIOD, SimCanPort, TimerHandle, open_port
 from tcs.sim.drive_logic import (
     EMCY_ENCODER,
     EMCY_FOLLOWING_ERROR,
@@ -137,7 +152,11 @@ class SimDrive:
         if problems:
             raise ValueError(f"simulated drive {node_id}: " + "; ".join(problems))
         self.node_id = int(node_id)
-        self.clock = clock
+        self._base_clock = clock
+        self._compensate = clock is time.monotonic  # a test's own clock never stalls
+        self._stall_offset = 0.0   # host stall time left out of the physics' clock, s
+        self._stalls_seen = 0      # the port's stall count already handled
+        self.host_stalls = 0       # stalls this drive rode out (tests, logs)
         self._od = _load_od(self.params.eds or eds, self.node_id)
         self._port: SimCanPort = open_port(bus_or_network)
         self.lock = self._port.lock
@@ -160,6 +179,10 @@ class SimDrive:
         self._started = False
         self._stopped = False
         self._build()
+
+    def clock(self) -> float:
+        """Time of the physics (s): the given clock minus the host stalls ridden out."""
+        return self._base_clock() - self._stall_offset
 
     def _build(self) -> None:
         """A freshly powered drive: objects at their defaults, application reset."""
@@ -184,6 +207,7 @@ class SimDrive:
             if self._started:
                 return
             self._started = True
+            self._stalls_seen = self._port.stalls
             self._port.add_poller(self._poll)
             if self.params.boot_delay > 0 and not powered:
                 self._timers.append(self._port.call_later(self.params.boot_delay, self._boot))
@@ -374,11 +398,12 @@ class SimDrive:
     def _on_frame(self, cob_id: int, data: bytes) -> None:
         if self._stopped or not self.responding:
             return
+        self._check_stall()
         kind = self._subscribed.get(cob_id)
         if kind == "nmt":
             self._on_nmt(data)
         elif kind == "heartbeat":
-            self._consumer_seen[cob_id - 0x700] = time.monotonic()
+            self._consumer_seen[cob_id - 0x700] = self._port.awake
         elif self.nmt_state in (PRE_OPERATIONAL, OPERATIONAL):
             if kind == "sdo":
                 self._on_sdo(data)
@@ -444,7 +469,7 @@ class SimDrive:
         self.logic.update(self.clock())
         if self.nmt_state != OPERATIONAL:
             return
-        self._last_sync = time.monotonic()
+        self._last_sync = self._port.awake
         self.pdo.apply_sync_rpdos()
         fresh, self._rpdo_since_sync = self._rpdo_since_sync, False
         self.logic.on_sync(fresh)
@@ -460,10 +485,11 @@ class SimDrive:
     def _poll(self) -> None:
         if self._stopped or self.nmt_state == INITIALISING:
             return
+        self._check_stall()
         self.logic.update(self.clock())
-        if not self.responding:
-            return
-        now = time.monotonic()
+        if not self.responding or self._port.receive_backlog():
+            return  # (frames wait unread: the master is not judged silent meanwhile)
+        now = self._port.awake  # supervision runs on the port's awake clock
         if self.nmt_state == OPERATIONAL:
             self._watch_sync(now)  # (the shorter time-out first, should a poll come late)
         for node, last in list(self._consumer_seen.items()):
@@ -476,8 +502,31 @@ class SimDrive:
                     self.nmt_state = PRE_OPERATIONAL
                     self._update_comm()
         if self.nmt_state == OPERATIONAL:
-            for cob, payload in self.pdo.poll_events(now):
+            for cob, payload in self.pdo.poll_events(time.monotonic()):
                 self._send(cob, payload)
+
+    def _check_stall(self) -> None:
+        """Ride out a host stall the port noticed since the last look (under the lock)."""
+        port = self._port
+        if port.stalls != self._stalls_seen:
+            self._stalls_seen = port.stalls
+            self._on_host_stall(port.last_stall, port.last_gap)
+
+    def _on_host_stall(self, stall: float, gap: float) -> None:
+        """This drive's own host did not run for ``stall`` s (``gap`` of it nothing of the
+        port ran): no silence of the master. Restart the supervision windows; leave the time
+        nothing ran out of the physics (see the module docstring)."""
+        now = self._port.awake
+        if self._compensate and gap > POLL_PERIOD:
+            self._stall_offset += gap - POLL_PERIOD
+        if self._last_sync is not None:
+            self._last_sync = now
+        for node in self._consumer_seen:
+            self._consumer_seen[node] = now
+        self.logic.missed_in_row = 0
+        self.host_stalls += 1
+        log.debug("simulated drive %d: its host stalled for %.2f s; supervision windows restarted",
+                  self.node_id, stall)
 
     def _watch_sync(self, now: float) -> None:
         """SYNC stopped while enabled (0x1006 > 0): the master is gone, react per 0x6007."""

@@ -150,3 +150,21 @@ def test_bus_off_is_reported(can_channel):
         health = rig.system.bus.health()
         assert health.bus_off_count == 1 and "bus-off" in str(health.last_error)
         assert health.last_error.number == ErrorNumber.NOCON and heard == [health.last_error]
+
+
+def test_a_silent_node_is_retried_until_it_answers(can_channel):
+    """A drive silent at boot (no heartbeat, no SDO answer) is booted again with back-off for
+    as long as it stays silent — it used to be tried once more and then never again (the
+    failed boot's fresh heartbeat watch had never heard it, so "retry while it shows life"
+    was false for good) — and is booted as soon as it answers."""
+    with Rig(can_channel, {"az": AxisSpec(1), "alt": AxisSpec(2)}, boot_timeout=0.5) as rig:
+        rig.sims["az"].set_responding(False)
+        failures = rig.boot_and_start()
+        assert set(failures) == {"az"} and "no" in failures["az"].message
+        rig.wait(lambda: rig.system._retry.get("az", (0, 0))[1] >= 2.0, 20.0,
+                 "two more failed attempts (back-off doubled twice)")
+        assert not rig.status("az").booted
+        rig.sims["az"].set_responding(True)
+        rig.wait(lambda: rig.status("az").booted, 60.0, "az booted again")
+        assert rig.system.recoveries >= 1
+        assert rig.status("alt").state is not DriveState.OFFLINE
