@@ -41,6 +41,7 @@ answers nothing), :meth:`hold_heartbeat` (late heartbeats), :meth:`mute_tpdos` a
 
 from __future__ import annotations
 
+import collections
 import logging
 import threading
 import time
@@ -59,7 +60,9 @@ from tcs.sim.drive_logic import (
     EMCY_PDO_LENGTH,
     EMCY_POSITION_LIMIT,
     EMCY_RPDO_TIMEOUT,
+    MODE_CSP,
     DriveLogic,
+    State,
     error_register_bits,
 )
 from tcs.resources import hwconfig_file
@@ -145,6 +148,9 @@ class SimDrive:
         self.responding = True
         self.refuse_sdo = False
         self.sync_count = 0
+        #: (monotonic time, CSP target in user units) of each SYNC that applied a fresh CSP
+        #: target while enabled: what the master commanded, for tests of the setpoint stream
+        self.csp_targets: collections.deque = collections.deque(maxlen=20000)
         self.emcy_sent: list[int] = []
         self._rpdo_since_sync = False
         self._last_sync: float | None = None  # real time of the last SYNC while operational
@@ -448,6 +454,9 @@ class SimDrive:
         self.pdo.apply_sync_rpdos()
         fresh, self._rpdo_since_sync = self._rpdo_since_sync, False
         self.logic.on_sync(fresh)
+        if fresh and self.logic.mode == MODE_CSP and self.logic.state is State.OPERATION_ENABLED:
+            self.csp_targets.append((time.monotonic(),
+                                     self.store.get(0x607A, 0) / self.params.increments_per_unit))
         for cob, payload in self.pdo.on_sync(time.monotonic()):
             if not self._tpdos_muted:
                 self._send(cob, payload)
