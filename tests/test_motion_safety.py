@@ -211,10 +211,10 @@ async def test_moveaxis_keeps_the_operators_currspeed(live):
     c = await connect(live)
     try:
         await ready(live, c, "AZ", "ZD")
-        await goto(c, "AZ", 0.0)
+        await goto(c, "AZ", 100.0)
         assert done_ok(await c.set("AZ.CURRSPEED=5"), "AZ.CURRSPEED")
         assert (await aput(live, "moveaxis", Axis=0, Rate=30.0))["ErrorNumber"] == 0
-        await moves_until(live, "AZ", lambda p: p > 5.0, "MoveAxis moving")
+        await moves_until(live, "AZ", lambda p: p > 105.0, "MoveAxis moving")
         assert (await aput(live, "moveaxis", Axis=0, Rate=0))["ErrorNumber"] == 0
         await at_rest(c, "AZ")
         here = sim(live, "AZ").position
