@@ -13,7 +13,10 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
 import random
+import subprocess
+import sys
 import threading
 import time
 import urllib.parse
@@ -135,7 +138,7 @@ async def moves_until(live, ax: str, pred, what: str, timeout: float = WAIT) -> 
 def targets(live, ax: str) -> list[float]:
     """The CSP targets the simulated drive of ``ax`` received, one per SYNC (what the TCS
     commanded; the motor's reported position adds its own loop's settling to it)."""
-    return [p for _, p in sim(live, ax).csp_targets]
+    return [p for _, p, _ in sim(live, ax).csp_targets]
 
 
 def against(values: list[float], sign: int) -> list[tuple[float, float]]:
@@ -323,6 +326,31 @@ async def test_abort_of_tracking_and_of_a_dome_move_stops_them(live):
         await c.close()
 
 
+async def test_tcs_client_timeout_aborts_and_the_axis_stops(live, tmp_path):
+    """``tcs-client set AZ.TARGETPOS=… --timeout 1`` sends ABORT when the time is up: the exit
+    status says so and the axis stops short of the target instead of slewing on."""
+    c = await connect(live)
+    try:
+        await ready(live, c, "AZ", "ZD")
+        await goto(c, "AZ", 0.0)
+        await goto(c, "AZ", -100.0)
+        password = tmp_path / "password"
+        password.write_text("admin\n")
+        env = {**os.environ, "TCS_HOST": "127.0.0.1", "TCS_PORT": str(live.port), "TCS_USER": "admin",
+               "TCS_PASSWORD_FILE": str(password)}
+        done = await asyncio.to_thread(
+            subprocess.run, [sys.executable, "-m", "tcs.cli.client", "set", "AZ.TARGETPOS=200",
+                             "--timeout", "1"], env=env, capture_output=True, text=True, timeout=120)
+        assert done.returncode != 0 and "aborted" in done.stderr, (done.returncode, done.stderr)
+        await at_rest(c, "AZ")
+        stopped = sim(live, "AZ").position
+        assert abs(stopped - 200.0) > 5.0, stopped
+        await asyncio.sleep(0.3)
+        assert abs(sim(live, "AZ").position - stopped) < 1e-3
+    finally:
+        await c.close()
+
+
 # ----------------------------------------------------------------- 4: OFFSET while tracking
 
 async def test_offset_on_a_running_trajectory_is_range_checked(live):
@@ -385,7 +413,7 @@ async def test_late_cycles_never_send_more_than_the_speed_limit(live):
             loop.source.remove_callback(late)
         assert lines[-1].endswith("COMMAND COMPLETE"), lines
         await at_rest(c, "AZ")
-        targets = [p for _, p in drive.csp_targets]
+        targets = [p for _, p, _ in drive.csp_targets]
         assert len(targets) > 300
         steps = [b - a for a, b in zip(targets, targets[1:])]
         vmax = 60.0
@@ -393,3 +421,169 @@ async def test_late_cycles_never_send_more_than_the_speed_limit(live):
         assert max(targets) > 100.0   # it did run the path at speed
     finally:
         await c.close()
+
+
+# ------------------------------------------------------------ the seeded randomized test
+
+SEED = 22
+COMMANDS = 2000
+
+
+async def test_random_commands_from_every_front_end_never_move_unasked(live):
+    """Seeded fuzz (``SEED``): ``COMMANDS`` random commands from OpenTCI (TARGETPOS in and out of
+    range, OFFSET, CURRSPEED, STOP, trajectories, RUN=0, ABORT of earlier commands, TRACK=0),
+    OpenTSI (horizontal gotos above and below the horizon, TELESCOPE.STOP, TRACK=0) and Alpaca
+    (MoveAxis at random rates, AbortSlew, SlewToAltAzAsync), with drive faults injected and
+    acknowledged, while the simulated drives are sampled. Never: a CSP target or a reported
+    position outside the software limits, a step between two CSP targets above the speed
+    limit, and while a MoveAxis is the last word on its axis, a commanded step against its
+    direction or (ZD) towards the horizon beyond the altitude limit."""
+    rng = random.Random(SEED)
+    t = live.telescope
+    c = await connect(live)
+    tsi = await Client.connect(live.service.opentsi_port)
+    try:
+        await ready(live, c, "AZ", "ZD")
+        rotator, port = t.pointing.active_derotator()
+        rot = rotator.module_name
+        await ready(live, c, rot)
+        names = {"AZ": "AZ", "ZD": "ZD", rot: rot}
+        sims = {"AZ": sim(live, "AZ"), "ZD": sim(live, "ZD"), rot: t.sims[rotator.drive.node_id]}
+        axes = {"AZ": t.axis("AZ"), "ZD": t.axis("ZD"), rot: rotator}
+        moveaxis = {0: "AZ", 1: "ZD", 2: rot}
+        for s in sims.values():
+            s.csp_targets.clear()
+        log: list[tuple[float, tuple, str, object]] = []   # (time, axes touched, kind, detail)
+        started: list[int] = []
+        every = tuple(names)
+
+        def note(touched, kind, detail=None):
+            log.append((time.monotonic(), tuple(touched), kind, detail))
+
+        faults = 0
+        for i in range(COMMANDS):
+            r = rng.random()
+            ax = rng.choice(every)
+            if r < 0.22:
+                lo, hi = axes[ax].section.min, axes[ax].section.max
+                value = round(rng.uniform(lo - 20, hi + 20), 3)
+                note([ax], "targetpos")
+                started.append(await c.start(f"{ax}.TARGETPOS={value}"))
+            elif r < 0.30:
+                note([ax], "offset")
+                started.append(await c.start(f"{ax}.OFFSET={round(rng.choice([rng.uniform(-1, 1), rng.uniform(-700, 700)]), 3)}"))
+            elif r < 0.34:
+                note([], "currspeed")
+                await c.start(f"{ax}.CURRSPEED={round(rng.uniform(0.5, axes[ax].section.max_velocity), 2)}")
+            elif r < 0.38:
+                note([ax], "stop")
+                await c.start(f"{ax}.STOP=1")
+            elif r < 0.43 and started:
+                note(every, "abort")   # (which axis it stops is the aborted command's business)
+                await c.send(f"{rng.randrange(600000, 900000)} ABORT {rng.choice(started[-20:])}")
+            elif r < 0.47:
+                ut1 = await c.num("LOCAL.UT1")
+                p0 = axes[ax].real_position
+                pts = [(ut1 + 0.3 + 0.5 * k, p0 + rng.uniform(-5, 5) * k) for k in range(6)]
+                parts = []
+                for k, (tt, pp) in enumerate(pts):
+                    parts += [f"{ax}.TRAJECTORY.BUFFER[{k}].TIME={tt!r}", f"{ax}.TRAJECTORY.BUFFER[{k}].TARGETPOS={pp!r}"]
+                await c.start(";".join(parts))
+                await c.start(f"{ax}.TRAJECTORY.ADDPOINTS=6")
+                note([ax], "run")
+                started.append(await c.start(f"{ax}.TRAJECTORY.RUN=1"))
+            elif r < 0.49:
+                note([ax], "run0")
+                await c.start(f"{ax}.TRAJECTORY.RUN=0")
+            elif r < 0.66:
+                n = rng.choice((0, 1, 2))
+                top = axes[moveaxis[n]].section.max_velocity
+                rate = rng.choice([0.0, round(rng.uniform(-top, top), 2)])
+                note([moveaxis[n]], "moveaxis-sent")
+                reply = await aput(live, "moveaxis", Axis=n, Rate=rate)
+                if reply["ErrorNumber"] == 0 and rate != 0.0:
+                    note([], "moveaxis", (moveaxis[n], rate, axes[moveaxis[n]].real_position))
+            elif r < 0.70:
+                note(every, "abortslew")
+                await aput(live, "abortslew")
+            elif r < 0.74:
+                note(every, "slewaltaz")
+                await aput(live, "slewtoaltazasync", Azimuth=round(rng.uniform(0, 360), 2),
+                           Altitude=round(rng.uniform(-10, 89), 2))
+            elif r < 0.78:
+                note(every, "tsi-goto")
+                await tsi.start(f"OBJECT.HORIZONTAL.AZ={round(rng.uniform(0, 360), 2)};"
+                                f"OBJECT.HORIZONTAL.ALT={round(rng.uniform(-10, 89), 2)}")
+                await tsi.start("POINTING.TRACK=2")
+            elif r < 0.80:
+                note(every, "tsi-stop")
+                await tsi.start(rng.choice(["TELESCOPE.STOP=1", "POINTING.TRACK=0"]))
+            elif r < 0.81 and faults < 6:
+                faults += 1
+                note([ax], "fault")
+                await live.call(sims[ax].inject_fault, "following_error")
+            elif r < 0.86:
+                note([ax], "ack")
+                await c.start(f"{ax}.ERROR_STATE=0")
+                await c.start(f"{ax}.POWER=1")
+            else:
+                await asyncio.sleep(rng.uniform(0.0, 0.03))
+            if i % 50 == 0:   # read what piled up (and give the loop a breath)
+                await c.value("AZ.REALPOS")
+                await tsi.value("TELESCOPE.READY_STATE")
+                c.lines.clear()
+                tsi.lines.clear()
+        note(every, "end")
+        await c.set("CABINET.STOP=1")
+        for ax in every:
+            await c.wait(f"{ax}.MOTION_STATE", lambda v: not int(v) & MOVING, WAIT)
+        end = time.monotonic()
+
+        problems = []
+        period = t.control_loop.source.period
+        for ax in every:
+            sec = axes[ax].section
+            records = list(sims[ax].csp_targets)
+            vmax_step = sec.max_velocity * period * (1 + 1e-6) + 1e-9
+            for (t0, p0, _), (t1, p1, cont) in zip(records, records[1:]):
+                if not sec.min - 1e-9 <= p1 <= sec.max + 1e-9:
+                    problems.append(f"{ax}: CSP target {p1} outside [{sec.min}, {sec.max}]")
+                if cont and abs(p1 - p0) > vmax_step:
+                    problems.append(f"{ax}: step {p1 - p0:.5f} > {vmax_step:.5f} at {t1:.3f}")
+            # MoveAxis windows: from the reply to the next command that touches the axis
+            for k, (t0, _, kind, detail) in enumerate(log):
+                if kind != "moveaxis" or detail[0] != ax:
+                    continue
+                _, rate, z0 = detail
+                t_end = next((tt for tt, touched, _, _ in log[k + 1:] if ax in touched), end)
+                sign = 1 if rate > 0 else -1
+                if ax == "ZD" and t.pointing.mount == "AZ-ZD":
+                    sign = -1 if (z0 >= 0) == (rate > 0) else 1   # altitude: up is towards ZD 0
+                window = [(tt, p, cont) for tt, p, cont in records if t0 <= tt < t_end]
+                went = False
+                for (ta, pa, _), (tb, pb, cont) in zip(window, window[1:]):
+                    if not cont:
+                        went = False
+                        continue
+                    if sign * (pb - pa) > 1e-9:
+                        went = True
+                    elif went and sign * (pb - pa) < -1e-9:
+                        problems.append(f"{ax}: MoveAxis({rate}) stepped back {pb - pa:.6f} at {tb:.3f}")
+                        break
+                if ax == "ZD" and t.pointing.mount == "AZ-ZD":
+                    allowed = max(t.pointing.zd_limit, abs(z0)) + 1e-6
+                    over = [p for _, p, _ in window if abs(p) > allowed]
+                    if over:
+                        problems.append(f"ZD: MoveAxis({rate}) below the horizon: {max(map(abs, over))}")
+        assert not problems, problems[:10]
+        kinds = {kind for _, _, kind, _ in log}
+        assert {"moveaxis", "targetpos", "run", "abort", "fault"} <= kinds, kinds
+        assert sum(1 for _, _, kind, _ in log if kind == "moveaxis") > 50
+    finally:
+        for ax in ("AZ", "ZD"):
+            try:
+                await c.set(f"{ax}.CURRSPEED={t.axis(ax).section.max_velocity}")
+            except Exception:
+                pass
+        await c.close()
+        await tsi.close()

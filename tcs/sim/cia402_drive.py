@@ -148,9 +148,12 @@ class SimDrive:
         self.responding = True
         self.refuse_sdo = False
         self.sync_count = 0
-        #: (monotonic time, CSP target in user units) of each SYNC that applied a fresh CSP
-        #: target while enabled: what the master commanded, for tests of the setpoint stream
+        #: (monotonic time, CSP target in user units, continuous) of each SYNC that applied a
+        #: fresh CSP target while enabled: what the master commanded, for tests of the setpoint
+        #: stream; ``continuous`` is False for the first target after the drive was not
+        #: following CSP targets (disabled, faulted, another mode)
         self.csp_targets: collections.deque = collections.deque(maxlen=20000)
+        self._csp_gap = True
         self.emcy_sent: list[int] = []
         self._rpdo_since_sync = False
         self._last_sync: float | None = None  # real time of the last SYNC while operational
@@ -454,9 +457,14 @@ class SimDrive:
         self.pdo.apply_sync_rpdos()
         fresh, self._rpdo_since_sync = self._rpdo_since_sync, False
         self.logic.on_sync(fresh)
-        if fresh and self.logic.mode == MODE_CSP and self.logic.state is State.OPERATION_ENABLED:
-            self.csp_targets.append((time.monotonic(),
-                                     self.store.get(0x607A, 0) / self.params.increments_per_unit))
+        if self.logic.mode == MODE_CSP and self.logic.state is State.OPERATION_ENABLED:
+            if fresh:
+                self.csp_targets.append((time.monotonic(),
+                                         self.store.get(0x607A, 0) / self.params.increments_per_unit,
+                                         not self._csp_gap))
+                self._csp_gap = False
+        else:
+            self._csp_gap = True
         for cob, payload in self.pdo.on_sync(time.monotonic()):
             if not self._tpdos_muted:
                 self._send(cob, payload)
