@@ -24,7 +24,10 @@ What maps to what
   terms (IA/IE, or IH/ID) change so that the current encoders read the given place
   (:meth:`~tcs.model.operations.Operations.sync_to`); refused beyond 10°.
 * ``MoveAxis``: axis 0/1 = the main axes, 2 = the derotator at the active port; a rate moves the
-  axis towards its limit at |rate| deg/s (tracking ends first), 0 stops it.
+  axis at |rate| deg/s in its direction until the limit (tracking ends first), 0 stops it. On an
+  alt-az mount axis 1 is altitude: positive raises the tube to the zenith, negative lowers it to
+  the horizon limit (``[pointing] min_altitude``). Never folded modulo 360° (``Axis.move_toward``),
+  and CURRSPEED is left as the operator set it.
 * ``SideOfPier``: pierEast (0) in the normal orientation, pierWest (1) in the reverse one.
 * ``RightAscensionRate``/``DeclinationRate``: POINTING.TARGET.RA_V/DEC_V (a differential
   rate, from the next slew or tracking start on).
