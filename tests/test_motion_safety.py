@@ -326,6 +326,34 @@ async def test_abort_of_tracking_and_of_a_dome_move_stops_them(live):
         await c.close()
 
 
+async def test_abort_of_an_opentsi_goto_stops_the_slew(live):
+    """OpenTSI ``POINTING.TRACK=2`` (a horizontal goto), aborted during the slew: the axes stop
+    short of the goal instead of slewing on."""
+    c = await connect(live)
+    tsi = await Client.connect(live.service.opentsi_port)
+    try:
+        await ready(live, c, "AZ", "ZD")
+        await goto(c, "AZ", 0.0)
+        await goto(c, "AZ", -100.0)
+        await goto(c, "ZD", 30.0)
+        lines = await tsi.set("OBJECT.HORIZONTAL.AZ=170;OBJECT.HORIZONTAL.ALT=60")
+        assert lines[-1].endswith("COMMAND COMPLETE"), lines
+        cmd = await tsi.start("POINTING.TRACK=2")
+        start = sim(live, "AZ").position
+        await moves_until(live, "AZ", lambda p: abs(p - start) > 2.0, "slewing")
+        await tsi.send(f"{cmd + 500000} ABORT {cmd}")
+        line = await tsi.event(rf"^{cmd} COMMAND (ABORTEDBY|COMPLETE|FAILED)")
+        assert "ABORTEDBY" in line, line
+        await at_rest(c, "AZ")
+        stopped = sim(live, "AZ").position
+        assert abs(stopped - 170.0) > 5.0 and abs(stopped + 190.0) > 5.0, stopped
+        await asyncio.sleep(0.3)
+        assert abs(sim(live, "AZ").position - stopped) < 1e-3
+    finally:
+        await c.close()
+        await tsi.close()
+
+
 async def test_tcs_client_timeout_aborts_and_the_axis_stops(live, tmp_path):
     """``tcs-client set AZ.TARGETPOS=… --timeout 1`` sends ABORT when the time is up: the exit
     status says so and the axis stops short of the target instead of slewing on."""
