@@ -24,7 +24,10 @@ What maps to what
   terms (IA/IE, or IH/ID) change so that the current encoders read the given place
   (:meth:`~tcs.model.operations.Operations.sync_to`); refused beyond 10°.
 * ``MoveAxis``: axis 0/1 = the main axes, 2 = the derotator at the active port; a rate moves the
-  axis towards its limit at |rate| deg/s (tracking ends first), 0 stops it.
+  axis at |rate| deg/s in its direction until the limit (tracking ends first), 0 stops it. On an
+  alt-az mount axis 1 is altitude: positive raises the tube to the zenith, negative lowers it to
+  the horizon limit (``[pointing] min_altitude``). Never folded modulo 360° (``Axis.move_toward``),
+  and CURRSPEED is left as the operator set it.
 * ``SideOfPier``: pierEast (0) in the normal orientation, pierWest (1) in the reverse one.
 * ``RightAscensionRate``/``DeclinationRate``: POINTING.TARGET.RA_V/DEC_V (a differential
   rate, from the next slew or tracking start on).
@@ -44,6 +47,7 @@ import erfa
 from tcs.alpaca.device import Device, axis_ready, need, utc_iso
 from tcs.alpaca.protocol import AlpacaRequest, AscomError, Code, not_implemented
 from tcs.pointing.orientation import to_normal
+from tcs.errors import RangeRefused
 
 SIDEREAL_DEG_S = 360.0 / 86164.0905   # degrees per SI second
 GUIDE_RATE = 0.5 * SIDEREAL_DEG_S
@@ -518,28 +522,40 @@ class TelescopeDevice(Device):
             self.ops.stop_tracking()
         if rate == 0.0:
             axis.stop()
-            self._restore_speed(axis)
+            self._moving_axes.discard(axis)
             return
         axis_ready(axis, "MoveAxis")
-        goal = (axis.section.max if rate > 0 else axis.section.min) - axis.offset
-        axis.set_speed(abs(rate))
-        self._moving_axes.add(axis)
+        direction, lo, hi = self._move_bounds(n, axis, rate)
         try:
-            fut = axis.set_target(goal)
-        except Exception:
-            self._restore_speed(axis)
-            raise
-        fut.add_done_callback(lambda f, a=axis: (self._restore_speed(a), f.cancelled() or f.exception()))
+            fut = axis.move_toward(direction, abs(rate), lo=lo, hi=hi)
+        except RangeRefused as exc:
+            raise AscomError(Code.INVALID_VALUE, f"MoveAxis({n}, {rate:g}): {exc.message}") from None
+        self._moving_axes.add(axis)
+        fut.add_done_callback(lambda f, a=axis: (self._moving_axes.discard(a), f.cancelled() or f.exception()))
 
-    def _restore_speed(self, axis) -> None:
-        if axis in self._moving_axes:
-            self._moving_axes.discard(axis)
-            axis.set_speed(float(axis.section.max_velocity))
+    def _move_bounds(self, n: int, axis, rate: float) -> tuple[int, float | None, float | None]:
+        """(drive direction, lowest, highest drive position) of ``MoveAxis(n, rate)``.
+
+        Axis 1 of an alt-az mount is **altitude** (ASCOM): a positive rate raises the
+        telescope — towards the zenith (ZD 0) on the side the tube is (normal or reverse
+        orientation), where altitude has its end — and a negative rate lowers it down to the
+        horizon limit (``[pointing] min_altitude`` on the encoder ZD, the limit SlewToAltAz
+        keeps), never below. Every other axis: a positive rate increases the axis position, to
+        its software limit (a wrapping axis is not folded modulo 360°)."""
+        p = self.telescope.pointing
+        if n == 1 and p is not None and p.mount == "AZ-ZD" and axis is p.axis2:
+            zd = axis.real_position - axis.offset
+            side = 1.0 if zd >= 0.0 else -1.0
+            if rate > 0:        # up: |ZD| decreases, to the zenith
+                return (-1, axis.offset, None) if side > 0 else (1, None, axis.offset)
+            limit = p.zd_limit  # down: |ZD| increases, to the horizon limit
+            return (1, None, axis.offset + limit) if side > 0 else (-1, axis.offset - limit, None)
+        return (1 if rate > 0 else -1), None, None
 
     def _end_moves(self) -> None:
         for axis in list(self._moving_axes):
             axis.stop()
-            self._restore_speed(axis)
+        self._moving_axes.clear()
 
     # -- park, home -------------------------------------------------------------------------------
     def put_park(self, r) -> None:

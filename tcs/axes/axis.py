@@ -22,7 +22,10 @@ starts (RANGE, nothing moves) and again on every setpoint (the planner's limit g
 a quick stop of the planner/follower and always accepted; a drive fault stops the axis, fails
 its pending SETs and powers it off — nothing re-enables it but an explicit POWER=1 after the
 fault was acknowledged (ERROR_STATE=0); an unreferenced axis refuses TARGETPOS, OFFSET and
-trajectories (5 invmode) and moves only to reference.
+trajectories (5 invmode) and moves only to reference. A TPL2 ABORT of the command that started a
+motion (``abort_request``, matched by the command's cause) stops it with the normal deceleration;
+``move_toward`` (Alpaca MoveAxis) runs to a drive-frame end at its own speed, never the other
+way; every sent setpoint step is cut to ``max_velocity`` × the SYNC period (``_limit_step``).
 
 Discrete axes (FILTER, MIRROR) move between configured positions with profile-position moves
 of the drive; their positions are the integer keys of ``[axes.<name>].positions``.
@@ -140,6 +143,10 @@ class AxisTrajectory:
     def set_run(self, value: int):
         return self.axis.set_run(int(value))
 
+    def abort_request(self, cause, awaitable=None) -> None:
+        """ABORT of a ``RUN=1``: the axis stops (see :meth:`Axis.abort_request`)."""
+        self.axis.abort_request(cause, awaitable)
+
     @property
     def starttime(self) -> float:
         start = self.axis.queue.start_time
@@ -230,6 +237,8 @@ class Axis(ModuleHealth):
         self._homing_since = 0.0
         self._reference_cause = None  # the REINIT that started homing (events 19/20 name it)
         self._sp = Setpoint(0.0)
+        self._sent: float | None = None  # the last setpoint sent (for _limit_step)
+        self.clamped_steps = 0  # setpoint steps cut to the velocity limit
         self._running = False  # follower in charge (also while it brakes after an abort)
         self._run_cause = None  # the RUN=1 whose trajectory events (29-32) are sent
         self._fault: TcsError | None = None
@@ -330,10 +339,58 @@ class Axis(ModuleHealth):
             raise RequestRefused(f"{self.module_name} moves between discrete positions: no offset")
         value = float(value)
         base = self.target_position
+        c = self.section.cyclic
+        if c and abs(value) >= c / 2:
+            # more than half a turn is a turn the cable-wrap choice would take back: never a
+            # pointing offset (600 on the AZ wrap moved the mount 71 deg while tracking)
+            raise RangeRefused(f"{self.module_name}: |offset| {value:g} is half a turn ({c / 2:g}) or more")
+        if not c and abs(value) > self.section.max - self.section.min:
+            raise RangeRefused(f"{self.module_name}: |offset| {value:g} is wider than the range "
+                               f"[{self.section.min:g}, {self.section.max:g}]")
         if not self.trajectory_running and not self.limits.contains(base + value):
             raise RangeRefused(f"{self.module_name}: offset {value} puts the target outside the limits")
+        # while a trajectory runs, the loop side checks path + OFFSET over the queued path
+        # before it takes the offset (RANGE, the offset keeps its value)
         future = self._future()
         self._send("offset", value, future)
+        return future
+
+    def abort_request(self, cause, awaitable=None) -> None:
+        """TPL2 ``ABORT`` of the command ``cause`` (the session's (connection, id, serial)):
+        the motion that command started here (TARGETPOS, OFFSET, TRAJECTORY.RUN, a MoveAxis)
+        ends with the normal controlled stop. Motion another command started since (it
+        superseded this one) is left alone. Returns at once."""
+        self._send("abort", cause)
+
+    def move_toward(self, direction: int, speed: float, lo: float | None = None,
+                    hi: float | None = None):
+        """Move at ``speed`` (axis units/s, at most the axis maximum; CURRSPEED is neither
+        used nor changed) in ``direction`` (+1: increasing position) until the software
+        limit on that side, or ``hi``/``lo`` (drive frame) when those are nearer — never
+        folded modulo a cycle, never the other way. Long-running like TARGETPOS (a newer
+        target or STOP supersedes it).
+
+        Raises
+        ------
+        RangeRefused
+            The axis stands at or beyond that end already (it would have to move back).
+        """
+        self._require(what="move")
+        if self.discrete:
+            raise RequestRefused(f"{self.module_name} moves between discrete positions only")
+        speed = float(speed)
+        if not 0 < speed <= self.section.max_velocity * (1 + 1e-12):
+            raise RangeRefused(f"{self.module_name}: speed must be in (0, {self.section.max_velocity}]")
+        if direction > 0:
+            goal = self.section.max if hi is None else min(hi, self.section.max)
+        else:
+            goal = self.section.min if lo is None else max(lo, self.section.min)
+        if (goal - self.real_position) * direction <= max(self.section.tolerance, 1e-9):
+            raise RangeRefused(f"{self.module_name}: at the {'upper' if direction > 0 else 'lower'} "
+                               f"limit {goal:g} already")
+        future = self._future()
+        self._send("jog", (float(goal), min(speed, self.section.max_velocity), 1 if direction > 0 else -1),
+                   future)
         return future
 
     def set_stop(self, value: int) -> None:
@@ -489,10 +546,39 @@ class Axis(ModuleHealth):
         self._watch_drive(st, now)
         setpoint = self._motion(st, t)
         if setpoint is not None:
+            setpoint = self._limit_step(setpoint, st.position)
             self.drive.set_setpoint(setpoint.position, setpoint.velocity)
+        else:
+            self._sent = None
         self.drive.step()
         self._publish(st, t if measured is None else measured)
         self._flush()
+
+    def _limit_step(self, sp: Setpoint, measured: float) -> Setpoint:
+        """The last line of the velocity limit: the drive interpolates from one setpoint to
+        the next over one SYNC period whenever they arrive, so the step between two sent
+        setpoints must stay within ``max_velocity·T`` whatever the cycle's lateness (a
+        trajectory sampled at a late cycle's time asked for two cycles' travel in one: 7.8°/s
+        against 5 was measured). A cut setpoint replaces the axis's own, so a trajectory
+        re-intercepts its path from there (within the limits).
+
+        Acceleration is not cut here: the planner steps its profiles on the cycle grid (a
+        late cycle cannot change its steps), but a trajectory is sampled at the real time of
+        each cycle, and a cut of every millisecond of jitter at speed to the acceleration
+        limit made the follower lose its path on a loaded machine."""
+        T = self.dt
+        p0 = self._sent if self._sent is not None else measured
+        step = sp.position - p0
+        v_t = self.dynamics.max_velocity * T
+        if abs(step) <= v_t * (1 + 1e-6):
+            self._sent = sp.position
+            return sp
+        step = v_t if step > 0 else -v_t
+        self.clamped_steps += 1
+        clamped = Setpoint(p0 + step, step / T, 0.0, 0.0)
+        self._sp = clamped
+        self._sent = clamped.position
+        return clamped
 
     def _apply(self, kind, value, future, cause, st: DriveStatus, t: float, now: float) -> None:
         if kind == "power":
@@ -526,12 +612,41 @@ class Axis(ModuleHealth):
                 self.planner.set_target(value)
             self.emit(INFO, ErrorNumber.MOTIONCHANGE, f"moving to {value:g}", cause)
         elif kind == "offset":
+            # checked before anything changes: a refused offset (RANGE) keeps the old one and
+            # leaves a pending OFFSET alone
+            if self._running:
+                self.follower.check_offset(value, t)
+            elif not self.limits.contains(self.planner.target + value):
+                raise RangeRefused(f"{self.module_name}: offset {value:g} puts the target outside the limits")
             self._hold("offset", future, cause)
             if self._running:
                 self.follower.set_offset(value)
             else:
-                self.planner.set_offset(value)  # (may refuse: then OFFSET keeps its value)
+                self.planner.set_offset(value)
             self.offset = value
+        elif kind == "abort":
+            keys = [k for k in ("target", "offset", "run")
+                    if value is not None and k in self._pending and self._pending[k][1] == value]
+            if keys:
+                self._stop_motion(TcsError(f"{self.module_name}: aborted", ErrorNumber.TARGETCHANGE),
+                                  quick=False)
+                self.emit(INFO, ErrorNumber.MOTIONCHANGE, "aborted: stopping", value)
+        elif kind == "jog":
+            goal, speed, direction = value
+            if (goal - self._sp.position) * direction <= 0:  # never the other way
+                self._complete(future, RangeRefused(f"{self.module_name}: at the limit {goal:g} already"))
+                return
+            self._hold("target", future, cause)
+            if self._running:
+                self.follower.abort()
+                self._running = False
+                self._resolve("run")
+                self.emit(INFO, ErrorNumber.TRAJ_STOP, "cancelled by a move", self._run_cause)
+                self.planner.take_over(self._sp)
+            elif not self.planner.moving:
+                self.planner.take_over(self._sp)
+            self.planner.move_to(goal, speed)
+            self.emit(INFO, ErrorNumber.MOTIONCHANGE, f"moving towards {goal:g} at {speed:g}/s", cause)
         elif kind == "stop":
             self._stop_motion(TcsError(f"{self.module_name}: stopped", ErrorNumber.TARGETCHANGE))
         elif kind == "give up":
@@ -604,15 +719,15 @@ class Axis(ModuleHealth):
         if self.conditions().get("drive fault", (0, False))[1]:
             self.clear_condition("drive fault")
 
-    def _stop_motion(self, error: TcsError) -> None:
-        """Quick stop of whatever moves the axis; pending SETs end with ``error``. A running
-        trajectory is braked by the follower itself (from its own setpoint: the planner's
-        state is stale while the follower is in charge); :meth:`_motion` hands the axis back
-        to the planner when the follower has ended."""
+    def _stop_motion(self, error: TcsError, quick: bool = True) -> None:
+        """Quick stop (``quick``; else the normal deceleration) of whatever moves the axis;
+        pending SETs end with ``error``. A running trajectory is braked by the follower itself
+        (from its own setpoint: the planner's state is stale while the follower is in charge);
+        :meth:`_motion` hands the axis back to the planner when the follower has ended."""
         if self._running:
-            self.follower.abort(quick=True)
+            self.follower.abort(quick=quick)
         else:
-            self.planner.stop(quick=True)
+            self.planner.stop(quick=quick)
         self._fail_motion(error)
         self._resolve("run")
         self.queue.clear()

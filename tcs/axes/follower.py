@@ -205,6 +205,27 @@ class TrajectoryFollower:
             self._offset = float(offset)
             self._replan = True
 
+    def check_offset(self, offset: float, t: float) -> None:
+        """Would ``offset`` keep the running path inside the limits? The path now and every
+        queued point still ahead, plus the chosen wrap (``shift``), plus ``offset``.
+
+        Raises
+        ------
+        RangeRefused
+            Not a finite number, or a part of the path would leave the software limits.
+        """
+        if not math.isfinite(offset):
+            raise RangeRefused(f"offset {offset!r} is not a finite number")
+        lim = self.limits
+        times, positions = self.queue.positions()
+        ahead = [p for tt, p in zip(times, positions) if tt >= t]
+        if times:
+            ahead.append(self.queue.sample(t)[0])
+        for p in ahead:
+            if not lim.contains(p + self.shift + offset):
+                raise RangeRefused(f"offset {offset:g} puts the queued path at {p + self.shift + offset:g}, "
+                                   f"outside the software limits")
+
     def set_speed(self, velocity: float) -> None:
         """``CURRSPEED`` written: velocity limit for intercepts and the path check.
 

@@ -101,6 +101,7 @@ class MotionPlanner:
         self._n = 0
         self._end = 0.0
         self._pending: float | None = None
+        self._pending_speed: float | None = None  # speed limit of the move planned (and pending)
         self._softlimit: str | None = None
         self._verified = True
 
@@ -220,6 +221,22 @@ class MotionPlanner:
         self._plan_to(demanded)
         return self._target
 
+    def move_to(self, demanded: float, speed: float) -> None:
+        """Move to rest at the drive position ``demanded`` (no cyclic resolution: a MoveAxis
+        towards a limit goes the way it was asked) at most at ``speed`` — for this move only,
+        ``CURRSPEED`` (:attr:`speed`) is left as it is.
+
+        Raises
+        ------
+        RangeRefused
+            ``demanded`` is outside the software limits; nothing changes.
+        """
+        demanded = float(demanded)
+        if not (math.isfinite(demanded) and self.limits.contains(demanded)):
+            raise RangeRefused(f"position {demanded!r} is outside the software limits")
+        self._target = demanded - self._offset
+        self._plan_to(demanded, min(float(speed), self.dynamics.max_velocity))
+
     def set_offset(self, offset: float) -> None:
         """``OFFSET`` written: move smoothly so the drive reaches ``target + offset``.
 
@@ -304,7 +321,7 @@ class MotionPlanner:
         elif finished:
             if state is PlannerState.BRAKING and self._pending is not None:
                 pending, self._pending = self._pending, None
-                self._plan_to(pending)
+                self._plan_to(pending, self._pending_speed)
             else:
                 self._idle()
         return sp
@@ -329,8 +346,9 @@ class MotionPlanner:
         self._end = float(end)
         self._state = state
 
-    def _plan_to(self, demanded: float) -> None:
-        """Plan from the current setpoint to rest at ``demanded`` (drive frame)."""
+    def _plan_to(self, demanded: float, speed: float | None = None) -> None:
+        """Plan from the current setpoint to rest at ``demanded`` (drive frame), at most at
+        ``speed`` (default: :attr:`speed`)."""
         sp = self._sp
         self._softlimit = None
         self._guard.reset()
@@ -339,7 +357,9 @@ class MotionPlanner:
             self._idle()
             return
         d = self.dynamics
-        traj = self._solver.move(sp, demanded, max_velocity=self._speed,
+        speed = self._speed if speed is None else speed
+        self._pending_speed = speed
+        traj = self._solver.move(sp, demanded, max_velocity=speed,
                                  max_acceleration=d.max_acceleration, max_jerk=d.max_jerk)
         side = self._guard.crossing(traj, sp.position)
         if side is None:

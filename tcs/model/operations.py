@@ -42,6 +42,7 @@ import erfa
 
 from tcs.errors import ErrorNumber, RangeRefused, TcsError, gather_all
 from tcs.model.health import ERROR, PANIC, ModuleHealth
+from tcs.model.events import current_cause
 from tcs.pointing.sky_object import SkyObject
 
 log = logging.getLogger(__name__)
@@ -350,6 +351,13 @@ class Operations(ModuleHealth):
             await gather_all(p.axis1.set_target(d1), p.axis2.set_target(d2))
         except TcsError as exc:
             self._failed("goto", exc)
+            raise
+        except asyncio.CancelledError:
+            # ended (an ABORT of its SET, TELESCOPE.STOP, a newer verb): the slew it started
+            # stops with the normal deceleration; a target a newer command gave is left alone
+            cause = current_cause.get()
+            for axis in (p.axis1, p.axis2):
+                axis.abort_request(cause)
             raise
 
     def apply_filter(self):

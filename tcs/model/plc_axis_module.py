@@ -463,6 +463,17 @@ class PlcAxisModule(PlcModule):
             self.emit(ERROR, ErrorNumber.TARGETCHANGE, "target changed", old[1])
         self._pending[key] = (future, current_cause.get())
 
+    def abort_request(self, cause, awaitable=None) -> None:
+        """TPL2 ABORT of the command ``cause``: if a TARGETPOS, OFFSET or TRAJECTORY.RUN of
+        that command still runs here, the part stops (as STOP); else nothing happens."""
+        if cause is None or not any(key in self._pending and self._pending[key][1] == cause
+                                    for key in ("target", "offset", "run")):
+            return
+        try:
+            self.stop()
+        except TcsError:  # PLC unreachable: stop() reported it and writes it on reconnect
+            pass
+
     def cause_of(self, key: str):
         """The command (connection id, command id) of the pending SET ``key``, for its events."""
         entry = self._pending.get(key)

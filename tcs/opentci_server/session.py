@@ -22,7 +22,7 @@ unparseable line           ``<id> COMMAND ERROR SYNTAX``, ``<id> COMMAND FAILED`
 unknown verb               ``<id> COMMAND ERROR UNKNOWN [unknown command X]``, ``<id> COMMAND FAILED``
 too many in flight         ``<id> COMMAND ERROR TOOMANY``, ``<id> COMMAND FAILED``
 GET / SET                  ``COMMAND OK``, one ``DATA`` line per object, ``COMMAND COMPLETE``
-aborted long SET           ``<id> COMMAND ABORTEDBY <abort id>``
+aborted long SET           ``<id> COMMAND ABORTEDBY <abort id>`` (the motion it started stops)
 server shutting down       ``<id> COMMAND FAILED``
 =========================  =============================================================
 
@@ -78,12 +78,22 @@ _SERIALS = itertools.count(1)  # tells a command from a later one that reuses it
 class _Command:
     """A running long command: its task and how it was ended from outside."""
 
-    __slots__ = ("cmd_id", "task", "aborted_by")
+    __slots__ = ("cmd_id", "task", "aborted_by", "cause", "moves")
 
-    def __init__(self, cmd_id: int):
+    def __init__(self, cmd_id: int, cause=None):
         self.cmd_id = cmd_id
         self.task: asyncio.Task | None = None
         self.aborted_by: int | None = None
+        self.cause = cause  # (connection, id, serial): what the domain records as the cause
+        self.moves: list = []  # (tree, target, awaitable) of its long-running writes
+
+    def stop_moves(self) -> None:
+        """ABORT: each long-running write stops what it started (the tree's abort hook)."""
+        for tree, target, awaitable in self.moves:
+            try:
+                tree.abort(target, self.cause, awaitable)
+            except Exception:
+                log.exception("aborting the write of %s failed", getattr(target.node, "path", target))
 
 
 class Session(asyncio.Protocol):
@@ -182,6 +192,7 @@ class Session(asyncio.Protocol):
             self._auth_task.cancel()
         if self.abort_on_disconnect:
             for cmd in list(self.commands.values()):
+                cmd.stop_moves()  # as an ABORT: the motion it started stops
                 if cmd.task is not None:
                     cmd.task.cancel()
         self.server.forget(self)
@@ -488,7 +499,8 @@ class Session(asyncio.Protocol):
             for i, assignment in enumerate(msg.assignments):
                 pending = self._assign(cmd_id, assignment)
                 if pending is not None:
-                    cmd = _Command(cmd_id)
+                    cmd = _Command(cmd_id, (self.id, cmd_id, serial))
+                    cmd.moves = [(self.server.tree, w[3], w[1]) for w in pending[1]]
                     self.commands[cmd_id] = cmd
                     cmd.task = self.server.spawn(
                         self._finish_set(cmd, assignment, pending, msg.assignments[i + 1:]))
@@ -534,7 +546,7 @@ class Session(asyncio.Protocol):
                 continue
             errors.append("")
             if pending is not None:
-                waits.append((len(errors) - 1, pending, module_of(target)))
+                waits.append((len(errors) - 1, pending, module_of(target), target))
         if waits:
             return errors, waits
         self._data_result(cmd_id, ref.text, errors)
@@ -565,6 +577,7 @@ class Session(asyncio.Protocol):
             for a in rest:
                 more = self._assign(cmd_id, a)
                 if more is not None:
+                    cmd.moves += [(self.server.tree, w[3], w[1]) for w in more[1]]
                     await self._await_assignment(cmd_id, a.obj.text, more)
             self.send(m.CommandComplete(cmd_id))
         except asyncio.CancelledError:
@@ -579,7 +592,7 @@ class Session(asyncio.Protocol):
 
     async def _await_assignment(self, cmd_id: int, obj: str, pending) -> None:
         errors, waits = pending
-        for slot, awaitable, source in waits:
+        for slot, awaitable, source, _ in waits:
             try:
                 await awaitable
             except TcsError as exc:
@@ -627,6 +640,7 @@ class Session(asyncio.Protocol):
         self.send(m.CommandOk(cmd_id))
         for victim in victims:
             victim.aborted_by = by
+            victim.stop_moves()  # the motion it started stops (before its task is cancelled)
             if victim.task is not None:
                 victim.task.cancel()
         tasks = [v.task for v in victims if v.task is not None]

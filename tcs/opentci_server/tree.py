@@ -495,6 +495,18 @@ class Tree:
         return result if inspect.isawaitable(result) else None
 
 
+    def abort(self, target: Target, cause, awaitable) -> None:
+        """TPL2 ABORT of a long-running write of ``target`` that returned ``awaitable`` in the
+        command ``cause``: the object's ``abort_request(cause, awaitable)`` stops what that
+        write started (an axis, tracking, a dome part); objects without one just stop waiting."""
+        spec: VarSpec = target.node.spec  # type: ignore[attr-defined]
+        if spec.per_connection:
+            return
+        hook = getattr(target.node.obj, "abort_request", None)  # type: ignore[attr-defined]
+        if hook is not None:
+            hook(cause, awaitable)
+
+
 def _step(ref: ObjectRef, part, is_last: bool, t: Target, nxt: list[Target], limit: int | None,
           multi: bool) -> None:
     """Resolve ``part`` below ``t``, appending what it selects to ``nxt``.

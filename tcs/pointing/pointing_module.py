@@ -462,6 +462,14 @@ class Pointing(ModuleHealth):
         if self._session is session:
             self._session = None
 
+    def abort_request(self, cause, awaitable=None) -> None:
+        """TPL2 ABORT of the ``TRACK`` SET ``cause``: the tracking it started ends (the axes
+        stop with their normal deceleration, RUN=0); a tracking another command started since
+        is left alone."""
+        session = self._session
+        if session is not None and (session.result is awaitable or (cause is not None and session.cause == cause)):
+            session.stop(TcsError("aborted", ErrorNumber.TARGETCHANGE))
+
     def stop(self) -> None:
         """CABINET.STOP: end tracking (its TRACK SET fails with 10)."""
         session = self._tracking()

@@ -56,6 +56,7 @@ answers nothing), :meth:`hold_heartbeat` (late heartbeats), :meth:`mute_tpdos` a
 
 from __future__ import annotations
 
+import collections
 import logging
 import threading
 import time
@@ -74,7 +75,9 @@ from tcs.sim.drive_logic import (
     EMCY_PDO_LENGTH,
     EMCY_POSITION_LIMIT,
     EMCY_RPDO_TIMEOUT,
+    MODE_CSP,
     DriveLogic,
+    State,
     error_register_bits,
 )
 from tcs.resources import hwconfig_file
@@ -164,6 +167,12 @@ class SimDrive:
         self.responding = True
         self.refuse_sdo = False
         self.sync_count = 0
+        #: (monotonic time, CSP target in user units, continuous) of each SYNC that applied a
+        #: fresh CSP target while enabled: what the master commanded, for tests of the setpoint
+        #: stream; ``continuous`` is False for the first target after the drive was not
+        #: following CSP targets (disabled, faulted, another mode)
+        self.csp_targets: collections.deque = collections.deque(maxlen=20000)
+        self._csp_gap = True
         self.emcy_sent: list[int] = []
         self._rpdo_since_sync = False
         self._last_sync: float | None = None  # real time of the last SYNC while operational
@@ -473,6 +482,14 @@ class SimDrive:
         self.pdo.apply_sync_rpdos()
         fresh, self._rpdo_since_sync = self._rpdo_since_sync, False
         self.logic.on_sync(fresh)
+        if self.logic.mode == MODE_CSP and self.logic.state is State.OPERATION_ENABLED:
+            if fresh:
+                self.csp_targets.append((time.monotonic(),
+                                         self.store.get(0x607A, 0) / self.params.increments_per_unit,
+                                         not self._csp_gap))
+                self._csp_gap = False
+        else:
+            self._csp_gap = True
         for cob, payload in self.pdo.on_sync(time.monotonic()):
             if not self._tpdos_muted:
                 self._send(cob, payload)

@@ -1,0 +1,641 @@
+"""No motion anybody did not ask for (issue 22): direction, horizon, ABORT, OFFSET range, speed
+limits on late cycles, settings across front ends — through the real front ends (TPL2 over a
+socket, ASCOM Alpaca over HTTP) against the simulated drives of ``tests/hw_alpaca.toml``.
+
+One service for the module (its own event-loop thread, :mod:`support.live`). Each test brings
+the axes it uses to the state it needs. Motion is judged by sampling the simulated drives
+themselves (``telescope.sims[node]``: the position the motor reports, and the CSP targets the
+drive received at each SYNC), never by the TCS's own readbacks, and never by timing: every wait
+is for a state with a generous time-out.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import random
+import subprocess
+import sys
+import threading
+import time
+import urllib.parse
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from support.live import live_service
+from support.opentci_client import Client, done_ok, upload
+
+HW = Path(__file__).with_name("hw_alpaca.toml")
+NODE = {"AZ": 1, "ZD": 2, "DEROTATOR[2]": 3}
+MOVING = 1
+WAIT = 60.0
+
+live = live_service(HW)
+
+
+@pytest.fixture(autouse=True)
+def _no_leaked_threads():  # the module's service thread is expected; LiveService.stop checks
+    yield
+
+
+# ----------------------------------------------------------------------------- helpers
+
+class Sampler:
+    """Samples a simulated drive's reported position every few ms in a thread of its own."""
+
+    def __init__(self, sim, period: float = 0.005):
+        self.sim, self.period = sim, period
+        self.samples: list[tuple[float, float]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="test-sampler", daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self.samples.append((time.monotonic(), self.sim.position))
+            self._stop.wait(self.period)
+
+    def __enter__(self) -> "Sampler":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join(5)
+
+    @property
+    def positions(self) -> list[float]:
+        return [p for _, p in self.samples]
+
+
+def sim(live, ax: str):
+    return live.telescope.sims[NODE[ax]]
+
+
+def alpaca(live, member: str, method: str = "PUT", **form) -> dict:
+    """One Alpaca request to Telescope 0 over HTTP; the decoded JSON reply."""
+    url = f"http://127.0.0.1:{live.service.alpaca_port}/api/v1/telescope/0/{member}"
+    data = None
+    if method == "PUT":
+        data = urllib.parse.urlencode({**form, "ClientID": 7, "ClientTransactionID": 1}).encode()
+    elif form:
+        url += "?" + urllib.parse.urlencode(form)
+    with urllib.request.urlopen(urllib.request.Request(url, data=data, method=method), timeout=40) as r:
+        return json.loads(r.read())
+
+
+async def aput(live, member: str, **form) -> dict:
+    return await asyncio.to_thread(alpaca, live, member, "PUT", **form)
+
+
+async def connect(live) -> Client:
+    return await Client.connect(live.port)
+
+
+async def ready(live, c: Client, *axes: str) -> None:
+    """Unparked (Alpaca), main power on, ``axes`` without fault, powered, referenced, at rest,
+    not tracking."""
+    assert (await aput(live, "connected", Connected="true"))["ErrorNumber"] == 0
+    if live.telescope.operations.at_park:
+        assert (await aput(live, "unpark"))["ErrorNumber"] == 0
+    if await c.get("CABINET.POWER_STATE") != "1.0":
+        assert done_ok(await c.set("CABINET.POWER=1", 60), "CABINET.POWER")
+    if await c.num("POINTING.TRACK"):
+        await c.set("POINTING.TRACK=0")
+    for ax in axes:
+        await make_ready(c, ax)
+        if await c.num(f"{ax}.OFFSET") != 0.0:
+            assert done_ok(await c.set(f"{ax}.OFFSET=0"), f"{ax}.OFFSET")
+
+
+async def make_ready(c: Client, ax: str) -> None:
+    """``ax`` without a fault, powered, referenced, at rest (the other axis of the mount is
+    powered off with it when one faults)."""
+    for one in ([ax, "ZD" if ax == "AZ" else "AZ"] if ax in ("AZ", "ZD") else [ax]):
+        await c.wait(f"{one}.MOTION_STATE", lambda v: not int(v) & MOVING, WAIT)
+        if await c.num(f"{one}.ERROR_STATE"):
+            await c.set(f"{one}.ERROR_STATE=0")
+            await c.wait(f"{one}.ERROR_STATE", lambda v: not int(v) & 3)
+        if await c.num(f"{one}.POWER_STATE") != 1.0:
+            assert done_ok(await c.set(f"{one}.POWER=1"), f"{one}.POWER")
+        if await c.num(f"{one}.REFERENCED") < 1.0:
+            await c.set(f"{one}.REINIT=0")
+            await c.wait(f"{one}.REFERENCED", lambda v: v == 1.0, WAIT)
+        await c.wait(f"{one}.MOTION_STATE", lambda v: not int(v) & MOVING)
+
+
+async def goto(c: Client, ax: str, position: float) -> None:
+    """Set-up move of ``ax`` to exactly ``position`` (not the nearest turn of it: through 0 and
+    ±100 on a wrapping axis). A set-up move that a loaded machine spoils (the drives stop by
+    themselves when the loop starves: RPDO time-out, following error) is retried after the
+    axis is made ready again; the moves under test are never retried."""
+    steps = [position]
+    if ax in ("AZ", "DEROTATOR[2]", "DEROTATOR[3]"):
+        steps = [0.0] + ([100.0 if position > 0 else -100.0] if abs(position) > 150 else []) + [position]
+    for step in steps:
+        for attempt in range(3):
+            lines = await c.set(f"{ax}.TARGETPOS={step}", WAIT)
+            if done_ok(lines, f"{ax}.TARGETPOS") or attempt == 2:
+                break
+            await make_ready(c, ax)
+        assert done_ok(lines, f"{ax}.TARGETPOS"), lines
+
+
+async def at_rest(c: Client, ax: str) -> None:
+    await c.wait(f"{ax}.MOTION_STATE", lambda v: not int(v) & MOVING, WAIT)
+
+
+async def moves_until(live, ax: str, pred, what: str, timeout: float = WAIT) -> None:
+    s = sim(live, ax)
+    deadline = time.monotonic() + timeout
+    while not pred(s.position):
+        assert time.monotonic() < deadline, f"{ax}: {what} (at {s.position})"
+        await asyncio.sleep(0.01)
+
+
+def targets(live, ax: str) -> list[float]:
+    """The CSP targets the simulated drive of ``ax`` received, one per SYNC (what the TCS
+    commanded; the motor's reported position adds its own loop's settling to it)."""
+    return [p for _, p, _ in sim(live, ax).csp_targets]
+
+
+def against(values: list[float], sign: int) -> list[tuple[float, float]]:
+    """Consecutive pairs of ``values`` that step against ``sign``."""
+    return [(a, b) for a, b in zip(values, values[1:]) if sign * (b - a) < -1e-9]
+
+
+# ------------------------------------------------------- 1, 6, 7: Alpaca MoveAxis
+
+async def test_moveaxis_moves_a_wrapping_axis_the_way_asked(live):
+    """From AZ 0 a positive rate increases the azimuth, a negative one decreases it (the ±270°
+    goal of the cable wrap is no longer folded into ∓90°); the derotator likewise."""
+    c = await connect(live)
+    try:
+        await ready(live, c, "AZ", "ZD", "DEROTATOR[2]")
+        for ax, n in (("AZ", 0), ("DEROTATOR[2]", 2)):
+            for rate in (20.0, -20.0):
+                await goto(c, ax, 0.0)
+                start = sim(live, ax).position
+                sign = 1 if rate > 0 else -1
+                sim(live, ax).csp_targets.clear()
+                reply = await aput(live, "moveaxis", Axis=n, Rate=rate)
+                assert reply["ErrorNumber"] == 0, reply
+                await moves_until(live, ax, lambda p: sign * (p - start) > 10.0,
+                                  f"MoveAxis({n}, {rate}) moving 10 deg its way")
+                assert (await aput(live, "moveaxis", Axis=n, Rate=0))["ErrorNumber"] == 0
+                await at_rest(c, ax)
+                commanded = targets(live, ax)
+                assert against(commanded, sign) == [], (ax, rate, against(commanded, sign)[:5])
+                assert sign * (sim(live, ax).position - start) > 10.0
+    finally:
+        await c.close()
+
+
+async def test_moveaxis_altitude_raises_and_stops_at_the_horizon(live):
+    """Axis 1 of the alt-az mount is altitude: a positive rate decreases ZD (raises the tube)
+    up to the zenith; a negative rate lowers it and stops at the altitude limit SlewToAltAz
+    keeps (15° here), not at the mechanical ZD limit of 85°."""
+    c = await connect(live)
+    try:
+        await ready(live, c, "AZ", "ZD")
+        await goto(c, "ZD", 30.0)
+        sim(live, "ZD").csp_targets.clear()
+        assert (await aput(live, "moveaxis", Axis=1, Rate=10.0))["ErrorNumber"] == 0
+        await moves_until(live, "ZD", lambda p: p < 25.0, "rising")
+        await at_rest(c, "ZD")  # runs to the zenith and stops there
+        assert against(targets(live, "ZD"), -1) == []
+        assert abs(sim(live, "ZD").position) < 0.01
+        limit = 90.0 - live.telescope.pointing.config.min_altitude
+        sim(live, "ZD").csp_targets.clear()
+        with Sampler(sim(live, "ZD")) as s:
+            assert (await aput(live, "moveaxis", Axis=1, Rate=-30.0))["ErrorNumber"] == 0
+            await moves_until(live, "ZD", lambda p: p > 5.0, "lowering")
+            await at_rest(c, "ZD")
+        assert against(targets(live, "ZD"), 1) == []
+        assert max(targets(live, "ZD")) <= limit + 1e-9, (max(targets(live, "ZD")), limit)
+        assert max(s.positions) <= limit + 0.05, (max(s.positions), limit)  # (motor settling)
+        assert s.positions[-1] > limit - 0.01
+        # at the horizon limit, lower is refused; up is allowed
+        reply = await aput(live, "moveaxis", Axis=1, Rate=-5.0)
+        assert reply["ErrorNumber"] == 0x401, reply
+        assert (await aput(live, "moveaxis", Axis=1, Rate=5.0))["ErrorNumber"] == 0
+        await moves_until(live, "ZD", lambda p: p < limit - 1.0, "rising again")
+        assert (await aput(live, "moveaxis", Axis=1, Rate=0))["ErrorNumber"] == 0
+        await at_rest(c, "ZD")
+    finally:
+        await c.close()
+
+
+async def test_moveaxis_keeps_the_operators_currspeed(live):
+    """An operator's CURRSPEED (set over OpenTCI) still holds after an Alpaca MoveAxis and its
+    stop: the next TARGETPOS move runs at most at that speed."""
+    c = await connect(live)
+    try:
+        await ready(live, c, "AZ", "ZD")
+        await goto(c, "AZ", 100.0)
+        assert done_ok(await c.set("AZ.CURRSPEED=5"), "AZ.CURRSPEED")
+        assert (await aput(live, "moveaxis", Axis=0, Rate=30.0))["ErrorNumber"] == 0
+        await moves_until(live, "AZ", lambda p: p > 105.0, "MoveAxis moving")
+        assert (await aput(live, "moveaxis", Axis=0, Rate=0))["ErrorNumber"] == 0
+        await at_rest(c, "AZ")
+        here = sim(live, "AZ").position
+        sim(live, "AZ").csp_targets.clear()
+        await goto(c, "AZ", round(here + 10.0, 3))
+        steps = [b - a for a, b in zip(targets(live, "AZ"), targets(live, "AZ")[1:])]
+        period = live.telescope.control_loop.source.period
+        assert max(steps) / period <= 5.0 * (1 + 1e-6), max(steps) / period  # (full speed: 60)
+    finally:
+        try:
+            await c.set("AZ.CURRSPEED=60")
+        finally:
+            await c.close()
+
+
+# ------------------------------------------------------------------------- 3: ABORT
+
+async def _abort_and_check(live, c: Client, ax: str, start_text: str, far: float) -> None:
+    """Start ``SET start_text``; once ``ax`` moves, ABORT it: the command ends ABORTEDBY, the
+    drive stops well short of ``far`` and does not move on."""
+    cmd = await c.start(start_text)
+    s = sim(live, ax)
+    start = s.position
+    await moves_until(live, ax, lambda p: abs(p - start) > 1.0, "moving before the ABORT")
+    await c.send(f"{cmd + 500000} ABORT {cmd}")
+    line = await c.event(rf"^{cmd} COMMAND (ABORTEDBY|COMPLETE|FAILED)")
+    assert line.endswith(f"ABORTEDBY {cmd + 500000}"), line
+    await at_rest(c, ax)
+    stopped = s.position
+    assert abs(stopped - far) > 5.0, (ax, stopped, far)
+    await asyncio.sleep(0.3)
+    assert abs(s.position - stopped) < 1e-3, "it moved on after the ABORT"
+
+
+async def test_abort_of_a_targetpos_stops_the_axis(live):
+    c = await connect(live)
+    try:
+        await ready(live, c, "AZ", "ZD")
+        await goto(c, "AZ", -100.0)
+        await _abort_and_check(live, c, "AZ", "AZ.TARGETPOS=200", 200.0)
+        # a SET of two targets runs them in order: aborted during the first, neither goes on
+        await goto(c, "ZD", 0.0)
+        await _abort_and_check(live, c, "AZ", "AZ.TARGETPOS=-200;ZD.TARGETPOS=80", -200.0)
+        await at_rest(c, "ZD")
+        assert abs(sim(live, "ZD").position) < 1e-3
+    finally:
+        await c.close()
+
+
+async def test_abort_of_an_offset_and_of_a_trajectory_run_stops_the_axis(live):
+    c = await connect(live)
+    try:
+        await ready(live, c, "AZ", "ZD")
+        await goto(c, "AZ", -100.0)
+        await _abort_and_check(live, c, "AZ", "AZ.OFFSET=150", 50.0)
+        assert done_ok(await c.set("AZ.OFFSET=0"), "AZ.OFFSET")
+        await goto(c, "AZ", 0.0)
+        ut1 = await c.num("LOCAL.UT1")
+        points = [(ut1 + 1.0 + i, 30.0 * i) for i in range(8)]   # 30 deg/s for 7 s
+        assert done_ok(await upload(c, "AZ", points), "AZ.TRAJECTORY.ADDPOINTS")
+        await _abort_and_check(live, c, "AZ", "AZ.TRAJECTORY.RUN=1", 210.0)
+    finally:
+        await c.close()
+
+
+async def test_abort_of_tracking_and_of_a_dome_move_stops_them(live):
+    c = await connect(live)
+    try:
+        await ready(live, c, "AZ", "ZD")
+        # POINTING.TRACK: a goto far away, aborted during the slew
+        p = live.telescope.pointing
+        await goto(c, "AZ", -60.0)
+        await goto(c, "ZD", 40.0)
+        ra, dec = p.current.ra, p.current.dec  # where it points: then 120 deg east of it
+        assert done_ok(await c.set(f"POINTING.TARGET.RA={(ra + 8.0) % 24.0};POINTING.TARGET.DEC={dec}"),
+                       "POINTING.TARGET.DEC")
+        cmd = await c.start("POINTING.TRACK=1")
+        start = sim(live, "AZ").position
+        await moves_until(live, "AZ", lambda x: abs(x - start) > 2.0, "slewing")
+        await c.send(f"{cmd + 500000} ABORT {cmd}")
+        line = await c.event(rf"^{cmd} COMMAND (ABORTEDBY|COMPLETE|FAILED)")
+        assert "ABORTEDBY" in line, line
+        await c.wait("POINTING.TRACK", lambda v: v == 0, WAIT)
+        await at_rest(c, "AZ")
+        await at_rest(c, "ZD")
+        here = sim(live, "AZ").position
+        await asyncio.sleep(0.5)
+        assert abs(sim(live, "AZ").position - here) < 1e-3, "it went on tracking"
+        # DOME[0].TARGETPOS: the PLC rotation stops
+        if await c.num("DOME[0].POWER_STATE") != 1.0:
+            assert done_ok(await c.set("DOME[0].POWER=1"), "DOME[0].POWER")
+        dome = live.telescope.dome[0]
+        here = dome.real_position
+        cmd = await c.start(f"DOME[0].TARGETPOS={(here + 170.0) % 360.0}")
+        deadline = time.monotonic() + WAIT
+        while abs((dome.real_position - here + 180.0) % 360.0 - 180.0) < 2.0:
+            assert time.monotonic() < deadline, "the dome did not move"
+            await asyncio.sleep(0.02)
+        await c.send(f"{cmd + 500000} ABORT {cmd}")
+        line = await c.event(rf"^{cmd} COMMAND (ABORTEDBY|COMPLETE|FAILED)")
+        assert "ABORTEDBY" in line, line
+        await c.wait("DOME[0].MOTION_STATE", lambda v: not int(v) & MOVING, WAIT)
+        stopped = dome.real_position
+        assert abs((stopped - here - 170.0 + 180.0) % 360.0 - 180.0) > 5.0, (here, stopped)
+    finally:
+        await c.close()
+
+
+async def test_abort_of_an_opentsi_goto_stops_the_slew(live):
+    """OpenTSI ``POINTING.TRACK=2`` (a horizontal goto), aborted during the slew: the axes stop
+    short of the goal instead of slewing on."""
+    c = await connect(live)
+    tsi = await Client.connect(live.service.opentsi_port)
+    try:
+        await ready(live, c, "AZ", "ZD")
+        await goto(c, "AZ", 0.0)
+        await goto(c, "AZ", -100.0)
+        await goto(c, "ZD", 30.0)
+        lines = await tsi.set("OBJECT.HORIZONTAL.AZ=170;OBJECT.HORIZONTAL.ALT=60")
+        assert lines[-1].endswith("COMMAND COMPLETE"), lines
+        cmd = await tsi.start("POINTING.TRACK=2")
+        start = sim(live, "AZ").position
+        await moves_until(live, "AZ", lambda p: abs(p - start) > 2.0, "slewing")
+        await tsi.send(f"{cmd + 500000} ABORT {cmd}")
+        line = await tsi.event(rf"^{cmd} COMMAND (ABORTEDBY|COMPLETE|FAILED)")
+        assert "ABORTEDBY" in line, line
+        await at_rest(c, "AZ")
+        stopped = sim(live, "AZ").position
+        assert abs(stopped - 170.0) > 5.0 and abs(stopped + 190.0) > 5.0, stopped
+        await asyncio.sleep(0.3)
+        assert abs(sim(live, "AZ").position - stopped) < 1e-3
+    finally:
+        await c.close()
+        await tsi.close()
+
+
+async def test_tcs_client_timeout_aborts_and_the_axis_stops(live, tmp_path):
+    """``tcs-client set AZ.TARGETPOS=… --timeout 1`` sends ABORT when the time is up: the exit
+    status says so and the axis stops short of the target instead of slewing on."""
+    c = await connect(live)
+    try:
+        await ready(live, c, "AZ", "ZD")
+        await goto(c, "AZ", 0.0)
+        await goto(c, "AZ", -100.0)
+        password = tmp_path / "password"
+        password.write_text("admin\n")
+        env = {**os.environ, "TCS_HOST": "127.0.0.1", "TCS_PORT": str(live.port), "TCS_USER": "admin",
+               "TCS_PASSWORD_FILE": str(password)}
+        done = await asyncio.to_thread(
+            subprocess.run, [sys.executable, "-m", "tcs.cli.client", "set", "AZ.TARGETPOS=200",
+                             "--timeout", "1"], env=env, capture_output=True, text=True, timeout=120)
+        assert done.returncode != 0 and "aborted" in done.stderr, (done.returncode, done.stderr)
+        await at_rest(c, "AZ")
+        stopped = sim(live, "AZ").position
+        assert abs(stopped - 200.0) > 5.0, stopped
+        await asyncio.sleep(0.3)
+        assert abs(sim(live, "AZ").position - stopped) < 1e-3
+    finally:
+        await c.close()
+
+
+# ----------------------------------------------------------------- 4: OFFSET while tracking
+
+async def test_offset_on_a_running_trajectory_is_range_checked(live):
+    """AZ.OFFSET=600 on a running path is RANGE before DATA OK, and so is an offset that puts
+    the queued path outside the limits; the offset keeps its value, the path goes on."""
+    c = await connect(live)
+    try:
+        await ready(live, c, "AZ", "ZD")
+        await goto(c, "AZ", 100.0)
+        await goto(c, "AZ", 200.0)   # (the turn nearest 100: the path runs on +200 ... +258)
+        ut1 = await c.num("LOCAL.UT1")
+        points = [(ut1 + 0.5 + i, 200.0 + 0.004 * i) for i in range(30)]   # slow, as tracking
+        assert done_ok(await upload(c, "AZ", points), "AZ.TRAJECTORY.ADDPOINTS")
+        run = await c.start("AZ.TRAJECTORY.RUN=1")
+        await c.wait("AZ.MOTION_STATE", lambda v: int(v) & 2, WAIT)
+        for value in (600, 80):     # half a turn and more; 80 puts the path at 280 > 270
+            lines = await c.set(f"AZ.OFFSET={value}")
+            assert any(f"DATA ERROR AZ.OFFSET RANGE" in x for x in lines), lines
+            assert await c.num("AZ.OFFSET") == 0.0
+        lines = await c.set("AZ.OFFSET=0.01")   # a small one inside is taken
+        assert done_ok(lines, "AZ.OFFSET"), lines
+        assert int(await c.num("AZ.MOTION_STATE")) & 2, "the path was given up"
+        assert sim(live, "AZ").position < 270.0
+        await c.set("AZ.TRAJECTORY.RUN=0")
+        await c.event(rf"^{run} COMMAND ")
+        await at_rest(c, "AZ")
+        assert done_ok(await c.set("AZ.OFFSET=0"), "AZ.OFFSET")
+    finally:
+        await c.close()
+
+
+# ---------------------------------------------------------------- 5: late cycles
+
+async def test_late_cycles_never_send_more_than_the_speed_limit(live):
+    """Every few cycles the loop is made late (a cycle callback that sleeps 1.5–2.5 periods)
+    while AZ follows a 50°/s path (limit 60): no step between two CSP targets the drive
+    received exceeds 60°/s × T (the drive runs each step within one period)."""
+    c = await connect(live)
+    try:
+        await ready(live, c, "AZ", "ZD")
+        await goto(c, "AZ", 0.0)
+        await goto(c, "AZ", -150.0)   # (the turn nearest 0)
+        loop = live.telescope.control_loop
+        period = loop.source.period
+        rng = random.Random(22)
+
+        def late(cycle) -> None:
+            if rng.random() < 0.15:
+                time.sleep(period * rng.uniform(1.5, 2.5))
+
+        ut1 = await c.num("LOCAL.UT1")
+        points = [(ut1 + 1.5 + 0.5 * i, -150.0 + 25.0 * i) for i in range(13)]   # 50 deg/s for 6 s
+        assert done_ok(await upload(c, "AZ", points), "AZ.TRAJECTORY.ADDPOINTS")
+        drive = sim(live, "AZ")
+        drive.csp_targets.clear()
+        loop.source.add_callback(late)
+        try:
+            lines = await c.set("AZ.TRAJECTORY.RUN=1", WAIT)
+        finally:
+            loop.source.remove_callback(late)
+        assert lines[-1].endswith("COMMAND COMPLETE"), lines
+        await at_rest(c, "AZ")
+        targets = [p for _, p, _ in drive.csp_targets]
+        assert len(targets) > 300
+        steps = [b - a for a, b in zip(targets, targets[1:])]
+        vmax = 60.0
+        assert max(abs(s) for s in steps) <= vmax * period * (1 + 1e-5) + 1e-5, max(map(abs, steps))
+        assert max(targets) > 100.0   # it did run the path at speed
+    finally:
+        await c.close()
+
+
+# ------------------------------------------------------------ the seeded randomized test
+
+SEED = 22
+COMMANDS = 2000
+
+
+async def test_random_commands_from_every_front_end_never_move_unasked(live):
+    """Seeded fuzz (``SEED``): ``COMMANDS`` random commands from OpenTCI (TARGETPOS in and out of
+    range, OFFSET, CURRSPEED, STOP, trajectories, RUN=0, ABORT of earlier commands, TRACK=0),
+    OpenTSI (horizontal gotos above and below the horizon, TELESCOPE.STOP, TRACK=0) and Alpaca
+    (MoveAxis at random rates, AbortSlew, SlewToAltAzAsync), with drive faults injected and
+    acknowledged, while the simulated drives are sampled. Never: a CSP target or a reported
+    position outside the software limits, a step between two CSP targets above the speed
+    limit, and while a MoveAxis is the last word on its axis, a commanded step against its
+    direction or (ZD) towards the horizon beyond the altitude limit."""
+    rng = random.Random(SEED)
+    t = live.telescope
+    c = await connect(live)
+    tsi = await Client.connect(live.service.opentsi_port)
+    try:
+        await ready(live, c, "AZ", "ZD")
+        rotator, port = t.pointing.active_derotator()
+        rot = rotator.module_name
+        await ready(live, c, rot)
+        names = {"AZ": "AZ", "ZD": "ZD", rot: rot}
+        sims = {"AZ": sim(live, "AZ"), "ZD": sim(live, "ZD"), rot: t.sims[rotator.drive.node_id]}
+        axes = {"AZ": t.axis("AZ"), "ZD": t.axis("ZD"), rot: rotator}
+        moveaxis = {0: "AZ", 1: "ZD", 2: rot}
+        for s in sims.values():
+            s.csp_targets.clear()
+        log: list[tuple[float, tuple, str, object]] = []   # (time, axes touched, kind, detail)
+        started: list[int] = []
+        every = tuple(names)
+
+        def note(touched, kind, detail=None):
+            log.append((time.monotonic(), tuple(touched), kind, detail))
+
+        faults = 0
+        for i in range(COMMANDS):
+            r = rng.random()
+            ax = rng.choice(every)
+            if r < 0.22:
+                lo, hi = axes[ax].section.min, axes[ax].section.max
+                value = round(rng.uniform(lo - 20, hi + 20), 3)
+                note([ax], "targetpos")
+                started.append(await c.start(f"{ax}.TARGETPOS={value}"))
+            elif r < 0.30:
+                note([ax], "offset")
+                started.append(await c.start(f"{ax}.OFFSET={round(rng.choice([rng.uniform(-1, 1), rng.uniform(-700, 700)]), 3)}"))
+            elif r < 0.34:
+                note([], "currspeed")
+                await c.start(f"{ax}.CURRSPEED={round(rng.uniform(0.5, axes[ax].section.max_velocity), 2)}")
+            elif r < 0.38:
+                note([ax], "stop")
+                await c.start(f"{ax}.STOP=1")
+            elif r < 0.43 and started:
+                note(every, "abort")   # (which axis it stops is the aborted command's business)
+                await c.send(f"{rng.randrange(600000, 900000)} ABORT {rng.choice(started[-20:])}")
+            elif r < 0.47:
+                ut1 = await c.num("LOCAL.UT1")
+                p0 = axes[ax].real_position
+                pts = [(ut1 + 0.3 + 0.5 * k, p0 + rng.uniform(-5, 5) * k) for k in range(6)]
+                parts = []
+                for k, (tt, pp) in enumerate(pts):
+                    parts += [f"{ax}.TRAJECTORY.BUFFER[{k}].TIME={tt!r}", f"{ax}.TRAJECTORY.BUFFER[{k}].TARGETPOS={pp!r}"]
+                await c.start(";".join(parts))
+                await c.start(f"{ax}.TRAJECTORY.ADDPOINTS=6")
+                note([ax], "run")
+                started.append(await c.start(f"{ax}.TRAJECTORY.RUN=1"))
+            elif r < 0.49:
+                note([ax], "run0")
+                await c.start(f"{ax}.TRAJECTORY.RUN=0")
+            elif r < 0.66:
+                n = rng.choice((0, 1, 2))
+                # the TPL2 commands sent before are applied before this one (a connection's
+                # commands run in order: its reply to a GET comes after them)
+                await c.value("AZ.REALPOS")
+                await tsi.value("TELESCOPE.READY_STATE")
+                top = axes[moveaxis[n]].section.max_velocity
+                rate = rng.choice([0.0, round(rng.uniform(-top, top), 2)])
+                note([moveaxis[n]], "moveaxis-sent")
+                reply = await aput(live, "moveaxis", Axis=n, Rate=rate)
+                if reply["ErrorNumber"] == 0 and rate != 0.0:
+                    note([], "moveaxis", (moveaxis[n], rate, axes[moveaxis[n]].real_position))
+            elif r < 0.70:
+                note(every, "abortslew")
+                await aput(live, "abortslew")
+            elif r < 0.74:
+                note(every, "slewaltaz")
+                await aput(live, "slewtoaltazasync", Azimuth=round(rng.uniform(0, 360), 2),
+                           Altitude=round(rng.uniform(-10, 89), 2))
+            elif r < 0.78:
+                note(every, "tsi-goto")
+                await tsi.start(f"OBJECT.HORIZONTAL.AZ={round(rng.uniform(0, 360), 2)};"
+                                f"OBJECT.HORIZONTAL.ALT={round(rng.uniform(-10, 89), 2)}")
+                await tsi.start("POINTING.TRACK=2")
+            elif r < 0.80:
+                note(every, "tsi-stop")
+                await tsi.start(rng.choice(["TELESCOPE.STOP=1", "POINTING.TRACK=0"]))
+            elif r < 0.81 and faults < 6:
+                faults += 1
+                note([ax], "fault")
+                await live.call(sims[ax].inject_fault, "following_error")
+            elif r < 0.86:
+                note([ax], "ack")
+                await c.start(f"{ax}.ERROR_STATE=0")
+                await c.start(f"{ax}.POWER=1")
+            else:
+                await asyncio.sleep(rng.uniform(0.0, 0.03))
+            if i % 50 == 0:   # read what piled up (and give the loop a breath)
+                await c.value("AZ.REALPOS")
+                await tsi.value("TELESCOPE.READY_STATE")
+                c.lines.clear()
+                tsi.lines.clear()
+        note(every, "end")
+        await c.set("CABINET.STOP=1")
+        for ax in every:
+            await c.wait(f"{ax}.MOTION_STATE", lambda v: not int(v) & MOVING, WAIT)
+        end = time.monotonic()
+
+        problems = []
+        period = t.control_loop.source.period
+        for ax in every:
+            sec = axes[ax].section
+            records = list(sims[ax].csp_targets)
+            vmax_step = sec.max_velocity * period * (1 + 1e-6) + 1e-9
+            for (t0, p0, _), (t1, p1, cont) in zip(records, records[1:]):
+                if not sec.min - 1e-9 <= p1 <= sec.max + 1e-9:
+                    problems.append(f"{ax}: CSP target {p1} outside [{sec.min}, {sec.max}]")
+                if cont and abs(p1 - p0) > vmax_step:
+                    problems.append(f"{ax}: step {p1 - p0:.5f} > {vmax_step:.5f} at {t1:.3f}")
+            # MoveAxis windows: from the reply to the next command that touches the axis
+            for k, (t0, _, kind, detail) in enumerate(log):
+                if kind != "moveaxis" or detail[0] != ax:
+                    continue
+                _, rate, z0 = detail
+                t_end = next((tt for tt, touched, _, _ in log[k + 1:] if ax in touched), end)
+                sign = 1 if rate > 0 else -1
+                if ax == "ZD" and t.pointing.mount == "AZ-ZD":
+                    sign = -1 if (z0 >= 0) == (rate > 0) else 1   # altitude: up is towards ZD 0
+                window = [(tt, p, cont) for tt, p, cont in records if t0 <= tt < t_end]
+                went = False
+                for (ta, pa, _), (tb, pb, cont) in zip(window, window[1:]):
+                    if not cont:
+                        went = False
+                        continue
+                    if sign * (pb - pa) > 1e-9:
+                        went = True
+                    elif went and sign * (pb - pa) < -1e-9:
+                        problems.append(f"{ax}: MoveAxis({rate}) stepped back {pb - pa:.6f} at {tb:.3f}")
+                        break
+                if ax == "ZD" and t.pointing.mount == "AZ-ZD":
+                    allowed = max(t.pointing.zd_limit, abs(z0)) + 1e-6
+                    over = [p for _, p, _ in window if abs(p) > allowed]
+                    if over:
+                        problems.append(f"ZD: MoveAxis({rate}) below the horizon: {max(map(abs, over))}")
+        assert not problems, problems[:10]
+        kinds = {kind for _, _, kind, _ in log}
+        assert {"moveaxis", "targetpos", "run", "abort", "fault"} <= kinds, kinds
+        assert sum(1 for _, _, kind, _ in log if kind == "moveaxis") > 50
+    finally:
+        for ax in ("AZ", "ZD"):
+            try:
+                await c.set(f"{ax}.CURRSPEED={t.axis(ax).section.max_velocity}")
+            except Exception:
+                pass
+        await c.close()
+        await tsi.close()
