@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
 
 from support.service import start_service
 from support.tpl2 import RawClient
+from tcs.opentci_server.server_module import _sysinfo
 
 
 async def login(port: int, user: str, password: str) -> str:
@@ -203,3 +205,30 @@ async def test_accounts_are_the_same_on_the_opentci_and_opentsi_ports(tmp_path):
         await svc.stop()
     saved = json.loads((state / "accounts.json").read_text())["accounts"]
     assert set(saved) == {"obs", "admin"} and not saved["admin"]["blocked"]
+
+
+async def test_reboot_refused_by_the_system_fails_with_its_answer(tmp_path, monkeypatch):
+    """Under the hardened unit (user tcs, NoNewPrivileges) ``systemctl reboot`` is refused: the
+    SET fails with systemd's answer instead of completing as if the computer rebooted."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    fake = bin_dir / "systemctl"  # the system's answer to an unprivileged user without polkit
+    fake.write_text('#!/bin/sh\necho "Failed to reboot system via logind: Access denied" >&2\nexit 1\n')
+    fake.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{bin_dir}:{os.environ['PATH']}")
+    svc, port = await start_service(tmp_path / "state", allow_system_control=True)
+    try:
+        c = await RawClient.connect(port)
+        lines = await c.command(1, "SET SERVER.SYSTEM.REBOOT=1")
+        assert lines[-2:] == ["1 DATA ERROR SERVER.SYSTEM.REBOOT FAILED 2", "1 COMMAND COMPLETE"], lines
+        assert any("Access denied" in line for line in lines), lines
+        await c.close()
+    finally:
+        await svc.stop()
+
+
+def test_load_and_uptime_without_proc():
+    """``ProcSubset=pid`` hides /proc/loadavg and /proc/uptime: the sysinfo call gives both."""
+    uptime, load = _sysinfo()
+    assert abs(uptime - float(open("/proc/uptime").read().split()[0])) < 5
+    assert abs(load - os.getloadavg()[0]) < 1.0

@@ -23,7 +23,13 @@ stays logged in. A blocked user keeps its entry with a hash no password matches
 
 ``REBOOT`` and ``SHUTDOWN`` are refused (``FAILED 6``, localmode) unless the hardware file
 sets ``[server] allow_system_control``; then ``SERVER.SHUTDOWN`` and ``SYSTEM.SHUTDOWN`` stop
-this service (SIGTERM to itself, a clean stop) and ``SYSTEM.REBOOT`` asks systemd to reboot.
+this service (SIGTERM to itself, a clean stop) and ``SYSTEM.REBOOT`` asks systemd to reboot:
+the SET completes once ``systemctl reboot`` accepted it and fails with systemd's answer when
+it refused (the hardened unit runs as user ``tcs`` with ``NoNewPrivileges``, so a reboot needs
+a polkit rule allowing ``org.freedesktop.login1.reboot`` for that user).
+
+``SYSTEM.LOAD`` and ``UPTIME`` come from ``/proc`` and, where the unit hides it
+(``ProcSubset=pid``), from the ``sysinfo`` system call: never a made-up 0.
 
 Everything runs on the event loop; password hashing runs in a worker thread.
 """
@@ -169,16 +175,16 @@ class ServerModule:
     def system_load(self) -> float:
         try:
             return round(os.getloadavg()[0], 2)
-        except OSError:  # pragma: no cover - not on Linux
-            return 0.0
+        except OSError:  # /proc/loadavg hidden (ProcSubset=pid)
+            return round(_sysinfo()[1], 2)
 
     @property
     def system_uptime(self) -> float:
         try:
             with open("/proc/uptime", encoding="ascii") as f:
                 return float(f.read().split()[0])
-        except OSError:  # pragma: no cover - not on Linux
-            return time.monotonic()
+        except OSError:  # /proc/uptime hidden (ProcSubset=pid)
+            return float(_sysinfo()[0])
 
     @property
     def system_starttime(self) -> float:
@@ -190,11 +196,27 @@ class ServerModule:
         log.warning("SHUTDOWN requested over TPL2: stopping the service")
         asyncio.get_running_loop().call_later(0.1, os.kill, os.getpid(), signal.SIGTERM)
 
-    def reboot(self, value: int) -> None:
-        """SYSTEM.REBOOT: ask systemd to reboot the computer (when allowed)."""
+    def reboot(self, value: int):
+        """SYSTEM.REBOOT: ask systemd to reboot the computer (when allowed); the SET ends with
+        systemd's answer."""
         self._allowed("reboot")
         log.warning("REBOOT requested over TPL2")
-        subprocess.Popen(["systemctl", "reboot"], stdin=subprocess.DEVNULL)
+        return self._reboot()
+
+    @staticmethod
+    async def _reboot() -> None:
+        try:
+            proc = await asyncio.create_subprocess_exec(
+                "systemctl", "reboot", stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT)
+            out, _ = await asyncio.wait_for(proc.communicate(), 60)
+        except (OSError, asyncio.TimeoutError) as exc:
+            raise TcsError(f"reboot: systemctl reboot did not run: {exc!r}", ErrorNumber.LIBFAIL) from exc
+        if proc.returncode != 0:
+            text = " ".join(out.decode(errors="replace").split()) or f"exit status {proc.returncode}"
+            log.error("REBOOT refused by the system: %s", text)
+            raise TcsError(f"reboot refused by the system: {text} (the service's user needs a polkit "
+                           "rule for org.freedesktop.login1.reboot)", ErrorNumber.LIBFAIL)
 
     def _allowed(self, what: str) -> None:
         if not getattr(self.settings, "allow_system_control", False):
@@ -463,3 +485,18 @@ class ClientSlot:
 
 
 __all__ = ["ServerModule", "ClientSlot", "command_rate"]
+
+
+def _sysinfo() -> tuple[int, float]:
+    """(uptime s, 1-minute load) from the ``sysinfo`` system call (Linux), which needs no
+    ``/proc``."""
+    import ctypes
+
+    class SysInfo(ctypes.Structure):
+        _fields_ = [("uptime", ctypes.c_long), ("loads", ctypes.c_ulong * 3),
+                    ("_rest", ctypes.c_char * 256)]  # (totalram … : not read; room to spare)
+
+    info = SysInfo()
+    if ctypes.CDLL(None, use_errno=True).sysinfo(ctypes.byref(info)) != 0:
+        raise OSError(ctypes.get_errno(), "sysinfo failed")
+    return info.uptime, info.loads[0] / 65536.0
