@@ -23,7 +23,8 @@ wait_for() {
   local end=$(( $(date +%s) + $1 )); shift
   until "$@"; do [ "$(date +%s)" -lt "$end" ] || return 1; sleep 1; done
 }
-# the simulated telescope's hardware file on a kernel CAN interface
-kernel_can_config() {  # SOURCE CHANNEL > FILE
-  sed -e 's/^interface = "virtual".*/interface = "socketcan"/' -e "s/^channel = \"tcs-sim\".*/channel = \"$2\"/" "$1"
-}
+# how much slower than real hardware the clock of the checks runs (hwfile.py --slowdown):
+# 5 under software emulation (TCG), 1 with KVM; TCS_VM_SLOWDOWN overrides
+SLOWDOWN=${TCS_VM_SLOWDOWN:-$([ "${TCS_VM_ACCEL:-tcg}" = kvm ] && echo 1 || echo 5)}
+# hwfile [--channel CH] > FILE: the simulated telescope's hardware file for the checks
+hwfile() { python "$(dirname "${BASH_SOURCE[0]}")/hwfile.py" hwconfig/sim.toml --slowdown "$SLOWDOWN" "$@"; }

@@ -9,9 +9,12 @@ ch=${1:-vcan0}
 work=$(mktemp -d)
 tools/ci/vcan-up.sh "$ch" >/dev/null; check vcan-up $? "$ch"
 # (eds/ next to the file: the hardware file names its EDS relative to itself)
-kernel_can_config hwconfig/sim.toml "$ch" > "$work/stack.toml"; ln -s "$PWD/hwconfig/eds" "$work/eds"
+hwfile --channel "$ch" > "$work/stack.toml"; ln -s "$PWD/hwconfig/eds" "$work/eds"
 export XDG_STATE_HOME=$work/state
-grep -A3 '^\[can\]' "$work/stack.toml"
+grep -A5 '^\[can\]' "$work/stack.toml"; echo "(slowdown $SLOWDOWN)"
+# every TCS heartbeat (0x77F), SYNC and EMCY on the bus, time-stamped: why a drive faulted
+candump -t A -L "$ch,77F:7FF,080:7FF,080:780" > "$work/candump.log" 2>&1 &
+dump=$!
 step "tcs-sim: the drives on $ch"
 tcs-sim --config "$work/stack.toml" 2> "$work/sim.log" &
 sim=$!
@@ -49,7 +52,7 @@ client get CABINET.ERROR_STATE CABINET.CORE.CYCLE.CYCLES CABINET.CORE.CYCLE.MISS
 lost=$(grep -c '0x8130\|heartbeat of the TCS lost' "$work/server.log")
 check no-heartbeat-loss "$([ "$lost" = 0 ] && echo 0 || echo 1)" "$lost lines about the TCS heartbeat lost"
 kill -TERM "$server"; wait "$server"; check server-stop $? "exit status"
-kill -TERM "$sim"; wait "$sim"
+kill -TERM "$sim"; wait "$sim"; kill "$dump"
 grep -E 'WARNING|ERROR' "$work/server.log" | head -20
 mkdir -p /run-share/out && cp "$work"/*.log /run-share/out/ 2>/dev/null
 summary stack

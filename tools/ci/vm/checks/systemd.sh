@@ -19,11 +19,10 @@ ready_axes() {  # power on and reference every axis (the simulated drives start 
 
 step "install.sh --template hwconfig/sim.toml (the simulated drives in the service's control process)"
 t=$(date +%s.%N)
+mkdir -p /etc/tcs && hwfile > /etc/tcs/tcs.toml   # (kept by install.sh; slowdown $SLOWDOWN)
 tools/systemd/install.sh --template hwconfig/sim.toml > /tmp/install.log 2>&1; rc=$?
 tail -5 /tmp/install.log
 check install.sh "$rc" "$(since "$t") s"
-# SYSTEM.REBOOT must reach systemd to show what the hardened unit does with it
-sed -i 's/^\[server\]$/[server]\nallow_system_control = true/' /etc/tcs/tcs.toml
 
 step "systemctl start: Type=notify, returns once READY=1 was sent"
 t=$(date +%s.%N)
@@ -116,9 +115,9 @@ ip link show vcan1 | grep -q 'UP'; up=$?
 rm -f /etc/tcs/can-vcan1.env; systemctl reset-failed tcs-can@vcan1.service
 
 step "install.sh with a socketcan hardware file on vcan0; the drives in tcs-sim (another unit) on vcan0"
-kernel_can_config hwconfig/sim.toml vcan0 > /etc/tcs/tcs.toml
+hwfile --channel vcan0 > /etc/tcs/tcs.toml
 tools/systemd/install.sh --template hwconfig/sim.toml > /tmp/install2.log 2>&1; check install.sh-socketcan $? "$(grep -E 'can@|drop-in|can.conf' /tmp/install2.log | tr '\n' ' ')"
-mkdir -p /tmp/stack && kernel_can_config hwconfig/sim.toml vcan0 > /tmp/stack/tcs.toml && ln -sf "$PWD/hwconfig/eds" /tmp/stack/eds
+mkdir -p /tmp/stack && hwfile --channel vcan0 > /tmp/stack/tcs.toml && ln -sf "$PWD/hwconfig/eds" /tmp/stack/eds
 systemd-run --quiet --unit tcs-sim-drives -E XDG_STATE_HOME=/tmp/stack/state /opt/tcs/venv/bin/tcs-sim --config /tmp/stack/tcs.toml
 wait_for 120 sh -c 'journalctl -u tcs-sim-drives -o cat | grep -q "tcs-sim: ready"'; check tcs-sim-unit $? "$(journalctl -u tcs-sim-drives -o cat | grep ready)"
 systemctl reset-failed tcs-server 2>/dev/null
