@@ -18,12 +18,12 @@ dump=$!
 step "tcs-sim: the drives on $ch"
 tcs-sim --config "$work/stack.toml" 2> "$work/sim.log" &
 sim=$!
-wait_for 120 grep -q 'tcs-sim: ready' "$work/sim.log"; check tcs-sim-ready $? "$(grep 'ready' "$work/sim.log")"
+wait_for 600 grep -q 'tcs-sim: ready' "$work/sim.log"; check tcs-sim-ready $? "$(grep 'ready' "$work/sim.log")"
 step "tcs-server: master on $ch (socketcan)"
 t=$(date +%s.%N)
 tcs-server --config "$work/stack.toml" --opentsi-port -1 --alpaca-port -1 2> "$work/server.log" &
 server=$!
-wait_for 300 value LOCAL.UT1 >/dev/null; check tcs-server-serving $? "after $(since "$t") s"
+wait_for 600 value LOCAL.UT1 >/dev/null; check tcs-server-serving $? "after $(since "$t") s"
 client get CABINET.CORE.CYCLE.CYCLES CABINET.CORE.CYCLE.MISSED 2>&1 | tr '\n' ' '; echo
 step "power, referencing"
 client set CABINET.POWER=1 | tail -1; check power-on "${PIPESTATUS[0]}"

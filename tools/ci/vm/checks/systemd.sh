@@ -119,7 +119,7 @@ hwfile --channel vcan0 > /etc/tcs/tcs.toml
 tools/systemd/install.sh --template hwconfig/sim.toml > /tmp/install2.log 2>&1; check install.sh-socketcan $? "$(grep -E 'can@|drop-in|can.conf' /tmp/install2.log | tr '\n' ' ')"
 mkdir -p /tmp/stack && hwfile --channel vcan0 > /tmp/stack/tcs.toml && ln -sf "$PWD/hwconfig/eds" /tmp/stack/eds
 systemd-run --quiet --unit tcs-sim-drives -E XDG_STATE_HOME=/tmp/stack/state /opt/tcs/venv/bin/tcs-sim --config /tmp/stack/tcs.toml
-wait_for 120 sh -c 'journalctl -u tcs-sim-drives -o cat | grep -q "tcs-sim: ready"'; check tcs-sim-unit $? "$(journalctl -u tcs-sim-drives -o cat | grep ready)"
+wait_for 600 sh -c 'journalctl -u tcs-sim-drives -o cat | grep -q "tcs-sim: ready"'; check tcs-sim-unit $? "$(journalctl -u tcs-sim-drives -o cat | grep ready)"
 systemctl reset-failed tcs-server 2>/dev/null
 t=$(date +%s.%N)
 systemctl start tcs-server; rc=$?
