@@ -121,9 +121,10 @@ rm -f /etc/tcs/can-vcan1.env; systemctl reset-failed tcs-can@vcan1.service
 step "install.sh with a socketcan hardware file on vcan0; the drives in tcs-sim (another unit) on vcan0"
 hwfile --channel vcan0 > /etc/tcs/tcs.toml
 tools/systemd/install.sh --template hwconfig/sim.toml > /tmp/install2.log 2>&1; check install.sh-socketcan $? "$(grep -E 'can@|drop-in|can.conf' /tmp/install2.log | tr '\n' ' ')"
+ip link set vcan0 up   # (the tcs-can@ checks above stopped the unit: ExecStop took vcan0 down)
 mkdir -p /tmp/stack && hwfile --channel vcan0 > /tmp/stack/tcs.toml && ln -sf "$PWD/hwconfig/eds" /tmp/stack/eds
 systemd-run --quiet --unit tcs-sim-drives -E XDG_STATE_HOME=/tmp/stack/state /opt/tcs/venv/bin/tcs-sim --config /tmp/stack/tcs.toml
-wait_for 600 sh -c 'journalctl -u tcs-sim-drives -o cat | grep -q "tcs-sim: ready"'; check tcs-sim-unit $? "$(journalctl -u tcs-sim-drives -o cat | grep ready)"
+wait_for 600 sh -c 'journalctl -u tcs-sim-drives -o cat | grep -q "tcs-sim: ready"'; check tcs-sim-unit $? "$(journalctl -u tcs-sim-drives -o cat | grep 'tcs-sim: ready')"
 systemctl reset-failed tcs-server 2>/dev/null
 t=$(date +%s.%N)
 systemctl start tcs-server; rc=$?
