@@ -22,9 +22,12 @@ def test_vcan_workflow_runs_the_can_tests_on_vcan0_then_everything():
     assert runs.index("python -m pytest") > runs.index("python -m pytest tests/vcan")
 
 
-@pytest.mark.parametrize("script", ["tools/ci/vcan-up.sh", "tools/systemd/install.sh"])
+@pytest.mark.parametrize("script", ["tools/ci/vcan-up.sh", "tools/systemd/install.sh",
+                                    "tools/ci/vm/build-image.sh", "tools/ci/vm/run.sh",
+                                    "tools/ci/vm/stage.sh", "tools/ci/vm/accel.sh",
+                                    "tools/ci/vm/checks/stack.sh", "tools/ci/vm/checks/systemd.sh"])
 def test_shell_scripts_parse(script):
-    shell = "sh" if script.endswith("vcan-up.sh") else "bash"
+    shell = "sh" if script.endswith(("vcan-up.sh", "accel.sh")) else "bash"
     proc = subprocess.run([shell, "-n", str(ROOT / script)], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     assert (ROOT / script).stat().st_mode & 0o111, "not executable"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
 
 from support.service import start_service
 from support.tpl2 import RawClient

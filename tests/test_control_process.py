@@ -207,6 +207,12 @@ def test_a_killed_service_leaves_no_control_process(tmp_path):
         while time.monotonic() < deadline and _is_control_process(children[0]):
             time.sleep(0.05)
         assert not _is_control_process(children[0]), "the control process outlived its service"
+        # what it did is in the log (its stderr: the journal under systemd), not lost with
+        # the service it used to log through
+        err = server.stderr.read()
+        assert "the service is gone; stopping and powering off every axis" in err, err
+        line = next(x for x in err.splitlines() if "axes stopped and powered off: " in x)
+        assert "MOVING" not in line and " ON" not in line and "stopped off" in line, line
     finally:
         if server.poll() is None:
             server.kill()

@@ -359,7 +359,11 @@ class Core:
         self.outbox.message(("closed",))
 
     def _orphaned(self) -> None:
-        """The service died: stop every axis (controlled), power it off, leave the bus."""
+        """The service died: stop every axis (controlled), power it off, leave the bus. Its log
+        went to the service: from now on to stderr (under systemd: the journal)."""
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+        logging.getLogger().handlers[:] = [handler]
         log.critical("control process: the service is gone; stopping and powering off every axis")
         for axis in self.axes:
             axis.receive(axis.received_seq, "stop", None, None, None)
@@ -370,6 +374,9 @@ class Core:
             axis.receive(axis.received_seq, "power", False, None, None)
         while time.monotonic() < deadline and any(a.power_state != 0.0 for a in self.axes):
             time.sleep(0.02)
+        log.critical("control process: axes stopped and powered off: %s", ", ".join(
+            f"{a.name} {'stopped' if not a.motion_state & 1 else 'MOVING'} "
+            f"{'off' if a.power_state == 0.0 else 'ON'}" for a in self.axes) or "none")
         if self.can is not None:
             self.can.close()  # not released: the drives record the lost master
         if self.sims is not None:

@@ -3,7 +3,7 @@
     tcs-sim [--config hwconfig/sim-remote.toml] [--can-port N]
 
 Serves, from the hardware file, the ``[simulation]`` drives as a CAN bus over socketcand on
-the ``[can]`` host/port, each simulated PLC as Modbus TCP on its host/port, and the GPS as NMEA
+the ``[can]`` host/port (or, with ``interface = "socketcan"``, on that kernel interface), each simulated PLC as Modbus TCP on its host/port, and the GPS as NMEA
 over TCP — so that ``tcs-server --config hwconfig/sim-remote.toml`` in another process drives
 it exactly like real hardware. Runs until SIGINT/SIGTERM. A bad file exits with status 2.
 """
@@ -43,7 +43,9 @@ def main(argv=None) -> int:
     async def run(stop) -> None:
         await cabinet.start()
         freeze_heap()
-        print(f"tcs-sim: ready (socketcand port {cabinet.can_port})", file=sys.stderr, flush=True)
+        where = f"socketcand port {cabinet.can_port}" if cabinet.socketcand is not None else \
+            f"{config.can.interface} {config.can.channel}" if config.can is not None else "no drives"
+        print(f"tcs-sim: ready ({where})", file=sys.stderr, flush=True)
         try:
             await stop.wait()
         finally:

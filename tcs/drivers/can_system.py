@@ -27,6 +27,8 @@ Faults handled here, while the service runs (no restart):
   back-off (1 s doubling to 30 s) for as long as it fails, also when the node is silent (a
   drive that failed its boot at start-up too). The axis stays off; the operator's ``ERROR_STATE=0`` and
   ``POWER=1`` bring it back.
+  One boot of a drive at a time: an explicit :meth:`boot` and the supervisor's re-boot of the
+  same drive never run at once (a per-drive lock; the supervisor skips a drive being booted).
 * **Bus faults** — bus-off and error passive (error frames, :class:`~tcs.drivers.canbus.BusHealth`)
   are a fault of every drive on the bus (:meth:`Cia402Drive.set_bus_fault`: its axis makes a
   controlled stop and shows the error); "restarted" / "error active" clear it.
@@ -111,6 +113,7 @@ class CanDrives:
         self._supervisor_stop = threading.Event()  # wakes the supervisor to end it
         self._retry: dict[str, tuple[float, float]] = {}  # name -> (next attempt, back-off)
         self._recovering: set[str] = set()
+        self._boot_locks = {name: threading.Lock() for name in self.drives}  # one boot at a time
         self._pool: ThreadPoolExecutor | None = None
         self.recoveries = 0
 
@@ -143,7 +146,8 @@ class CanDrives:
 
         def one(drive: Cia402Drive) -> TcsError | None:
             try:
-                drive.boot()
+                with self._boot_locks[drive.name]:  # (waits for a re-boot under way)
+                    drive.boot()
             except TcsError as exc:
                 return exc
             return None
@@ -211,6 +215,16 @@ class CanDrives:
             self._recovering.discard(name)
 
     def _reboot(self, name: str, drive: Cia402Drive) -> None:
+        lock = self._boot_locks[name]
+        if not lock.acquire(blocking=False):
+            return  # booted right now by boot(): two boots at once detach each other's node
+        try:
+            if drive.needs_reboot():  # (not when a boot() just finished)
+                self._reboot_locked(name, drive)
+        finally:
+            lock.release()
+
+    def _reboot_locked(self, name: str, drive: Cia402Drive) -> None:
         backoff = self._retry.get(name, (0.0, 0.5))[1]
         log.warning("%s must be booted again (it rebooted, lost the TCS heartbeat, or the bus "
                     "was reopened): booting it", drive.device)

@@ -149,6 +149,7 @@ class CanBus:
         self._closing = threading.Event()
         self._reconnector: threading.Thread | None = None
         self._failures_in_row = 0
+        self._reopening = False
         self.reconnects = 0
 
     # ---------------------------------------------------------------- life cycle
@@ -227,18 +228,22 @@ class CanBus:
         if network is None:
             return
         old_bus, old_notifier = self.bus, network.notifier
-        if old_notifier is not None:
-            try:
-                old_notifier.stop(0.5)
-            except Exception:
-                pass
-        periodic = self._heartbeat_task is not None
-        self._heartbeat_task = None  # (bound to the old bus)
-        if old_bus is not None:
-            try:
-                old_bus.shutdown()
-            except Exception:
-                pass
+        self._reopening = True  # the old notifier's last receive fails: not a new fault
+        try:
+            if old_notifier is not None:
+                try:
+                    old_notifier.stop(0.5)
+                except Exception:
+                    pass
+            periodic = self._heartbeat_task is not None
+            self._heartbeat_task = None  # (bound to the old bus)
+            if old_bus is not None:
+                try:
+                    old_bus.shutdown()
+                except Exception:
+                    pass
+        finally:
+            self._reopening = False
         new = self._new_bus()
         network.bus = new
         network.notifier = can.Notifier(new, network.listeners, network.NOTIFIER_CYCLE)
@@ -390,7 +395,21 @@ class CanBus:
             self._record(CommunicationError(self.name, "error frame: " + ", ".join(kinds),
                                             ErrorNumber.CONFAIL), None, error_frames=1)
 
+    def _from_current_notifier(self) -> bool:
+        """False in the thread of a notifier that was replaced or stopped (python-can keeps
+        its reader threads in ``Notifier._readers``; True where that is unknown)."""
+        notifier = self.network.notifier if self.network is not None else None
+        readers = getattr(notifier, "_readers", None)
+        if notifier is None or readers is None:
+            return notifier is not None
+        threads = [r for r in readers if isinstance(r, threading.Thread)]
+        return not threads or threading.current_thread() in threads
+
     def _on_receive_error(self, exc: Exception) -> None:
+        if self._closing.is_set() or self._reopening or not self._from_current_notifier():
+            # the socket was shut down under its notifier by close() / _reopen(): not a fault
+            # of the link (a kernel socket's recv then fails with "Bad file descriptor")
+            return
         self._record(CommunicationError(self.name, f"receive failed: {exc}"), "failed",
                      receive_failures=1)
         # canopen's Network.check() would re-raise this on every later send: the error is

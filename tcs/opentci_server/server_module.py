@@ -23,7 +23,13 @@ stays logged in. A blocked user keeps its entry with a hash no password matches
 
 ``REBOOT`` and ``SHUTDOWN`` are refused (``FAILED 6``, localmode) unless the hardware file
 sets ``[server] allow_system_control``; then ``SERVER.SHUTDOWN`` and ``SYSTEM.SHUTDOWN`` stop
-this service (SIGTERM to itself, a clean stop) and ``SYSTEM.REBOOT`` asks systemd to reboot.
+this service (SIGTERM to itself, a clean stop) and ``SYSTEM.REBOOT`` asks systemd to reboot:
+the SET completes once ``systemctl reboot`` accepted it and fails with systemd's answer when
+it refused (the hardened unit runs as user ``tcs`` with ``NoNewPrivileges``, so a reboot needs
+a polkit rule allowing ``org.freedesktop.login1.reboot`` for that user).
+
+``SYSTEM.LOAD`` and ``UPTIME`` come from ``/proc`` and, where the unit hides it
+(``ProcSubset=pid``), from the ``sysinfo`` system call: never a made-up 0.
 
 Everything runs on the event loop; password hashing runs in a worker thread.
 """
@@ -215,7 +221,8 @@ class ServerModule:
         if proc.returncode != 0:
             text = " ".join(out.decode(errors="replace").split()) or f"exit status {proc.returncode}"
             log.warning("REBOOT refused by the system: %s", text)
-            raise TcsError(f"reboot refused by the system: {text}", ErrorNumber.LIBFAIL)
+            raise TcsError(f"reboot refused by the system: {text} (the service's user needs a polkit "
+                           "rule for org.freedesktop.login1.reboot)", ErrorNumber.LIBFAIL)
 
     def _allowed(self, what: str) -> None:
         if not getattr(self.settings, "allow_system_control", False):

@@ -4,7 +4,9 @@
 
 * the ``[simulation]`` drives on a private ``virtual`` CAN bus, offered to other processes by a
   :class:`~tcs.sim.socketcand_server.SocketcandServer` on the ``[can]`` host and port (the
-  file's bus must be ``socketcand``: that is how a separate ``tcs-server`` reaches it);
+  file's bus is ``socketcand``: that is how a separate ``tcs-server`` reaches it) — or, when the
+  file's bus is ``socketcan``, straight on that kernel interface (e.g. a ``vcan0`` shared with a
+  ``tcs-server`` as the master: real frames through the kernel, SYNC from its broadcast manager);
 * every ``[plcs.<name>]`` with a ``sim`` table as a Modbus TCP server on its host and port;
 * the ``[gps]`` receiver, when it has a ``sim`` table and a ``socket://host:port`` URL, as an
   NMEA stream on that TCP port.
@@ -37,10 +39,11 @@ class SimCabinet:
         self.peripherals = None  # the PLC and GPS simulators (tcs.sim.peripherals)
         problems = []
         if config.simulation and config.simulation.drives:
-            if config.can is None or config.can.interface != "socketcand":
+            if config.can is None or config.can.interface not in ("socketcand", "socketcan"):
                 problems.append(ConfigError(str(config.source), "can.interface",
-                                            "tcs-sim offers the drives over socketcand: set "
-                                            "interface = \"socketcand\" (see hwconfig/sim-remote.toml)"))
+                                            "tcs-sim offers the drives over socketcand or on a kernel "
+                                            "interface: set interface = \"socketcand\" (see "
+                                            "hwconfig/sim-remote.toml) or \"socketcan\""))
         if problems:
             raise ConfigErrors(problems)
 
@@ -61,11 +64,15 @@ class SimCabinet:
         from tcs.sim.drive_network import SimDriveNetwork, params_from_config
         from tcs.sim.socketcand_server import SocketcandServer
 
-        channel = f"tcs-sim-{uuid.uuid4().hex[:8]}"
         can = self.config.can
+        params = params_from_config(self.config)
+        if can.interface == "socketcan":
+            self.drives = await asyncio.to_thread(SimDriveNetwork, can.bus_kwargs(), params)
+            log.info("simulated drives %s on socketcan %s", sorted(params), can.channel)
+            return
+        channel = f"tcs-sim-{uuid.uuid4().hex[:8]}"
         self.socketcand = SocketcandServer(channel, can.host, can.port if self.can_port is None else self.can_port)
         self.can_port = await self.socketcand.start()
-        params = params_from_config(self.config)
         self.drives = await asyncio.to_thread(SimDriveNetwork, {"interface": "virtual", "channel": channel}, params)
         log.info("simulated drives %s on socketcand %s:%d", sorted(params), can.host, self.can_port)
 

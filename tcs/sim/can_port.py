@@ -73,6 +73,30 @@ class TimerHandle:
         self.cancelled = True
 
 
+class _Receiver(can.Listener):
+    """The port's notifier listener. A receive error (a kernel interface taken down and up
+    again: "Network is down") is logged and survived, as a real drive survives it: without
+    ``on_error`` python-can ends the receive thread, and every simulated node of the port
+    went deaf for good — and reported the master's heartbeat lost (0x8130) at once."""
+
+    def __init__(self, port: SimCanPort):
+        self._port = port
+        self._last_error = 0.0
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self._port._on_message(msg)
+
+    def on_error(self, exc: Exception) -> None:
+        now = time.monotonic()
+        if now - self._last_error > 5.0:
+            log.warning("simulated bus: receive failed (%s); still listening", exc)
+        self._last_error = now
+        time.sleep(0.05)  # a bus that stays down must not spin the thread
+
+    def stop(self) -> None:
+        pass
+
+
 class SimCanPort:
     """One simulated bus attachment shared by every simulated node on it.
 
@@ -97,7 +121,7 @@ class SimCanPort:
         if network is not None:
             self._bus = None
         elif bus is not None:
-            self._notifier = can.Notifier(bus, [self._on_message], timeout=RECEIVE_CYCLE)
+            self._notifier = can.Notifier(bus, [_Receiver(self)], timeout=RECEIVE_CYCLE)
         name = getattr(bus, "channel_info", None) or "network"
         self._timer = threading.Thread(target=self._timer_loop, name=f"sim-can-timer {name}", daemon=True)
         self._timer.start()

@@ -5,11 +5,18 @@ own bus on the same channel (``can_channel`` fixture: ``virtual`` by default, ke
 with ``TCS_CAN_INTERFACE=socketcan``) — two parties on one cable, real CANopen frames between
 them. ``Rig.wait`` polls a condition with a generous deadline: tests wait for states, never
 for durations.
+
+``TCS_TEST_SLOWDOWN`` (a whole number, default 1) stretches every protocol time of the rig —
+SYNC period, heartbeats and their consumer times, SDO and boot time-outs, following-error and
+homing time-outs — and every wait, for a host several times slower than real hardware: the
+QEMU guest of ``tools/ci/vm`` under software emulation runs with 5. The exchanges and states
+the tests check stay the same; only the clock runs slower.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -23,6 +30,7 @@ from tcs.sim.cia402_drive import SimDrive, SimDriveParams
 
 SIM_IDENTITY = (0xABC, 0x00402001, 0x00010000, 1)
 SCALE = 10000.0   # increments per unit, sims and drives alike
+SLOWDOWN = int(os.environ.get("TCS_TEST_SLOWDOWN", "1"))  # see the module docstring
 
 
 def drive_section(node_id: int, **overrides) -> DriveSection:
@@ -32,11 +40,11 @@ def drive_section(node_id: int, **overrides) -> DriveSection:
         identity=IdentitySection(vendor=SIM_IDENTITY[0], product=SIM_IDENTITY[1],
                                  revision=SIM_IDENTITY[2]),
         increments_per_unit=SCALE, min_position=-100.0, max_position=100.0,
-        following_error_window=0.5, following_error_timeout=0.05,
-        max_velocity=4.0, max_acceleration=4.0, heartbeat_period=0.2,
-        heartbeat_consumer_timeout=1.0,
+        following_error_window=0.5, following_error_timeout=0.05 * SLOWDOWN,
+        max_velocity=4.0, max_acceleration=4.0, heartbeat_period=0.2 * SLOWDOWN,
+        heartbeat_consumer_timeout=1.0 * SLOWDOWN,
         homing=HomingSection(method=37, speed_switch=2.0, speed_zero=0.5, acceleration=20.0,
-                             timeout=20.0))
+                             timeout=20.0 * SLOWDOWN))
     return replace(base, **overrides)
 
 
@@ -59,8 +67,10 @@ class Rig:
         self.channel = dict(can_channel)
         self.axes = axes
         self.can = CanSection(interface=self.channel["interface"], channel=self.channel["channel"],
-                              sync_period=sync_period, heartbeat_period=heartbeat_period,
-                              boot_timeout=boot_timeout, sdo_timeout=0.3, options=options or {},
+                              sync_period=sync_period * SLOWDOWN,
+                              heartbeat_period=heartbeat_period * SLOWDOWN,
+                              boot_timeout=boot_timeout * SLOWDOWN, sdo_timeout=0.3 * SLOWDOWN,
+                              options=options or {},
                               realtime_priority=realtime_priority)
         self.kernel_sync = kernel_sync
         self.sections = {name: drive_section(spec.node_id, **spec.section)
@@ -117,7 +127,7 @@ class Rig:
 
     def wait(self, predicate: Callable[[], bool], timeout: float = 10.0, what: str = "") -> None:
         """Poll ``predicate`` until true; fail with ``what`` and the drives' states otherwise."""
-        deadline = time.monotonic() + timeout
+        deadline = time.monotonic() + timeout * SLOWDOWN
         while time.monotonic() < deadline:
             if predicate():
                 return

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from cia402_rig import SCALE, AxisSpec, Rig
+from cia402_rig import SCALE, SLOWDOWN, AxisSpec, Rig
 
 from tcs.drivers.drive import DriveState, Mode
 from tcs.errors import CommunicationError, ErrorNumber, HardwareError
@@ -26,9 +26,9 @@ def test_several_drives_boot_configured_and_disabled(can_channel):
         assert sim.read_object(0x607D, 2) == round(100 * SCALE)
         assert sim.read_object(0x6081) == round(4.0 * SCALE)
         assert sim.read_object(0x6098) == 37
-        assert (sim.read_object(0x60C2, 1), sim.read_object(0x60C2, 2)) == (4, -3)
-        assert sim.read_object(0x1017) == 200
-        assert sim.read_object(0x1016, 1) == (127 << 16) | 1000
+        assert (sim.read_object(0x60C2, 1), sim.read_object(0x60C2, 2)) == (4 * SLOWDOWN, -3)
+        assert sim.read_object(0x1017) == 200 * SLOWDOWN
+        assert sim.read_object(0x1016, 1) == (127 << 16) | 1000 * SLOWDOWN
         assert [sim.read_object(0x1600, i) for i in range(3)] == [2, 0x60400010, 0x607A0020]
         assert [sim.read_object(0x1A01, i) for i in range(3)] == [2, 0x606C0020, 0x60F40020]
         assert sim.read_object(0x1802, 2) == 255  # TPDO3 (inputs, error code) event driven

@@ -15,6 +15,7 @@ import canopen
 import pytest
 
 from tcs.sim import DEFAULT_EDS, SimDrive, SimDriveParams, start_sim_drives
+from cia402_rig import SLOWDOWN
 
 NODE = 5
 MASTER = 1
@@ -35,7 +36,7 @@ class FakeClock:
 
 
 def wait_for(predicate, timeout: float = 5.0, what: str = "condition"):
-    deadline = time.monotonic() + timeout
+    deadline = time.monotonic() + timeout * SLOWDOWN  # (cia402_rig: a slow host's factor)
     while time.monotonic() < deadline:
         value = predicate()
         if value:
@@ -51,7 +52,7 @@ class Master:
         self.network = canopen.Network()
         self.network.connect(**channel)
         self.node = self.network.add_node(node_id, str(DEFAULT_EDS))
-        self.node.sdo.RESPONSE_TIMEOUT = 2.0
+        self.node.sdo.RESPONSE_TIMEOUT = 2.0 * SLOWDOWN
         self.node_id = node_id
         self.frames: list[tuple[int, bytes]] = []
         self.stamps: list[tuple[int, float]] = []
