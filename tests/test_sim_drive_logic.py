@@ -248,7 +248,7 @@ def test_ip_follows_the_record_only_with_enable_ip():
     d.advance(0.005)
     assert d.read(0x6062) == 50               # linear over the period, as CSP
     d.advance(0.005)
-    assert d.read(0x6064) == 100
+    assert d.read(0x6062) == 100
 
 
 def test_csv_follows_the_target_velocity_and_clamps_it_at_0x607f():
