@@ -287,8 +287,9 @@ class DriveSection:
         0.5, min=0.01, max=65.535, doc="0x1016 time the drive waits for the TCS heartbeat "
                                        "before it faults, s")
     default_mode: Literal["csp", "pp"] = setting(
-        "csp", doc="older key: pp = mode 'pp' (profile moves: filter wheel, M3); csp = mode "
-                   "as given by 'mode'")
+        "csp", doc="mode set at boot: pp (profile moves: filter wheel, M3) or csp = the "
+                   "drive's streaming mode ('mode'); a trajectory axis switches to its "
+                   "streaming mode when powered")
     mode: Literal["auto", "csp", "ip", "csv", "pp"] = setting(
         "auto", doc="operating mode of the axis: csp (cyclic synchronous position), ip "
                     "(interpolated position), csv (cyclic synchronous velocity, the TCS closes "
@@ -370,8 +371,13 @@ class DriveSection:
 
     @property
     def wanted_mode(self) -> str:
-        """``mode``, with the older ``default_mode = "pp"`` meaning ``pp``."""
-        return "pp" if self.default_mode == "pp" else self.mode
+        """The configured streaming mode (``mode``: auto, csp, ip, csv or pp)."""
+        return self.mode
+
+    @property
+    def profile_moves(self) -> bool:
+        """Profile position is used (boot mode or the axis's mode): 0x6081/0x6083 needed."""
+        return self.default_mode == "pp" or self.mode == "pp"
 
     @property
     def velocity_scale(self) -> float:

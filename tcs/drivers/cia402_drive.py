@@ -117,10 +117,10 @@ class Cia402Drive:
         self._hi = max(section.min_position, section.max_position)
         #: the mode of operation (hardware file ``mode``, or what 0x6502 offers) and why
         self.mode_choice = drive_mode(section, eds, section.node_id)
-        self._default_mode = Mode(self.mode_choice.number)
+        chosen = Mode(self.mode_choice.number)
         #: the mode trajectories are streamed in (None: a PP-only drive, discrete axes)
-        self.cyclic_mode: Mode | None = (self._default_mode if self._default_mode in CYCLIC_MODES
-                                         else None)
+        self.cyclic_mode: Mode | None = chosen if chosen in CYCLIC_MODES else None
+        self._default_mode = Mode.PP if section.default_mode == "pp" else chosen  # at boot
         self.layouts: dict[str, PdoLayout] = layouts(
             mapping_for(section, eds, section.node_id, self.mode_choice.mode), section.node_id)
         self._rpdo = self.layouts["rpdo1"]

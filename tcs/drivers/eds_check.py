@@ -242,7 +242,7 @@ def is_optional(index: int, sub: int, section: DriveSection) -> bool:
     from tcs.drivers.boot import OPTIONAL
     if 0x1800 <= index <= 0x1803 and sub in (3, 5):
         return True  # inhibit time / event timer of an event-driven TPDO
-    if index in (0x6081, 0x6083) and section.wanted_mode == "pp":
+    if index in (0x6081, 0x6083) and section.profile_moves:
         return False
     return index in OPTIONAL
 
@@ -364,12 +364,16 @@ def check_drive(name: str, section: DriveSection, can: CanSection, od: canopen.O
     # -- the mode of operation (0x6502; optional on many drives: then CSP is assumed) -----------
     choice = report.mode = choose_mode(section, od, eds_name)
     if choice.problem is not None:
-        problem(f"{prefix}.{'default_mode' if section.default_mode == 'pp' else 'mode'}",
-                choice.problem)
+        problem(f"{prefix}.mode", choice.problem)
+    if section.default_mode == "pp" and not offers(choice.offered, "pp"):
+        problem(f"{prefix}.default_mode",
+                f"{modes_text(choice.offered, eds_name)} has no profile position (PP), the "
+                f"default_mode configured; remedy: default_mode = 'csp' (boot in the drive's "
+                f"streaming mode)")
     # -- mandatory objects the axis cannot work without ---------------------------------------
     from tcs.config.can import SETPOINT_OBJECT
     mandatory = [0x6040, 0x6041, 0x6060, 0x6061, 0x6064, SETPOINT_OBJECT[choice.mode], 0x1017]
-    if choice.mode == "pp":
+    if choice.mode == "pp" or section.profile_moves:
         mandatory += [0x6081, 0x6083]
     if not section.absolute:
         mandatory.append(0x6098)
@@ -522,9 +526,18 @@ def check_config(can: CanSection | None, drives: dict[str, DriveSection], axes: 
     from tcs.config.axes import DISCRETE_MODULES
     for axis_name, axis in (axes or {}).items():
         section = drives.get(axis.drive)
-        if section is None or axis.drive not in reports or axis.module in DISCRETE_MODULES:
+        if section is None or axis.drive not in reports:
             continue
         choice = reports[axis.drive].mode
+        if axis.module in DISCRETE_MODULES:
+            if choice is not None and choice.mode in ("ip", "csv") and not section.pdo:
+                problems.append(ConfigError(
+                    file, f"drives.{axis.drive}.mode",
+                    f"drive {axis.drive} (node {section.node_id}): axis {axis.module} moves in "
+                    f"profile position (PP), but the drive would stream in "
+                    f"{choice.mode.upper()} ({choice.reason}) and map no 0x607A; remedy: "
+                    f"mode = 'pp'"))
+            continue
         if choice is None or choice.cyclic or choice.problem is not None:
             continue
         path = eds_path(section, resolve)
