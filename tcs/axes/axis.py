@@ -652,7 +652,8 @@ class Axis(ModuleHealth):
                 self.clear_condition("drive fault")
         # power
         if self._want_power is True and st.enabled and not self._powered and (
-                self.discrete or st.mode == self.cyclic_mode):
+                self.discrete or st.mode == self.cyclic_mode and (
+                    st.mode != Mode.IP or st.statusword & 0x1000)):  # IP: "IP active" shown
             self._powered = True
             self._want_power = None
             self._sp = Setpoint(st.position)

@@ -585,8 +585,10 @@ class Cia402Drive:
         enabled = state is DriveState.OPERATION_ENABLED and want is Want.ENABLED
         mode = self._mode
         ready = enabled and self._mode_job is None
-        if ready and mode == Mode.IP:
-            cw |= sm.CW_ENABLE_IP  # enable IP (bit 4): the record sent with it is the actual
+        if want is Want.ENABLED and mode == Mode.IP and self._mode_job is None and not self._reset_phase:
+            # enable IP (bit 4) with enable operation: IP is active from the first cycle in
+            # Operation enabled, and the record sent with it is the actual position
+            cw |= sm.CW_ENABLE_IP
         # streaming: CSP; IP once the drive shows IP active (statusword bit 12); CSV
         streaming = ready and mode in CYCLIC_MODES and (mode != Mode.IP or bool(sw & sm.SW_MODE_12))
         if not streaming:

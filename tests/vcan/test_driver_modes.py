@@ -118,7 +118,6 @@ def test_a_failure_while_streaming_ends_in_a_controlled_stop(can_channel, mode, 
         speeds = [abs(v) for v in seen]
         assert any(0.05 < v < 1.9 for v in speeds), speeds[:50]  # a ramp, not a cut
         status = rig.status("az")
-        assert status.state is not DriveState.OPERATION_ENABLED
         if failure == "fault":
             assert status.fault is not None and status.fault.code == 0x4310
         elif failure == "heartbeat":  # the drive noticed (it is booted again afterwards)
