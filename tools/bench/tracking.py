@@ -60,9 +60,12 @@ def make_config(path: Path, state: Path, modes: tuple[str, str] | None = None):
     if config.can is not None and config.can.interface == "virtual":
         changes["can"] = dataclasses.replace(config.can, channel=f"bench-{uuid.uuid4().hex[:8]}",
                                              control_process=False)
+    # a loaded machine delays the loop thread's heartbeat now and then: the drives wait 5 s
+    drives = {name: dataclasses.replace(d, heartbeat_consumer_timeout=max(
+        d.heartbeat_consumer_timeout, 5.0)) for name, d in config.drives.items()}
+    changes["drives"] = drives
     if modes is not None:
         mount = [a for a in config.axes.values() if a.module in ("AZ", "ZD", "HA", "DEC")]
-        drives = dict(config.drives)
         for axis, mode in zip(mount[:2], modes):
             drives[axis.drive] = dataclasses.replace(drives[axis.drive], mode=mode)
         changes["drives"] = drives
@@ -117,7 +120,9 @@ async def track(tel, seconds: float) -> dict:
     az_axis, zd_axis = p.axis1, p.axis2
     await tel.cabinet.set_power(1)
     tel.cabinet.set_reinit(0)
+    t_deadline = time.monotonic() + 300.0
     while tel.cabinet.referenced < 1.0:
+        assert time.monotonic() < t_deadline, "the axes were not referenced"
         await asyncio.sleep(0.1)
     # a star near where the axes stand (short slew), 35° from the zenith
     utc0 = time.time() + 10.0
