@@ -261,3 +261,12 @@ def test_vendor_drive_boots_enables_references_and_moves_in_its_mode(can_channel
         rig.cycle_hooks.append(stream)
         rig.wait(lambda: abs(sim.position - (start + 0.5)) < 0.005, what="moved")
         rig.cycle_hooks.clear()
+
+
+def test_the_mode_chosen_is_logged_with_its_reason(can_channel, caplog):
+    with caplog.at_level("INFO"):
+        with Rig(can_channel, {"az": vendor(1, "vendor-csv-only")}) as rig:
+            assert rig.boot_and_start() == {}
+    lines = [r.getMessage() for r in caplog.records if r.levelname == "INFO"]
+    assert any(line.startswith("drive az: mode CSV") and "0x6502" in line
+               and "PP, HM, CSV" in line and "CSP, then IP, then CSV" in line for line in lines), lines
