@@ -34,7 +34,6 @@ import time
 from dataclasses import dataclass, field
 
 from tcs import __version__
-from tcs.errors import EVENT_MEANINGS
 from tcs.opentci_server import messages as m
 from tcs.opentci_server.protocol import ReplySyntaxError, parse_reply
 from tcs.opentci_server.values import unescape
@@ -44,15 +43,6 @@ CLASSES = {1001: "root", 1002: "module", 1003: "module array", 1006: "variable",
            1007: "variable array", 2006: "system variable", 2007: "system variable array"}
 TYPES = {0: "NULL", 1: "INT", 2: "FLOAT", 3: "STRING"}
 MAIN_AXES = ("AZ", "ZD", "HA", "DEC")
-VARIABLE_CLASSES = (1006, 1007, 2006, 2007)
-#: What the bare TPL2 error keywords mean (RANGE, DENIED and FAILED n get more, see explain()).
-KEYWORDS = {"UNKNOWN": "no such object", "TYPE": "not a value this variable takes (type)",
-            "INVALID": "cannot be addressed this way (a module needs a member or a property)",
-            "DIMENSION": "index out of range, or too many objects in one command",
-            "LOCKED": "locked by another connection"}
-#: Root members of the OpenTSI tree: they have no ERROR_STATE (TELESCOPE.STATUS has the errors).
-OPENTSI_MODULES = ("TELESCOPE", "OBJECT", "POSITION", "CURRENT", "AUXILIARY")
-TERMINAL_REFRESH = 0.5  # s between progress GETs of `set` on a terminal (elsewhere: --progress-interval)
 
 
 class ClientError(Exception):
@@ -262,70 +252,6 @@ class Connection:
 
 
 # ------------------------------------------------------------------------------ helpers
-def _base(obj: str) -> str:
-    """``AZ.TARGETPOS`` of ``AZ.TARGETPOS``, ``X[0-3]`` → ``X[0]`` (properties of one element)."""
-    if obj.endswith("]") and "[" in obj:
-        head, _, index = obj.rpartition("[")
-        first = index[:-1].split("-")[0].split(",")[0]
-        return f"{head}[{first}]" if first.isdigit() else obj
-    return obj
-
-
-def explain(conn: Connection, obj: str, error: str, writing: bool) -> str:
-    """``error`` of ``obj`` with its meaning: RANGE with the object's !MIN/!MAX, DENIED with
-    why (read-only, write-only, the levels), ``FAILED n`` with the OpenTCI meaning of n."""
-    word, _, arg = error.partition(" ")
-    try:
-        if word == "FAILED" and arg.strip().isdigit():
-            meaning = EVENT_MEANINGS.get(int(arg))
-            return f"{error} ({meaning})" if meaning else error
-        if word == "RANGE" and "!" not in obj:
-            base = _base(obj)
-            v = conn.get(f"{base}!MIN", f"{base}!MAX", timeout=10.0)
-            lo, hi = v.get(f"{base}!MIN"), v.get(f"{base}!MAX")
-            if isinstance(lo, (int, float)) and isinstance(hi, (int, float)):
-                return f"RANGE (allowed {text(lo)} .. {text(hi)})"
-            return "RANGE (a value this variable does not take)"
-        if word == "DENIED" and "!" not in obj:
-            base = _base(obj)
-            prop = "WLEVEL" if writing else "RLEVEL"
-            v = conn.get(f"{base}!{prop}", f"SERVER.CONNECTION.{prop}", timeout=10.0)
-            need, have = v.get(f"{base}!{prop}"), v.get(f"SERVER.CONNECTION.{prop}")
-            if isinstance(need, int) and need < 0:
-                return f"DENIED ({'read-only' if writing else 'write-only'})"
-            if isinstance(need, int) and isinstance(have, int):
-                return (f"DENIED (needs {'write' if writing else 'read'} level {need} or lower; "
-                        f"this login has {have})")
-            return "DENIED (not allowed to this login)"
-    except ClientError:
-        return error
-    meaning = KEYWORDS.get(word)
-    return f"{error} ({meaning})" if meaning else error
-
-
-def problems_of(conn: Connection, reply: Reply, writing: bool) -> list[str]:
-    """:meth:`Reply.problems` with the meaning of each error keyword (see :func:`explain`)."""
-    out = []
-    if reply.error is not None:
-        out.append(f"command refused: {reply.error.code}"
-                   + (f" {reply.error.arg}" if reply.error.arg else "")
-                   + (f" [{reply.error.detail}]" if reply.error.detail else ""))
-    for d in reply.data:
-        if isinstance(d, m.DataError):
-            errors = list(d.errors)
-            if len(errors) == 1:
-                out.append(f"{d.obj}: {explain(conn, d.obj, errors[0], writing)}")
-            else:  # one per element: OK,TYPE,OK
-                out.append(f"{d.obj}: {','.join(errors)} ("
-                           + "; ".join(f"{e}: {explain(conn, d.obj, e, writing).partition(' (')[2][:-1]}"
-                                       for e in dict.fromkeys(errors) if e != "OK") + ")")
-        elif isinstance(d, m.DataInline):
-            out.extend(f"{d.obj}: {explain(conn, d.obj, v, writing)}"
-                       for v in map(decode, d.values) if isinstance(v, WireError))
-    rest = [p for p in reply.problems() if p == "command failed" or p.startswith(("aborted", "command timed"))]
-    return out + rest
-
-
 def _env_int(name: str, default: int) -> int:
     try:
         return int(os.environ.get(name, default))
@@ -406,71 +332,19 @@ def event_text(ev: m.Event) -> str:
 
 
 # ---------------------------------------------------------------------------- commands
-def _is_module(conn: Connection, name: str) -> bool:
-    return "!" not in name and conn.get(f"{name}!CLASS").get(f"{name}!CLASS") in (1001, 1002)
-
-
 def cmd_get(conn: Connection, args) -> int:
-    """Print ``NAME=value`` lines; a module (INVALID to a bare GET) prints its members."""
     reply = conn.command("GET " + ";".join(args.vars), args.timeout)
-    values: dict = {}      # printed, in order (None: failed, JSON null)
-    notes: list[str] = []
-    problems: list[str] = []
-
-    bad: set[str] = set()
-
-    def failed(obj: str, error: str) -> None:
-        values[obj] = None
-        bad.add(obj)
-        problems.append(f"{obj}: {explain(conn, obj, error, writing=False)}")
-
-    def module(obj: str) -> None:
-        below: dict = {}
-        module_values(conn, obj, below, notes)
-        for k, v in below.items():
-            if isinstance(v, WireError):
-                failed(k, v)
-            else:
-                values[k] = v
-
-    if reply.error is not None:
-        problems.extend(reply.problems())
-    for d in reply.data:
-        if isinstance(d, m.DataInline):
-            vals = [decode(v) for v in d.values]
-            if len(vals) == 1 and isinstance(vals[0], WireError):
-                if vals[0] == "INVALID" and _is_module(conn, d.obj):
-                    module(d.obj)
-                else:
-                    failed(d.obj, vals[0])
-                continue
-            for v in vals:
-                if isinstance(v, WireError):
-                    problems.append(f"{d.obj}: {explain(conn, d.obj, v, writing=False)}")
-            values[d.obj] = vals[0] if len(vals) == 1 else vals
-        elif isinstance(d, m.DataError):
-            if tuple(d.errors) == ("INVALID",) and _is_module(conn, d.obj):
-                module(d.obj)
-            else:
-                for e in dict.fromkeys(d.errors):
-                    if e != "OK":
-                        failed(d.obj, e)
-    if not isinstance(reply.final, m.CommandComplete) and not problems:
-        problems.extend(reply.problems() or ["command failed"])
+    values = reply.values()
     if args.json:
         print(json.dumps({k: (None if isinstance(v, WireError) else v) for k, v in values.items()},
                          indent=None))
     else:
         for name, value in values.items():
-            if value is not None and not isinstance(value, WireError):
+            if not isinstance(value, WireError):
                 print(text(value) if args.value_only else f"{name}={text(value)}")
-            elif value is None and name not in bad:
-                print("NULL" if args.value_only else f"{name}=NULL")
-    for note in notes:
-        print(f"tcs-client: {note}", file=sys.stderr)
-    for problem in problems:
+    for problem in reply.problems():
         print(f"tcs-client: {problem}", file=sys.stderr)
-    return FAILED if problems else OK
+    return OK if reply.ok else FAILED
 
 
 def progress_vars(assignments: list[str]) -> list[str]:
@@ -503,9 +377,6 @@ def cmd_set(conn: Connection, args) -> int:
     started = time.monotonic()
     deadline = started + args.timeout if args.timeout else None
     poll = None
-    # one progress GET per refresh of the line, not one per round trip (~400/s before)
-    every = min(TERMINAL_REFRESH, args.progress_interval) if line.tty else args.progress_interval
-    next_poll = started + min(0.5, every)
     try:
         while not conn.done(cmd_id):
             now = time.monotonic()
@@ -519,22 +390,18 @@ def cmd_set(conn: Connection, args) -> int:
                 line.end()
                 print(f"tcs-client: {what}: not done within {args.timeout:g} s, aborted", file=sys.stderr)
                 return FAILED
-            if not args.no_wait:
+            if now - started >= 0.5 and not args.no_wait:
                 if poll is not None and conn.done(poll):
                     values = conn.replies.pop(poll).values()
                     shown = " ".join(f"{k}={text(v)}" for k, v in values.items() if not isinstance(v, WireError))
-                    line.show(f"{what}: {now - started:.1f} s {shown}".rstrip(), force=True)
+                    line.show(f"{what}: {now - started:.1f} s {shown}".rstrip())
                     poll = None
-                if poll is None and now >= next_poll:
-                    next_poll = now + every
+                if poll is None:
                     if watch:
                         poll = conn.start("GET " + ";".join(watch))
                     else:
-                        line.show(f"{what}: {now - started:.1f} s", force=True)
-            wake = [0.2, next_poll - now]
-            if deadline is not None:
-                wake.append(deadline - now)
-            conn.pump(max(0.01, min(wake)))
+                        line.show(f"{what}: {now - started:.1f} s")
+            conn.pump(0.2)
     except KeyboardInterrupt:
         conn.command(f"ABORT {cmd_id}", 30.0)
         line.end()
@@ -542,7 +409,7 @@ def cmd_set(conn: Connection, args) -> int:
         return INTERRUPTED
     line.end()
     reply = conn.replies.pop(cmd_id)
-    for problem in problems_of(conn, reply, writing=True):
+    for problem in reply.problems():
         print(f"tcs-client: {problem}", file=sys.stderr)
     if reply.ok and not args.quiet:
         print(f"{what}: done in {time.monotonic() - started:.1f} s", file=sys.stderr)
@@ -564,35 +431,6 @@ def member_names(conn: Connection, prefix: str) -> list[str]:
     return [v for v in (values.get(o) for o in objs) if isinstance(v, str) and v]
 
 
-def module_values(conn: Connection, prefix: str, values: dict, notes: list) -> None:
-    """The readable variables below the module ``prefix`` (depth first) into ``values``;
-    module arrays and write-only variables are named in ``notes`` instead."""
-    members = member_names(conn, prefix)
-    if not members:
-        return
-    names = [f"{prefix}.{n}" for n in members]
-    props = conn.get(*(f"{n}!{p}" for n in names for p in ("CLASS", "RLEVEL", "COUNT")))
-    readable = []
-    for name in names:
-        kind = props.get(f"{name}!CLASS")
-        if kind == 1002:
-            if readable:  # keep the tree's order: read what came before this sub-module
-                values.update(conn.get(*readable))
-                readable = []
-            module_values(conn, name, values, notes)
-        elif kind == 1003:
-            count = props.get(f"{name}!COUNT")
-            notes.append(f"{name}[]: module array of {count if isinstance(count, int) else '?'} "
-                         f"(get {name}[i] for one element)")
-        elif kind in VARIABLE_CLASSES:
-            level = props.get(f"{name}!RLEVEL")
-            if isinstance(level, int) and level < 0:
-                continue  # write-only (REINIT, STOP …): nothing to read
-            readable.append(name)
-    if readable:
-        values.update(conn.get(*readable))
-
-
 @dataclass
 class StatusPlan:
     """Which variables the status line reads, from the tree's root members."""
@@ -606,11 +444,6 @@ class StatusPlan:
         objs = []
         if "CABINET" in members:
             objs += ["CABINET.POWER_STATE", "CABINET.REFERENCED", "CABINET.ERROR_STATE"]
-        elif "TELESCOPE" in members:  # the OpenTSI tree: errors are TELESCOPE.STATUS.*
-            objs += ["TELESCOPE.READY_STATE", "TELESCOPE.MOTION_STATE", "TELESCOPE.STATUS.GLOBAL",
-                     "TELESCOPE.STATUS.LIST"]
-            if "POSITION" in members:
-                objs += ["POSITION.HORIZONTAL.AZ", "POSITION.HORIZONTAL.ZD"]
         for axis in MAIN_AXES:
             if axis in members:
                 objs += [f"{axis}.REALPOS", f"{axis}.MOTION_STATE", f"{axis}.ERROR_STATE"]
@@ -621,28 +454,9 @@ class StatusPlan:
             for i in range(count if isinstance(count, int) else 0):
                 objs += [f"DOME[{i}].REALPOS", f"DOME[{i}].ERROR_STATE"]
         for name in members:
-            if name not in ("SERVER", "LOCAL", "CONFIG", "CABINET", "POINTING", "DOME", *MAIN_AXES,
-                            *OPENTSI_MODULES):
+            if name not in ("SERVER", "LOCAL", "CONFIG", "CABINET", "POINTING", "DOME", *MAIN_AXES):
                 objs.append(f"{name}.ERROR_STATE")
         return cls(objs + list(extra), members)
-
-
-def tsi_errors(listing, level) -> list[str]:
-    """``component=level`` of every component in an OpenTSI ``TELESCOPE.STATUS.LIST``
-    (``<group>|<level>:<component>|<level>[;…]:<errors>``, groups separated by ``,``); the
-    GLOBAL level alone when the list names none."""
-    out = []
-    if isinstance(listing, str) and listing:
-        for group in listing.split(","):
-            fields = group.split(":")
-            if len(fields) >= 2:
-                for comp in fields[1].split(";"):
-                    name, _, bits = comp.partition("|")
-                    if name:
-                        out.append(f"{name}={bits or '?'}")
-    if not out and isinstance(level, int) and level:
-        out.append(f"TELESCOPE={level}")
-    return list(dict.fromkeys(out))
 
 
 def status_line(values: dict, extra: list[str]) -> str:
@@ -661,13 +475,6 @@ def status_line(values: dict, extra: list[str]) -> str:
             axes.append(f"{axis} {num(axis + '.REALPOS')}{mark}")
     if axes:
         parts.append(" ".join(axes))
-    if "TELESCOPE.READY_STATE" in values:  # OpenTSI
-        parts.append(f"ready {num('TELESCOPE.READY_STATE', '{:.2f}')}")
-        if "POSITION.HORIZONTAL.AZ" in values:
-            moving = values.get("TELESCOPE.MOTION_STATE")
-            mark = "*" if isinstance(moving, int) and moving & 1 else ""
-            parts.append(f"AZ {num('POSITION.HORIZONTAL.AZ')}{mark} ZD {num('POSITION.HORIZONTAL.ZD')}{mark}")
-        parts.append(f"motion {num('TELESCOPE.MOTION_STATE', '{}')}")
     if "POINTING.TRACK" in values:
         parts.append(f"track {num('POINTING.TRACK', '{}')}")
     dome = [f"{i}:{num(f'DOME[{i}].REALPOS', '{:.1f}')}" for i in range(8)
@@ -676,7 +483,6 @@ def status_line(values: dict, extra: list[str]) -> str:
         parts.append("dome " + " ".join(dome))
     errors = [k.rsplit(".", 1)[0] + f"={v}" for k, v in values.items()
               if k.endswith(".ERROR_STATE") and isinstance(v, (int, float)) and v]
-    errors += tsi_errors(values.get("TELESCOPE.STATUS.LIST"), values.get("TELESCOPE.STATUS.GLOBAL"))
     parts.append("errors " + (" ".join(errors) if errors else "none"))
     parts.extend(f"{name}={text(values.get(name))}" for name in extra)
     return " | ".join(parts)
