@@ -117,7 +117,7 @@ def test_problem_is_named(text, expected):
 
 @pytest.mark.parametrize("override, expected", [
     ({"rpdo1": ("0x6040", "0x607A", "0x60B1")}, ("pdo.rpdo1", "maps 80 bits; a PDO carries at most 64")),
-    ({"rpdo1": ("0x6040",), "tpdo1": ("0x6041", "0x6064")}, ("pdo.rpdo1", "must map 0x607A")),
+    ({"rpdo1": ("0x6040",), "tpdo1": ("0x6041", "0x6064")}, ("pdo.rpdo1", "must map a setpoint: 0x607A")),
     ({"rpdo1": ("0x6040", "0x607A")}, ("pdo", "a TPDO must map 0x6041")),
     ({"rpdo2": ("0x60B1",)}, ("pdo.rpdo2", "unknown PDO")),
     ({"tpdo1": ("0x6041", "0x2000")}, ("pdo.tpdo1[1]", "'0x2000' is not an object the driver maps")),

@@ -229,3 +229,51 @@ def test_disable_operation_follows_0x605C(option, moving):
     assert (d.read(0x606C) > 0) is moving
     d.advance(10.0)
     assert d.read(0x606C) == 0
+
+
+# --------------------------------------------------------------------------- IP and CSV (issue 21)
+def test_ip_follows_the_record_only_with_enable_ip():
+    """Interpolated position: the record 0x60C1:1 is interpolated like a CSP target only while
+    controlword bit 4 is set (statusword bit 12 = IP active); without it it is ignored."""
+    d = Drive()
+    d.enable(7)
+    d.write(0x60C1, 1, 100)
+    d.logic.on_sync(True)                     # bit 4 clear: ignored, the drive stays
+    d.advance(0.01)
+    assert d.read(0x6064) == 0 and d.logic.ip_ignored == 1
+    assert not d.read(0x6041) & 0x1000
+    d.write(0x6040, 0, 0x1F)                  # enable IP
+    assert d.read(0x6041) & 0x1000
+    d.logic.on_sync(True)
+    d.advance(0.005)
+    assert d.read(0x6062) == 50               # linear over the period, as CSP
+    d.advance(0.005)
+    assert d.read(0x6062) == 100
+
+
+def test_csv_follows_the_target_velocity_and_clamps_it_at_0x607f():
+    d = Drive(max_velocity=5.0, max_acceleration=50.0)
+    d.enable(9)
+    d.write(0x607F, 0, 20000)                 # 2 units/s
+    d.write(0x60FF, 0, 10000)                 # 1 unit/s
+    for _ in range(50):
+        d.logic.on_sync(True)
+        d.advance(0.01)
+    assert d.read(0x606C) == 10000 and not d.read(0x6041) & 0x0800
+    d.write(0x60FF, 0, 40000)                 # 4 units/s: above 0x607F
+    for _ in range(50):
+        d.logic.on_sync(True)
+        d.advance(0.01)
+    assert d.read(0x606C) == 20000 and d.read(0x6041) & 0x0800  # clamped, internal limit
+    assert d.emcy == []                       # a clamp, not a fault
+
+
+def test_streaming_modes_react_to_missing_rpdos():
+    for mode in (7, 9):
+        d = Drive()
+        d.enable(mode)
+        if mode == 7:
+            d.write(0x6040, 0, 0x1F)
+        for _ in range(3):
+            d.logic.on_sync(False)
+        assert d.emcy == [0x8250], mode       # 0x6007 default 1: fault "RPDO time-out"

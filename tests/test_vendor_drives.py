@@ -149,7 +149,17 @@ CASES = {
                    "velocity_factor = 16.666666666666668\nacceleration_factor = 16.666666666666668"),
     "vendor-pdo-restricted": ("", ""),
     "vendor-revision": ("", "revision = 0x00020003"),
+    # issue 21: drives without CSP, and three EDS defects
+    "vendor-ip-only": ("", ""),
+    "vendor-csv-only": ("", ""),
+    "vendor-ip-no-607a-map": ("", ""),
+    "vendor-homing-list": ("", ""),
+    "vendor-hb16": ("", ""),
+    "vendor-no-devtype-default": ("", ""),
 }
+
+#: The mode each fixture's drive must be run in (auto): the one its 0x6502 offers.
+MODES = {"vendor-ip-only": 7, "vendor-csv-only": 9, "vendor-ip-no-607a-map": 7}
 
 
 @pytest.mark.parametrize("fixture", list(CASES))
@@ -172,6 +182,8 @@ async def test_vendor_drive_boots_enables_references_and_moves(tmp_path, fixture
         if fixture == "vendor-revision":
             sim = svc.telescope.sims[1]
             assert sim.read_object(0x1018, 3) == 0x00020003
+        sim = svc.telescope.sims[1]
+        assert sim.mode_display == MODES.get(fixture, 8)  # the simulated drive moved in it
     finally:
         await c.close()
         await svc.stop()
@@ -201,6 +213,58 @@ def test_vendor_drive_refused_at_start_naming_drive_object_and_remedy(tmp_path, 
     assert text.startswith(f"{path}: {key}: "), text
     for needle in needles:
         assert needle in text, text
+
+
+def test_homing_methods_an_eds_does_not_state_are_unknown_not_absent(tmp_path):
+    """0x60E3 entries without a DefaultValue: method 19 is not refused (issue 21, defect 1)."""
+    path = write_config(tmp_path, "vendor-homing-list")
+    path.write_text(path.read_text().replace("homing = { method = 37, timeout = 10.0 }",
+                                             "homing = { method = 19, timeout = 10.0 }", 1))
+    config = load_config(path)
+    assert config.drives["az"].homing.method == 19
+
+
+def test_heartbeat_consumer_limit_bounds_the_time_only(tmp_path):
+    """0x1016:1 = node 127 << 16 | 5000 ms against a HighLimit of 0xFFFF (defect 2) is fine;
+    a time above it is refused naming the time part."""
+    load_config(write_config(tmp_path, "vendor-hb16"))  # 5.0 s
+    from tcs.drivers.eds_check import load_od, verdict
+    od = load_od(EDS / "vendor-hb16.eds", 1)
+    assert verdict(od, 0x1016, 1, 127 << 16 | 5000, True).action == "write"
+    assert verdict(od, 0x1016, 1, 127 << 16 | 65535, True).action == "write"
+    from tcs.sim.object_store import ObjectStore
+    store = ObjectStore(od)
+    store.write_value(od[0x1016][1], 127 << 16 | 5000)  # the simulated drive takes it too
+    assert store.get(0x1016, 1) == 127 << 16 | 5000
+
+
+@pytest.mark.parametrize("az_extra, key, needles", [
+    ("", "axes.az.drive", ["drive az (node 1)", "0x6502", "= PP, PV, HM", "(CSP)", "(IP)",
+                           "(CSV)", "remedy"]),
+    ("mode = 'ip'", "drives.az.mode", ["drive az (node 1)", "0x6502", "PP, PV, HM",
+                                       "interpolated position (IP)", "remedy"]),
+])
+def test_drive_without_a_cyclic_mode_is_refused_naming_the_modes(tmp_path, az_extra, key, needles):
+    path = write_config(tmp_path, "vendor-no-csp", az_extra)
+    with pytest.raises(ConfigErrors) as info:
+        load_config(path)
+    found = [e for e in info.value.errors if e.key == key]
+    assert found, [e.message for e in info.value.errors]
+    for needle in needles:
+        assert needle in found[0].message, found[0].message
+
+
+def test_auto_mode_prefers_csp_then_ip_then_csv_and_says_why():
+    from tcs.config.can import DriveSection, IdentitySection
+    from tcs.drivers.eds_check import SIM_EDS, drive_mode
+    base = dict(identity=IdentitySection(), node_id=1, increments_per_unit=1.0, min_position=-1.0, max_position=1.0,
+                following_error_window=1.0, max_velocity=1.0, max_acceleration=1.0)
+    section = DriveSection(**base)
+    assert drive_mode(section, SIM_EDS, 1).mode == "csp"  # the simulated drive offers all three
+    ip = drive_mode(section, EDS / "vendor-ip-only.eds", 1)
+    assert ip.mode == "ip" and "IP" in ip.reason and "0x6502" in ip.reason
+    assert drive_mode(section, EDS / "vendor-csv-only.eds", 1).mode == "csv"
+    assert drive_mode(DriveSection(**base, mode="csv"), SIM_EDS, 1).mode == "csv"
 
 
 def test_simulation_section_describes_the_simulated_drive(tmp_path):

@@ -191,6 +191,9 @@ class Axis(ModuleHealth):
         self.dt = dt
         self.main_power = main_power
         self.discrete = section.module in DISCRETE_MODULES
+        #: the mode trajectories are streamed in: the drive's (CSP, IP or CSV; see
+        #: tcs.drivers.eds_check.choose_mode), CSP for drives that do not say
+        self.cyclic_mode = getattr(drive, "cyclic_mode", None) or Mode.CSP
         self.reference_order = REFERENCE_ORDER.get(section.module, 2)
         self.positions = {int(k): v for k, v in section.positions.items()}
         cycle = section.cyclic or None
@@ -589,7 +592,7 @@ class Axis(ModuleHealth):
             self._want_power = value
             self._power_since = now
             if value:
-                self.drive.set_mode(Mode.PP if self.discrete else Mode.CSP)
+                self.drive.set_mode(Mode.PP if self.discrete else self.cyclic_mode)
                 self.drive.enable()
             else:
                 self._stop_motion(TcsError(f"{self.module_name}: power off", ErrorNumber.INVMODE))
@@ -764,7 +767,8 @@ class Axis(ModuleHealth):
                 self.clear_condition("drive fault")
         # power
         if self._want_power is True and st.enabled and not self._powered and (
-                self.discrete or st.mode == Mode.CSP):
+                self.discrete or st.mode == self.cyclic_mode and (
+                    st.mode != Mode.IP or st.statusword & 0x1000)):  # IP: "IP active" shown
             self._powered = True
             self._want_power = None
             self._sp = Setpoint(st.position)

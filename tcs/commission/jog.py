@@ -74,8 +74,9 @@ def move_csp(session: DriveSession, target, destination: float, speed: float,
              limits: tuple[float, float], bar: ProgressBar) -> float:
     """Move one enabled drive to ``destination`` in CSP; returns the position reached."""
     name = target.drive
-    if session.status(name).mode != Mode.CSP:
-        session.set_mode(name, Mode.CSP)
+    cyclic = getattr(session.drive(name), "cyclic_mode", None) or Mode.CSP
+    if session.status(name).mode != cyclic:
+        session.set_mode(name, cyclic)
     session.enable([name])
     start = session.status(name).position
     lo, hi = min(limits[0], start), max(limits[1], start)

@@ -252,8 +252,9 @@ def run(args, config) -> Outcome:
             if homed["result"] != "done":
                 raise CommissionError(f"homing before the limit search failed: {homed['error']}")
             out.lines.append(f"{target.label}: referenced, position {fmt(homed['position'])}")
-        if session.status(name).mode != Mode.CSP:
-            session.set_mode(name, Mode.CSP)
+        cyclic = getattr(session.drive(name), "cyclic_mode", None) or Mode.CSP
+        if session.status(name).mode != cyclic:
+            session.set_mode(name, cyclic)
         session.enable([name])
         mover = CspMover(session.drive(name), jog_dynamics(target, speed), SoftLimits(lo, hi),
                          config.can.sync_period)

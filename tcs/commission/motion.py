@@ -21,7 +21,7 @@ import threading
 
 from tcs.axes.motion import AxisDynamics, MotionPlanner, SoftLimits
 from tcs.axes.profile import Setpoint
-from tcs.drivers.drive import DriveStatus, Mode
+from tcs.drivers.drive import CYCLIC_MODES, DriveStatus
 from tcs.errors import TcsError
 
 
@@ -91,7 +91,7 @@ class CspMover:
         watch = self.watch
         stop_now = bool(watch(st)) if watch is not None else False
         planner = self._planner
-        if not (st.enabled and st.mode == Mode.CSP):
+        if not (st.enabled and st.mode in CYCLIC_MODES):
             self._active = False
             self.moving = False
             with self._lock:  # nothing can move: a pending request ends here

@@ -36,6 +36,8 @@ PDO_OBJECTS: dict[int, tuple[str, int, bool, str]] = {
     0x6040: ("controlword", 16, False, "r"),
     0x607A: ("target_position", 32, True, "r"),
     0x60B1: ("velocity_offset", 32, True, "r"),
+    0x60C1: ("ip_data_record", 32, True, "r"),       # sub-index 1 (PDO_SUBS)
+    0x60FF: ("target_velocity", 32, True, "r"),
     0x6041: ("statusword", 16, False, "t"),
     0x6064: ("position_actual", 32, True, "t"),
     0x606C: ("velocity_actual", 32, True, "t"),
@@ -44,6 +46,13 @@ PDO_OBJECTS: dict[int, tuple[str, int, bool, str]] = {
     0x603F: ("error_code", 16, False, "t"),
     0x6061: ("mode_display", 8, True, "t"),
 }
+
+#: Sub-index mapped for objects that are records (0x60C1:1 interpolation data record).
+PDO_SUBS: dict[int, int] = {0x60C1: 1}
+
+#: The setpoint object each mode streams in RPDO1 (PP moves and homing use 0x607A).
+SETPOINT_OBJECT: dict[str, int] = {"csp": 0x607A, "pp": 0x607A, "ip": 0x60C1, "csv": 0x60FF}
+SETPOINT_OBJECTS = frozenset(SETPOINT_OBJECT.values())
 
 #: Objects whose TPDO is sent on every SYNC; a TPDO with none of them is event driven.
 CYCLIC_TPDO_OBJECTS = frozenset({0x6041, 0x6064, 0x606C, 0x60F4})
@@ -55,6 +64,16 @@ DEFAULT_PDO_MAPPING: dict[str, tuple[int, ...]] = {
     "tpdo2": (0x606C, 0x60F4),
     "tpdo3": (0x60FD, 0x603F),
 }
+
+
+
+def default_mapping(mode: str = "csp") -> dict[str, tuple[int, ...]]:
+    """The default mapping for a drive run in ``mode``: RPDO1 carries the mode's setpoint
+    object (0x607A in CSP/PP, 0x60C1:1 in IP, 0x60FF in CSV)."""
+    mapping = dict(DEFAULT_PDO_MAPPING)
+    mapping["rpdo1"] = (0x6040, SETPOINT_OBJECT.get(mode, 0x607A))
+    return mapping
+
 
 PDO_NAMES = ("rpdo1", "tpdo1", "tpdo2", "tpdo3", "tpdo4")
 HOMING_METHODS = (1, 2, 17, 18, 19, 21, 33, 34, 35, 37)
@@ -129,9 +148,13 @@ def pdo_mapping(override: dict[str, tuple[str, ...]]) -> tuple[dict[str, tuple[i
         if indices:
             mapping[name] = tuple(indices)
     rpdo = mapping.get("rpdo1", ())
-    for index in (0x6040, 0x607A):
-        if index not in rpdo and not any(k.startswith("pdo.rpdo") for k, _ in problems):
-            problems.append(("pdo.rpdo1", f"must map 0x{index:04X} ({PDO_OBJECTS[index][0]})"))
+    if not any(k.startswith("pdo.rpdo") for k, _ in problems):
+        if 0x6040 not in rpdo:
+            problems.append(("pdo.rpdo1", "must map 0x6040 (controlword)"))
+        if not SETPOINT_OBJECTS & set(rpdo):
+            problems.append(("pdo.rpdo1", "must map a setpoint: 0x607A (target_position; CSP, "
+                                          "PP), 0x60C1 (ip_data_record; IP) or 0x60FF "
+                                          "(target_velocity; CSV)"))
     for index in (0x6041, 0x6064):
         if index not in seen:
             problems.append(("pdo", f"a TPDO must map 0x{index:04X} ({PDO_OBJECTS[index][0]})"))
@@ -268,8 +291,23 @@ class DriveSection:
         0.5, min=0.01, max=65.535, doc="0x1016 time the drive waits for the TCS heartbeat "
                                        "before it faults, s")
     default_mode: Literal["csp", "pp"] = setting(
-        "csp", doc="operating mode set at boot: csp (cyclic setpoints) or pp (profile moves: "
-                   "filter wheel, M3)")
+        "csp", doc="mode set at boot: pp (profile moves: filter wheel, M3) or csp = the "
+                   "drive's streaming mode ('mode'); a trajectory axis switches to its "
+                   "streaming mode when powered")
+    mode: Literal["auto", "csp", "ip", "csv", "pp"] = setting(
+        "auto", doc="operating mode of the axis: csp (cyclic synchronous position), ip "
+                    "(interpolated position), csv (cyclic synchronous velocity, the TCS closes "
+                    "the position loop), pp (profile position: axes that never stream, e.g. "
+                    "filter wheel, M3); auto = what 0x6502 offers, CSP before IP before CSV")
+    csv_kp: float = setting(10.0, min=0.0, max=1000.0,
+                            doc="CSV: proportional gain of the TCS position loop, 1/s "
+                                "(velocity correction per unit of following error)")
+    csv_ki: float = setting(20.0, min=0.0, max=100000.0,
+                            doc="CSV: integral gain of the TCS position loop, 1/s²")
+    csv_max_correction: float | None = setting(
+        None, min=0.0, doc="CSV: largest velocity correction (P + I) added to the path's "
+                           "velocity, units/s (default a tenth of max_velocity); the integral "
+                           "is held within it")
     min_sync_period: float = setting(0.001, min=0.0001, max=0.1,
                                      doc="shortest SYNC period this drive accepts, s")
     pdo: dict[str, list[str]] = setting(
@@ -334,6 +372,16 @@ class DriveSection:
                 problems.append((f"sdo.{key}", "write entries as \"0xINDEX:SUB\" = value, "
                                                "e.g. \"0x6091:1\" = 1"))
         return problems
+
+    @property
+    def wanted_mode(self) -> str:
+        """The configured streaming mode (``mode``: auto, csp, ip, csv or pp)."""
+        return self.mode
+
+    @property
+    def profile_moves(self) -> bool:
+        """Profile position is used (boot mode or the axis's mode): 0x6081/0x6083 needed."""
+        return self.default_mode == "pp" or self.mode == "pp"
 
     @property
     def velocity_scale(self) -> float:

@@ -48,7 +48,7 @@ from typing import Any
 import canopen
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
-from tcs.config.can import CanSection, DriveSection, interpolation_period
+from tcs.config.can import PDO_SUBS, CanSection, DriveSection, interpolation_period
 from tcs.drivers.eds_check import raw_writes, usable_writes
 from tcs.drivers.pdo import PdoLayout, configuration_writes
 from tcs.drivers.takeover import stop_if_powered
@@ -110,6 +110,9 @@ LOST = {
 }
 #: The drive's own reactions to a lost master (written when the drive has them).
 OPTIONAL |= {0x6007, 0x605A, 0x605C, 0x605E}
+#: IP sub-mode select: drives with linear interpolation only may lack it.
+OPTIONAL.add(0x60C0)
+LOST[0x60C0] = "the drive interpolates IP data as commissioned (linear expected)"
 
 NAMES = {
     0x1000: "device type", 0x1006: "SYNC period", 0x1016: "consumer heartbeat time",
@@ -121,6 +124,7 @@ NAMES = {
     0x6081: "profile velocity", 0x6083: "profile acceleration", 0x6084: "profile deceleration",
     0x6085: "quick-stop deceleration", 0x6098: "homing method", 0x6099: "homing speeds",
     0x609A: "homing acceleration", 0x60C2: "interpolation time period",
+    0x60C0: "interpolation sub-mode", 0x60C1: "interpolation data record",
     0x6007: "abort connection option", 0x605A: "quick stop option",
     0x605C: "disable operation option", 0x605E: "fault reaction option",
 }
@@ -248,7 +252,10 @@ def check_identity(sdo: Sdo, section: DriveSection) -> None:
     """Step 3: device profile 402 and the identity of the hardware file."""
     device_type = sdo.read(0x1000, 0, "<I")
     if device_type & 0xFFFF != DEVICE_PROFILE_402:
-        raise HardwareError(sdo.device, f"device type 0x{device_type:08X} is not a CiA-402 drive")
+        raise HardwareError(sdo.device, f"device type 0x{device_type:08X} (0x1000) is not a "
+                                        "CiA-402 drive (bits 0-15 must be 0x0192): another "
+                                        "device at this node id, or a drive not set to the "
+                                        "CiA-402 profile; correct the node id or the drive")
     ident = section.identity
     expected = [("vendor", 1, ident.vendor), ("product", 2, ident.product),
                 ("revision", 3, ident.revision), ("serial", 4, ident.serial)]
@@ -271,8 +278,10 @@ def _u32(value: float, what: str, device: str) -> int:
     return v
 
 
-def configuration(section: DriveSection, can: CanSection, device: str) -> list[tuple[int, int, str, int]]:
-    """Step 4 (without PDOs and mode): the SDO writes ``(index, sub, format, value)``."""
+def configuration(section: DriveSection, can: CanSection, device: str,
+                  mode: int = 8) -> list[tuple[int, int, str, int]]:
+    """Step 4 (without PDOs and mode): the SDO writes ``(index, sub, format, value)``; a drive
+    run in interpolated position (``mode`` 7) also gets linear interpolation (0x60C0 = 0)."""
     k = section.increments_per_unit
     kv, ka = section.velocity_scale, section.acceleration_scale
     lo, hi = sorted((round(section.min_position * k), round(section.max_position * k)))
@@ -304,7 +313,7 @@ def configuration(section: DriveSection, can: CanSection, device: str) -> list[t
         (0x605A, 0, "<h", section.quick_stop_option),
         (0x605C, 0, "<h", section.disable_operation_option),
         (0x605E, 0, "<h", section.fault_reaction_option),
-    ]
+    ] + ([(0x60C0, 0, "<h", 0)] if mode == 7 else [])
 
 
 def check_eds(od: canopen.ObjectDictionary, layouts: dict[str, PdoLayout], device: str) -> None:
@@ -318,7 +327,7 @@ def check_eds(od: canopen.ObjectDictionary, layouts: dict[str, PdoLayout], devic
             raise HardwareError(device, f"{pdo.name.upper()} maps {len(pdo.indices)} objects; the "
                                         f"drive takes at most {entries}")
         for index in pdo.indices:
-            var = od.get_variable(index, 0)
+            var = od.get_variable(index, PDO_SUBS.get(index, 0))
             if var is None:
                 raise HardwareError(device, f"the EDS has no object 0x{index:04X} for {pdo.name.upper()}")
             if not getattr(var, "pdo_mappable", True):
@@ -351,7 +360,7 @@ def boot_node(network: canopen.Network, sdo: Sdo, hb: HeartbeatWatch, section: D
     check_identity(sdo, section)
     # Every write passes the EDS rule (tcs.drivers.eds_check): optional objects the drive
     # lacks are skipped; values were range-checked at start.
-    writes = usable_writes(od, configuration(section, can, device), section, device)
+    writes = usable_writes(od, configuration(section, can, device, mode), section, device)
     for index, sub, fmt, value in writes:
         sdo.write(index, sub, fmt, value)
     check_eds(od, layouts, device)

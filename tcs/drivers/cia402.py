@@ -23,6 +23,7 @@ CW_ENABLE_VOLTAGE = 0x0002
 CW_QUICK_STOP = 0x0004          # active low
 CW_ENABLE_OPERATION = 0x0008
 CW_NEW_SETPOINT = 0x0010        # PP: new set-point; HM: start homing (rising edge)
+CW_ENABLE_IP = 0x0010           # IP: enable interpolation (statusword bit 12 = IP active)
 CW_CHANGE_IMMEDIATELY = 0x0020  # PP
 CW_RELATIVE = 0x0040            # PP
 CW_FAULT_RESET = 0x0080         # rising edge
@@ -48,7 +49,7 @@ SW_WARNING = 0x0080
 SW_REMOTE = 0x0200
 SW_TARGET_REACHED = 0x0400
 SW_INTERNAL_LIMIT = 0x0800
-SW_MODE_12 = 0x1000             # PP set-point ack / HM homing attained / CSP following
+SW_MODE_12 = 0x1000             # PP set-point ack / HM homing attained / CSP following / IP active
 SW_MODE_13 = 0x2000             # PP, CSP following error / HM homing error
 
 #: statusword -> state: (mask, value, state), checked in order (docs/cia402.md table).

@@ -19,8 +19,17 @@ How it works
 
 Safety rules kept here
 ----------------------
-* CSP: until the axis layer gives a setpoint after enabling, the target sent is the actual
-  position latched when Operation enabled (or CSP) began — the drive never jumps.
+* Modes: the one of :attr:`Cia402Drive.mode_choice` (``[drives.x] mode``, or for ``auto``
+  CSP, IP or CSV as 0x6502 offers them) streams the axis's setpoints: CSP sends 0x607A; IP
+  sends the interpolation data record 0x60C1:1 with controlword bit 4 "enable IP" set in
+  Operation enabled and takes setpoints only once statusword bit 12 "IP active" shows; CSV
+  sends a target velocity 0x60FF from a position loop closed here (:meth:`_csv_step`:
+  feed-forward + PI on the following error, within the speed and acceleration limits) and
+  supervises the following error itself (window and time-out of the hardware file: a
+  violation is a fault of the axis with the same controlled stop).
+* Until the axis layer gives a setpoint after enabling, the target sent is the actual
+  position latched when Operation enabled (or the cyclic mode) began — the drive never
+  jumps; in CSV the loop holds that position.
 * A fault, a lost heartbeat, stale TPDOs, a bus fault (bus-off, error passive) or a drive that
   leaves Operation enabled by itself sets the wanted state to *disabled*: after a fault reset
   (rising edge of bit 7, transition 15) the drive stays in Switch on disabled until
@@ -60,7 +69,8 @@ from tcs.drivers.boot import (HB_OPERATIONAL, HB_PRE_OPERATIONAL, HB_STOPPED, NM
                               BootResult, HeartbeatWatch, Sdo, boot_node, set_mode)
 from tcs.drivers.canbus import HEARTBEAT_BASE, CanBus
 from tcs.drivers.cia402 import Want
-from tcs.drivers.drive import DriveState, DriveStatus, Mode, Progress
+from tcs.drivers.drive import CYCLIC_MODES, DriveState, DriveStatus, Mode, Progress
+from tcs.drivers.eds_check import drive_mode
 from tcs.drivers.emcy import DriveFault, decode_emcy
 from tcs.drivers.handshakes import HomingRun, ProfileMove
 from tcs.drivers.pdo import PdoLayout, layouts, mapping_for
@@ -111,10 +121,15 @@ class Cia402Drive:
         self._scale = section.increments_per_unit
         self._lo = min(section.min_position, section.max_position)
         self._hi = max(section.min_position, section.max_position)
-        self.layouts: dict[str, PdoLayout] = layouts(mapping_for(section, eds, section.node_id),
-                                                     section.node_id)
+        #: the mode of operation (hardware file ``mode``, or what 0x6502 offers) and why
+        self.mode_choice = drive_mode(section, eds, section.node_id)
+        chosen = Mode(self.mode_choice.number)
+        #: the mode trajectories are streamed in (None: a PP-only drive, discrete axes)
+        self.cyclic_mode: Mode | None = chosen if chosen in CYCLIC_MODES else None
+        self._default_mode = Mode.PP if section.default_mode == "pp" else chosen  # at boot
+        self.layouts: dict[str, PdoLayout] = layouts(
+            mapping_for(section, eds, section.node_id, self.mode_choice.mode), section.node_id)
         self._rpdo = self.layouts["rpdo1"]
-        self._default_mode = Mode.CSP if section.default_mode == "csp" else Mode.PP
         self._subscriptions: list[tuple[int, Callable]] = []
         self._node: canopen.RemoteNode | None = None
         self._sdo: Sdo | None = None
@@ -157,6 +172,15 @@ class Cia402Drive:
         # control-loop side
         self._setpoint: int | None = None
         self._velocity_ff = 0
+        # CSV: the position loop closed here (feed-forward + PI), following-error supervision
+        self._period = can.sync_period
+        self._csv_targets: list[int] = []      # targets of the last cycles (increments)
+        self._csv_integral = 0.0               # user units/s
+        self._csv_velocity = 0.0               # last command, user units/s
+        self._csv_error = 0.0                  # following error, user units
+        self._fe_since: float | None = None
+        self._fe_fault: TcsError | None = None
+        self._velocity_cmd = 0                 # 0x60FF sent (drive velocity units)
         self._mode: int | None = None
         self._mode_job: Job | None = None
         self._reset_phase = 0
@@ -445,7 +469,7 @@ class Cia402Drive:
             return DriveState.OFFLINE, self._emcy or self._stale_fault, True
         sw = self._raw.get(0x6041, 0)
         state = sm.decode_state(sw) or DriveState.NOT_READY
-        fault = self._bus_fault
+        fault = self._bus_fault or self._fe_fault
         if state in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
             fault = self._emcy or fault
             code = self._raw.get(0x603F, 0)
@@ -464,6 +488,7 @@ class Cia402Drive:
         k = self._scale
         homing, move = self._homing, self._move
         mode = raw.get(0x6061, self._mode)
+        following = (self._csv_error if mode == Mode.CSV else raw.get(0x60F4, 0) / k)
         try:
             mode = Mode(mode) if mode is not None else None
         except ValueError:
@@ -471,7 +496,7 @@ class Cia402Drive:
         return DriveStatus(
             name=self.name, state=state, position=raw.get(0x6064, 0) / k,
             velocity=raw.get(0x606C, 0) / self.section.velocity_scale,
-            following_error=raw.get(0x60F4, 0) / k,
+            following_error=following,
             statusword=sw, controlword=self._cw, mode=mode, fault=fault,
             warning=self._emcy if fault is not self._emcy else None,
             request_error=self._request_error,
@@ -536,6 +561,7 @@ class Cia402Drive:
                 self._offline_since = now
             self._stopping_since = None
             stopping = now - self._offline_since <= self.stop_timeout
+            self._velocity_cmd = self._csv_reset()
             self._send(sm.QUICK_STOP if stopping else sm.DISABLE_VOLTAGE, actual)
             return
         self._offline_since = None
@@ -545,6 +571,8 @@ class Cia402Drive:
             self._reset_phase, self._reset_since = 1, now
         elif reset:
             self._emcy = None  # nothing to reset: forget the last warning
+        if reset:
+            self._fe_fault, self._fe_since = None, None  # the TCS's own (CSV) following error
         cw = self._controlled(sm.controlword(want, state), state, sw, now)
         if self._reset_phase:
             if state not in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
@@ -568,13 +596,21 @@ class Cia402Drive:
         enabled = state is DriveState.OPERATION_ENABLED and want is Want.ENABLED
         mode = self._mode
         ready = enabled and self._mode_job is None
-        if not (ready and mode == Mode.CSP):
+        if want is Want.ENABLED and mode == Mode.IP and self._mode_job is None and not self._reset_phase:
+            # enable IP (bit 4) with enable operation: IP is active from the first cycle in
+            # Operation enabled, and the record sent with it is the actual position
+            cw |= sm.CW_ENABLE_IP
+        # streaming: CSP; IP once the drive shows IP active (statusword bit 12); CSV
+        streaming = ready and mode in CYCLIC_MODES and (mode != Mode.IP or bool(sw & sm.SW_MODE_12))
+        if not streaming:
             self._hold = actual
             self._setpoint = None
         target = self._hold
         homing, move = self._homing, self._move
-        if ready and mode == Mode.CSP and self._setpoint is not None:
+        if streaming and self._setpoint is not None:
             target = self._setpoint
+        self._velocity_cmd = self._csv_step(target, actual, now) if (
+            streaming and mode == Mode.CSV) else self._csv_reset()
         if homing is not None and homing.progress is Progress.RUNNING:
             if ready and mode == Mode.HM:
                 cw |= homing.step(now, sw)
@@ -665,8 +701,59 @@ class Cia402Drive:
             self._want, self._want_since = want, now
         return want
 
+    # ----------------------------------------------------------------- CSV position loop
+    def _csv_reset(self) -> int:
+        """Not streaming in CSV: no velocity command, the loop starts afresh."""
+        self._csv_targets.clear()
+        self._csv_integral = self._csv_velocity = self._csv_error = 0.0
+        self._fe_since = None
+        return 0
+
+    def _csv_step(self, target: int, actual: int, now: float) -> int:
+        """CSV: the velocity (drive units) for the next SYNC period.
+
+        The target sent in cycle k is where a CSP drive would be at SYNC k+2 (latched at
+        k+1, interpolated over one period): the velocity command applied from SYNC k+1 is the
+        feed-forward (target_k − target_k−1) / T plus a PI correction on the following error
+        e = target_k−2 − actual_k (clamped to ``csv_max_correction``; the integral is held
+        within it), limited to ``max_velocity`` and to a change of ``max_acceleration`` × T
+        per cycle. |e| beyond ``following_error_window`` for longer than
+        ``following_error_timeout`` is a following-error fault of the axis (controlled stop).
+        """
+        sec, k, period = self.section, self._scale, self._period
+        history = self._csv_targets
+        history.append(target)
+        if len(history) > 3:
+            del history[0]
+        previous = history[-2] if len(history) >= 2 else target
+        demand = history[0]  # the target of cycle k-2 (the oldest kept at the start)
+        feed_forward = (target - previous) / k / period
+        error = (demand - actual) / k
+        self._csv_error = error
+        limit = sec.csv_max_correction if sec.csv_max_correction is not None else 0.1 * sec.max_velocity
+        self._csv_integral = min(max(self._csv_integral + sec.csv_ki * error * period, -limit), limit)
+        correction = min(max(sec.csv_kp * error + self._csv_integral, -limit), limit)
+        velocity = feed_forward + correction
+        vmax, dv = abs(sec.max_velocity), abs(sec.max_acceleration) * period
+        velocity = min(max(velocity, -vmax), vmax)
+        velocity = min(max(velocity, self._csv_velocity - dv), self._csv_velocity + dv)
+        self._csv_velocity = velocity
+        window = abs(sec.following_error_window)
+        if abs(error) > window:
+            if self._fe_since is None:
+                self._fe_since = now
+            elif now - self._fe_since >= sec.following_error_timeout and self._fe_fault is None:
+                self._fe_fault = HardwareError(
+                    self.device, f"following error {error:.4g} beyond the window {window:g} for "
+                                 f"{sec.following_error_timeout:g} s (CSV: supervised by the TCS)")
+                log.warning("%s", self._fe_fault)
+        else:
+            self._fe_since = None
+        return round(velocity * sec.velocity_scale)
+
     def _send(self, cw: int, target: int) -> None:
-        values = {0x6040: cw, 0x607A: target, 0x60B1: self._velocity_ff}
+        values = {0x6040: cw, 0x607A: target, 0x60B1: self._velocity_ff, 0x60C1: target,
+                  0x60FF: self._velocity_cmd}
         data = self._rpdo.codec.pack(*(values[i] for i in self._rpdo.indices))
         self._cw, self._target_sent = cw, target
         try:
@@ -722,7 +809,7 @@ class Cia402Drive:
             self._homing_ended(self._homing)
             return False
         if previous is None or previous.progress is not Progress.RUNNING:
-            current = self._mode if self._mode in (Mode.CSP, Mode.PP) else None
+            current = self._mode if self._mode in (*CYCLIC_MODES, Mode.PP) else None
             self._homing_mode_before = Mode(current) if current is not None else self._default_mode
         self._homed = False
         return True

@@ -41,7 +41,15 @@ class Mode(enum.IntEnum):
 
     PP = 1    # profile position: move_to()
     HM = 6    # homing: start_homing()
+    IP = 7    # interpolated position: set_setpoint() every cycle (0x60C1:1, enable-IP bit 4)
     CSP = 8   # cyclic synchronous position: set_setpoint() every cycle
+    CSV = 9   # cyclic synchronous velocity: set_setpoint() every cycle, the driver closes
+    #           the position loop (velocity feed-forward + PI on the following error)
+
+
+#: The modes a trajectory is streamed in (``set_setpoint`` every cycle). A drive offers one of
+#: them as its ``cyclic_mode``; the axis layer asks for that one.
+CYCLIC_MODES = frozenset({Mode.IP, Mode.CSP, Mode.CSV})
 
 
 class Progress(enum.Enum):

@@ -42,10 +42,16 @@ log = logging.getLogger(__name__)
 
 SIM_EDS = hwconfig_file("eds/tcs-sim-drive.eds")  # package data (tcs.resources)
 
-#: 0x6502 bits of the modes the TCS uses.
-MODE_BITS = {1: 0, 3: 2, 6: 5, 8: 7}
+#: 0x6502 bits of the modes (bit n = mode n + 1 up to CST).
+MODE_BITS = {1: 0, 2: 1, 3: 2, 4: 3, 6: 5, 7: 6, 8: 7, 9: 8, 10: 9}
 MODE_NAMES = {1: "profile position (PP)", 3: "profile velocity (PV)", 6: "homing (HM)",
-              8: "cyclic synchronous position (CSP)"}
+              7: "interpolated position (IP)", 8: "cyclic synchronous position (CSP)",
+              9: "cyclic synchronous velocity (CSV)"}
+MODE_SHORT = {1: "PP", 2: "VL", 3: "PV", 4: "TQ", 6: "HM", 7: "IP", 8: "CSP", 9: "CSV", 10: "CST"}
+#: ``[drives.x] mode`` values and the 0x6060 mode they stand for.
+MODE_KEYS = {"pp": 1, "ip": 7, "csp": 8, "csv": 9}
+#: The modes a trajectory axis can stream in, in the order ``mode = "auto"`` prefers them.
+CYCLIC_PREFERENCE = ("csp", "ip", "csv")
 #: Objects of homing mode (not written for an ``absolute`` drive).
 HOMING_OBJECTS = frozenset({0x6098, 0x6099, 0x609A, 0x607C})
 
@@ -110,6 +116,82 @@ def supported_modes(od: canopen.ObjectDictionary) -> int | None:
     return int(value) if isinstance(value, int) else None
 
 
+def decode_modes(modes: int) -> str:
+    """0x6502 as mode names: ``"PP, HM, IP"`` (``"none"`` for 0)."""
+    names = [MODE_SHORT[m] for m, bit in MODE_BITS.items() if modes >> bit & 1]
+    return ", ".join(names) or "none"
+
+
+def offers(modes: int | None, key: str) -> bool:
+    """Whether 0x6502 ``modes`` offers mode ``key`` (csp, ip, csv, pp); unknown = yes."""
+    return modes is None or bool(modes >> MODE_BITS[MODE_KEYS[key]] & 1)
+
+
+@dataclass(frozen=True)
+class ModeChoice:
+    """The operating mode of one drive: ``mode`` (csp, ip, csv or pp), why, 0x6502 and what
+    is wrong with the configured mode (``problem``, None when it fits)."""
+
+    mode: str
+    reason: str
+    offered: int | None
+    problem: str | None = None
+
+    @property
+    def cyclic(self) -> bool:
+        return self.mode in CYCLIC_PREFERENCE
+
+    @property
+    def number(self) -> int:
+        return MODE_KEYS[self.mode]
+
+
+def modes_text(modes: int | None, eds_name: str = "EDS") -> str:
+    if modes is None:
+        return f"0x6502 (supported drive modes) not stated in {eds_name}"
+    return f"0x6502 (supported drive modes) = 0x{modes:08X} = {decode_modes(modes)} ({eds_name})"
+
+
+def choose_mode(section: DriveSection, od: canopen.ObjectDictionary,
+                eds_name: str = "EDS") -> ModeChoice:
+    """The mode the drive runs its axis in: ``[drives.x] mode`` or, for ``auto``, the first of
+    CSP, IP, CSV that 0x6502 offers (CSP when the EDS does not state 0x6502; PP when it
+    offers no cyclic mode — enough for axes that never stream)."""
+    wanted = section.wanted_mode
+    modes = supported_modes(od)
+    text = modes_text(modes, eds_name)
+    if wanted != "auto":
+        problem = None
+        if not offers(modes, wanted):
+            fits = [k for k in (*CYCLIC_PREFERENCE, "pp") if offers(modes, k)]
+            problem = (f"mode = '{wanted}' is configured, but {text} has no "
+                       f"{MODE_NAMES[MODE_KEYS[wanted]]}; remedy: " +
+                       (f"mode = {' or '.join(repr(k) for k in fits)} (or 'auto')" if fits else
+                        "a drive or firmware that offers CSP, IP or CSV"))
+        return ModeChoice(wanted, f"configured (mode = '{wanted}')", modes, problem)
+    if modes is None:
+        return ModeChoice("csp", f"{text}: CSP assumed", modes)
+    for key in CYCLIC_PREFERENCE:
+        if offers(modes, key):
+            return ModeChoice(key, f"{text}; auto prefers CSP, then IP, then CSV", modes)
+    if offers(modes, "pp"):
+        return ModeChoice("pp", f"{text} has no cyclic mode (CSP, IP, CSV): profile position, "
+                                f"for axes that never stream only", modes)
+    return ModeChoice("csp", text, modes, f"{text} offers none of CSP, IP, CSV or PP; remedy: a "
+                                          f"drive or firmware with one of them")
+
+
+def drive_mode(section: DriveSection, eds, node_id: int) -> ModeChoice:
+    """:func:`choose_mode` from the drive's EDS file (CSP or the configured mode when the
+    file cannot be read: the boot then reports it)."""
+    try:
+        od = load_od(eds, node_id)
+    except Exception:
+        wanted = section.wanted_mode
+        return ModeChoice("csp" if wanted == "auto" else wanted, "EDS unreadable", None)
+    return choose_mode(section, od, Path(eds).name)
+
+
 @dataclass(frozen=True)
 class Verdict:
     """What to do with one write: ``write``, ``skip`` (with why) or ``error`` (with why)."""
@@ -135,10 +217,24 @@ def verdict(od: canopen.ObjectDictionary, index: int, sub: int, value, optional:
         return Verdict("error", f"0x{index:04X}:{sub} is read-only on this drive (fixed to "
                                 f"{default_value(var)}), {value} is wanted")
     lo, hi = limits(var)
-    if isinstance(value, (int, float)) and (lo is not None and value < lo or hi is not None and value > hi):
+    checked = range_value(var, value)
+    if isinstance(checked, (int, float)) and (lo is not None and checked < lo or hi is not None and checked > hi):
         return Verdict("error", f"0x{index:04X}:{sub} = {value} is outside the drive's range "
                                 f"{'' if lo is None else lo}..{'' if hi is None else hi}")
     return Verdict("write")
+
+
+def range_value(var: odmod.ODVariable, value):
+    """The part of ``value`` the EDS limits of ``var`` apply to.
+
+    0x1016:n (consumer heartbeat time) is ``node id << 16 | ms``: many EDS files give it a
+    HighLimit of the 16-bit time only (0xFFFF), so a limit below 0x10000 bounds the time part
+    (bits 0-15), never the node id in bits 16-23.
+    """
+    if (var.index == 0x1016 and var.subindex >= 1 and isinstance(value, int)
+            and var.max is not None and var.max <= 0xFFFF):
+        return value & 0xFFFF
+    return value
 
 
 def is_optional(index: int, sub: int, section: DriveSection) -> bool:
@@ -146,7 +242,7 @@ def is_optional(index: int, sub: int, section: DriveSection) -> bool:
     from tcs.drivers.boot import OPTIONAL
     if 0x1800 <= index <= 0x1803 and sub in (3, 5):
         return True  # inhibit time / event timer of an event-driven TPDO
-    if index in (0x6081, 0x6083) and section.default_mode == "pp":
+    if index in (0x6081, 0x6083) and section.profile_moves:
         return False
     return index in OPTIONAL
 
@@ -193,6 +289,7 @@ KEYS: dict[tuple[int, int], tuple[str, str]] = {
     (0x6099, 2): ("homing.speed_zero", "velocity"),
     (0x609A, 0): ("homing.acceleration", "acceleration"),
     (0x607C, 0): ("homing.offset", "position"),
+    (0x60C0, 0): ("mode", ""),
     (0x6007, 0): ("abort_connection_option", ""),
     (0x605A, 0): ("quick_stop_option", ""),
     (0x605C, 0): ("disable_operation_option", ""),
@@ -208,6 +305,8 @@ NEEDED_FOR = {
     0x6061: "the mode of operation cannot be confirmed",
     0x6064: "the axis position cannot be read",
     0x607A: "the axis cannot be given setpoints (target position)",
+    0x60C1: "the axis cannot be given IP setpoints (interpolation data record)",
+    0x60FF: "the axis cannot be given CSV velocity commands (target velocity)",
     0x6081: "profile moves (discrete axes) have no speed",
     0x6083: "profile moves (discrete axes) have no acceleration",
     0x6098: "the axis cannot be referenced by a homing run (set absolute = true for an "
@@ -240,6 +339,7 @@ class DriveReport:
     conditions: list[tuple[str, str]] = field(default_factory=list)  # axis WARNING conditions
     mapping: dict[str, tuple[int, ...]] = field(default_factory=dict)
     has_error_code: bool = True
+    mode: ModeChoice | None = None
 
 
 def object_label(index: int, sub: int = 0) -> str:
@@ -261,9 +361,19 @@ def check_drive(name: str, section: DriveSection, can: CanSection, od: canopen.O
     def problem(key: str, text: str) -> None:
         report.problems.append(ConfigError(file, key, f"{device}: {text}"))
 
+    # -- the mode of operation (0x6502; optional on many drives: then CSP is assumed) -----------
+    choice = report.mode = choose_mode(section, od, eds_name)
+    if choice.problem is not None:
+        problem(f"{prefix}.mode", choice.problem)
+    if section.default_mode == "pp" and not offers(choice.offered, "pp"):
+        problem(f"{prefix}.default_mode",
+                f"{modes_text(choice.offered, eds_name)} has no profile position (PP), the "
+                f"default_mode configured; remedy: default_mode = 'csp' (boot in the drive's "
+                f"streaming mode)")
     # -- mandatory objects the axis cannot work without ---------------------------------------
-    mandatory = [0x6040, 0x6041, 0x6060, 0x6061, 0x6064, 0x607A, 0x1017]
-    if section.default_mode == "pp":
+    from tcs.config.can import SETPOINT_OBJECT
+    mandatory = [0x6040, 0x6041, 0x6060, 0x6061, 0x6064, SETPOINT_OBJECT[choice.mode], 0x1017]
+    if choice.mode == "pp" or section.profile_moves:
         mandatory += [0x6081, 0x6083]
     if not section.absolute:
         mandatory.append(0x6098)
@@ -275,7 +385,7 @@ def check_drive(name: str, section: DriveSection, can: CanSection, od: canopen.O
                                      f"{NEEDED_FOR.get(index, 'the axis needs it')}{remedy}")
     # -- the configuration writes ---------------------------------------------------------------
     try:
-        writes = configuration(section, can, device)
+        writes = configuration(section, can, device, choice.number)
     except HardwareError as exc:
         problem(prefix, exc.message)
         writes = []
@@ -300,6 +410,9 @@ def check_drive(name: str, section: DriveSection, can: CanSection, od: canopen.O
                                   f"{key or 'it'} to match")
             else:
                 lo, hi = limits(var)
+                checked = range_value(var, value)
+                if checked != value:  # 0x1016: the time part, node id in bits 16-23
+                    value = f"{checked} (time part; node id {value >> 16 & 0xFF} in bits 16-23)"
                 problem(full_key, f"{object_label(index, sub)} = {value} is outside the range "
                                   f"the drive allows, {'' if lo is None else lo}.."
                                   f"{'' if hi is None else hi}{_user_range(lo, hi, kind, section)} "
@@ -319,7 +432,7 @@ def check_drive(name: str, section: DriveSection, can: CanSection, od: canopen.O
                                   f"drive {name} has no 0x1016 heartbeat consumer: it will not "
                                   f"notice a dead TCS"))
     # -- PDO mapping -----------------------------------------------------------------------------
-    mapping, pdo_problems, pdo_notes = eds_mapping(section, od)
+    mapping, pdo_problems, pdo_notes = eds_mapping(section, od, choice.mode)
     report.mapping = mapping
     for key, text in pdo_problems:
         problem(f"{prefix}.{key}", f"{text} ({eds_name})")
@@ -330,16 +443,8 @@ def check_drive(name: str, section: DriveSection, can: CanSection, od: canopen.O
         report.notes.append(f"{device}: the drive has no readable {object_label(0x603F)}: "
                             f"{LOST[0x603F]}")
     # -- modes (0x6502; optional on many drives: then nothing is checked) -------------------------
-    modes = supported_modes(od)
+    modes = choice.offered
     if modes is not None:
-        wanted = 8 if section.default_mode == "csp" else 1
-        if not modes >> MODE_BITS[wanted] & 1:
-            other = "pp" if wanted == 8 else "csp"
-            problem(f"{prefix}.default_mode",
-                    f"0x6502 (supported drive modes 0x{modes:08X}, {eds_name}) has no "
-                    f"{MODE_NAMES[wanted]}, the default_mode configured; remedy: "
-                    f"default_mode = '{other}' if the axis can run so (discrete axes), or a "
-                    f"drive/firmware with {MODE_NAMES[wanted].split('(')[1][:-1]}")
         if not section.absolute and not modes >> MODE_BITS[6] & 1:
             problem(f"{prefix}.homing", f"0x6502 (supported drive modes 0x{modes:08X}, "
                                         f"{eds_name}) has no homing mode; remedy: absolute = "
@@ -348,9 +453,16 @@ def check_drive(name: str, section: DriveSection, can: CanSection, od: canopen.O
     if not section.absolute:
         supported = od.get(0x60E3)
         if supported is not None and not isinstance(supported, odmod.ODVariable):
-            methods = {default_value(v) for s, v in supported.subindices.items() if s}
-            methods = {m - 256 if isinstance(m, int) and m > 127 else m for m in methods}
-            if methods and section.homing.method not in methods:
+            # Sub-entries without a DefaultValue are unknown, not absent: the list is checked
+            # only when the EDS states every entry.
+            values = [default_value(v) for s, v in supported.subindices.items() if s]
+            methods = {m - 256 if m > 127 else m for m in values if isinstance(m, int)}
+            known = all(isinstance(m, int) for m in values)
+            if not known:
+                report.notes.append(f"{device}: {object_label(0x60E3)} does not state every "
+                                    f"supported homing method (entries without a default): "
+                                    f"homing method {section.homing.method} not checked")
+            elif methods and section.homing.method not in methods:
                 problem(f"{prefix}.homing.method",
                         f"homing method {section.homing.method} is not among the drive's "
                         f"0x60E3 supported homing methods {sorted(m for m in methods if m is not None)} "
@@ -414,24 +526,42 @@ def check_config(can: CanSection | None, drives: dict[str, DriveSection], axes: 
     from tcs.config.axes import DISCRETE_MODULES
     for axis_name, axis in (axes or {}).items():
         section = drives.get(axis.drive)
-        if section is None or axis.drive not in reports or axis.module in DISCRETE_MODULES:
+        if section is None or axis.drive not in reports:
+            continue
+        choice = reports[axis.drive].mode
+        if axis.module in DISCRETE_MODULES:
+            if choice is not None and choice.mode in ("ip", "csv") and not section.pdo:
+                problems.append(ConfigError(
+                    file, f"drives.{axis.drive}.mode",
+                    f"drive {axis.drive} (node {section.node_id}): axis {axis.module} moves in "
+                    f"profile position (PP), but the drive would stream in "
+                    f"{choice.mode.upper()} ({choice.reason}) and map no 0x607A; remedy: "
+                    f"mode = 'pp'"))
+            continue
+        if choice is None or choice.cyclic or choice.problem is not None:
             continue
         path = eds_path(section, resolve)
-        modes = supported_modes(load_od(path, section.node_id))
-        if modes is not None and not modes >> MODE_BITS[8] & 1:
-            problems.append(ConfigError(
-                file, f"axes.{axis_name}.drive",
-                f"drive {axis.drive} (node {section.node_id}): 0x6502 (supported drive modes "
-                f"0x{modes:08X}, {path.name}) has no cyclic synchronous position (CSP); axis "
-                f"{axis.module} follows trajectories and needs it — the TCS does not run such "
-                f"an axis in PP/PV; use a drive or firmware with CSP"))
+        text = modes_text(choice.offered, path.name)
+        if section.wanted_mode == "auto":
+            why, remedy = "the drive offers none of them", "a drive or firmware with one of them"
+        else:
+            why, remedy = f"mode = '{section.wanted_mode}' is configured", "mode = 'auto'"
+        problems.append(ConfigError(
+            file, f"axes.{axis_name}.drive",
+            f"drive {axis.drive} (node {section.node_id}): {text}; axis {axis.module} follows "
+            f"trajectories and needs cyclic synchronous position (CSP), interpolated position "
+            f"(IP) or cyclic synchronous velocity (CSV), but {why} (the TCS does not run a "
+            f"tracking axis in PP/PV); remedy: {remedy}, or use the drive for an axis that "
+            f"never streams (filter wheel, M3)"))
     return problems, reports
 
 
 def log_report(reports: dict[str, DriveReport]) -> None:
     """Log each note (INFO) and warning (WARNING): once per start (``CanDrives`` calls it;
     boots and re-boots do not log again)."""
-    for report in reports.values():
+    for name, report in reports.items():
+        if report.mode is not None:
+            log.info("drive %s: mode %s — %s", name, report.mode.mode.upper(), report.mode.reason)
         for level, lines in ((logging.WARNING, report.warnings), (logging.INFO, report.notes)):
             for line in lines:
                 log.log(level, "%s", line)

@@ -1,7 +1,8 @@
 """PDO layouts of one drive: the SDO writes that map them and the codecs of their frames.
 
 The mapping is the validated one of the hardware file (:func:`tcs.config.can.pdo_mapping`,
-default docs/cia402.md: RPDO1 = 0x6040 + 0x607A; TPDO1 = 0x6041 + 0x6064; TPDO2 = 0x606C +
+default docs/cia402.md: RPDO1 = 0x6040 + the mode's setpoint (0x607A in CSP/PP, 0x60C1:1 in
+IP, 0x60FF in CSV); TPDO1 = 0x6041 + 0x6064; TPDO2 = 0x606C +
 0x60F4, both synchronous; TPDO3 = 0x60FD + 0x603F, event driven). The driver does not use
 canopen's PDO classes: it writes the communication and mapping parameters itself (remap
 procedure of CiA 301: invalidate the COB-ID, sub0 = 0, entries, sub0 = n, validate — only in
@@ -23,11 +24,21 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-from tcs.config.can import CYCLIC_TPDO_OBJECTS, DEFAULT_PDO_MAPPING, PDO_OBJECTS, DriveSection
+from tcs.config.can import (CYCLIC_TPDO_OBJECTS, PDO_OBJECTS, PDO_SUBS, SETPOINT_OBJECT,
+                            SETPOINT_OBJECTS, DriveSection, default_mapping)
 
-#: Objects the cycle cannot do without (RPDO1 / a synchronous TPDO).
+#: Objects the cycle cannot do without (RPDO1 / a synchronous TPDO); of the setpoint objects
+#: only the one of the drive's mode (:func:`essential`).
 ESSENTIAL = {0x6040: "the drive cannot be commanded", 0x607A: "no setpoints can be streamed",
+             0x60C1: "no interpolation data (IP setpoints) can be streamed",
+             0x60FF: "no velocity commands (CSV) can be streamed",
              0x6041: "the drive state cannot be followed", 0x6064: "the position cannot be read"}
+
+
+def essential(mode: str) -> dict[int, str]:
+    """The objects the cycle needs in ``mode`` (csp, ip, csv, pp)."""
+    keep = SETPOINT_OBJECT.get(mode, 0x607A)
+    return {i: why for i, why in ESSENTIAL.items() if i not in SETPOINT_OBJECTS or i == keep}
 
 _FORMATS = {(8, True): "b", (8, False): "B", (16, True): "h", (16, False): "H",
             (32, True): "i", (32, False): "I"}
@@ -73,7 +84,7 @@ class PdoLayout:
 
     def map_entries(self) -> list[int]:
         """0x16xx / 0x1Axx sub-entries: index << 16 | sub-index << 8 | bit length."""
-        return [i << 16 | PDO_OBJECTS[i][1] for i in self.indices]
+        return [i << 16 | PDO_SUBS.get(i, 0) << 8 | PDO_OBJECTS[i][1] for i in self.indices]
 
     def names(self) -> tuple[str, ...]:
         return tuple(PDO_OBJECTS[i][0] for i in self.indices)
@@ -129,7 +140,7 @@ def _mappable(od, index: int, receive: bool) -> str | None:
     obj = od.get(index)
     if obj is None:
         return "the drive has no such object"
-    var = obj if not hasattr(obj, "subindices") else obj.subindices.get(0)
+    var = obj if not hasattr(obj, "subindices") else obj.subindices.get(PDO_SUBS.get(index, 0))
     if var is None:
         return "the drive has no such object"
     if not getattr(var, "pdo_mappable", False):
@@ -141,24 +152,31 @@ def _mappable(od, index: int, receive: bool) -> str | None:
     return None
 
 
-def eds_mapping(section: DriveSection, od) -> tuple[dict[str, tuple[int, ...]],
-                                                   list[tuple[str, str]], list[str]]:
-    """The PDO mapping of one drive given its EDS: (mapping, problems (key, text), notes).
+def eds_mapping(section: DriveSection, od, mode: str = "csp") -> tuple[
+        dict[str, tuple[int, ...]], list[tuple[str, str]], list[str]]:
+    """The PDO mapping of one drive run in ``mode`` given its EDS: (mapping, problems (key,
+    text), notes).
 
-    Without an override, the default (docs/cia402.md) minus what this drive cannot map;
-    an override must be mappable as written.
+    Without an override, the default for the mode (docs/cia402.md; RPDO1 carries 0x607A in
+    CSP/PP, 0x60C1:1 in IP, 0x60FF in CSV) minus what this drive cannot map; an override must
+    be mappable as written and carry the mode's setpoint object.
     """
     problems: list[tuple[str, str]] = []
     notes: list[str] = []
     mapping: dict[str, tuple[int, ...]] = {}
-    source = section.mapping if section.pdo else dict(DEFAULT_PDO_MAPPING)
+    needed = essential(mode)
+    source = section.mapping if section.pdo else default_mapping(mode)
+    setpoint = SETPOINT_OBJECT.get(mode, 0x607A)
+    if section.pdo and setpoint not in source.get("rpdo1", ()):
+        problems.append(("pdo.rpdo1", f"must map 0x{setpoint:04X} ({PDO_OBJECTS[setpoint][0]}), "
+                                      f"the setpoint of mode {mode.upper()}"))
     for name, indices in source.items():
         receive = name.startswith("rpdo")
         number = int(name[4:])
         map_index = (0x1600 if receive else 0x1A00) + number - 1
         comm_index = (0x1400 if receive else 0x1800) + number - 1
         if od.get(map_index) is None or od.get(comm_index) is None:
-            lost = [i for i in indices if i in ESSENTIAL]
+            lost = [i for i in indices if i in needed]
             if section.pdo or lost:
                 problems.append((f"pdo.{name}", f"the drive has no {name.upper()} "
                                                 f"(0x{comm_index:04X}/0x{map_index:04X})"))
@@ -173,9 +191,9 @@ def eds_mapping(section: DriveSection, od) -> tuple[dict[str, tuple[int, ...]],
                 kept.append(index)
             elif section.pdo:
                 problems.append((f"pdo.{name}[{i}]", f"0x{index:04X} ({PDO_OBJECTS[index][0]}): {why}"))
-            elif index in ESSENTIAL:
+            elif index in needed:
                 problems.append(("pdo", f"0x{index:04X} ({PDO_OBJECTS[index][0]}) cannot be in "
-                                        f"{name.upper()}: {why} — {ESSENTIAL[index]}; give a "
+                                        f"{name.upper()}: {why} — {needed[index]}; give a "
                                         f"mappable layout with [drives.<name>] pdo = {{…}} or use "
                                         f"another drive"))
             else:
@@ -191,12 +209,15 @@ def eds_mapping(section: DriveSection, od) -> tuple[dict[str, tuple[int, ...]],
     return mapping, problems, notes
 
 
-def mapping_for(section: DriveSection, eds, node_id: int) -> dict[str, tuple[int, ...]]:
-    """The effective mapping of a drive from its EDS file (the configured one if unreadable)."""
+def mapping_for(section: DriveSection, eds, node_id: int,
+                mode: str = "csp") -> dict[str, tuple[int, ...]]:
+    """The effective mapping of a drive run in ``mode`` from its EDS file (the configured one
+    if unreadable)."""
     from tcs.drivers.eds_check import load_od
+    fallback = section.mapping if section.pdo else default_mapping(mode)
     try:
         od = load_od(eds, node_id)
     except Exception:  # reported at boot, naming the drive
-        return section.mapping
-    mapping, problems, _ = eds_mapping(section, od)
-    return section.mapping if problems else mapping
+        return fallback
+    mapping, problems, _ = eds_mapping(section, od, mode)
+    return fallback if problems else mapping

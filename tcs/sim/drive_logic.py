@@ -12,7 +12,7 @@ position that reads 0 (moved by homing; back to 0 at NMT reset node).
 
 Behaviour chosen where CiA-402 leaves it to the vendor (the driver can rely on it):
 
-* Modes 1 PP, 3 PV, 6 HM, 8 CSP (0 = none). A write of another mode to 0x6060 is aborted
+* Modes 1 PP, 3 PV, 6 HM, 7 IP, 8 CSP, 9 CSV (0 = none), restricted to those 0x6502 offers. A write of another mode to 0x6060 is aborted
   with 0x06090030. A mode change takes effect at once (0x6061 reads it back) except while a
   homing run is in progress: then it waits until the run has ended.
 * Entering Operation enabled holds the current position (PP, CSP, HM) or ramps to the
@@ -38,8 +38,17 @@ Behaviour chosen where CiA-402 leaves it to the vendor (the driver can rely on i
   clamped to them and bit 11 is set; in PV the drive stops with 0x6085 at the limit.
 * Following error: |demand − actual| > 0x6065 for longer than 0x6066 ms in PP/CSP/HM →
   fault 0x8611 (0x6065 = 0xFFFFFFFF switches the check off). Bit 13 shows |error| > window.
-* CSP: synchronous RPDOs missing at :data:`RPDO_TIMEOUT_SYNCS` consecutive SYNCs while
-  enabled in CSP → the abort connection reaction 0x6007 with code 0x8250 "RPDO time-out"
+* IP (7): like CSP, with the interpolation data record 0x60C1:1 as the target, only while
+  controlword bit 4 "enable IP" is set (statusword bit 12 = IP active); a record received
+  without it is ignored (counted in ``ip_ignored``), and clearing bit 4 while moving stops
+  with 0x6085. Linear interpolation only (0x60C0 = 0).
+* CSV (9): from every SYNC the motor follows the target velocity 0x60FF with its maximum
+  acceleration (the master closes the position loop); a velocity above 0x607F (or the
+  motor's) is clamped with statusword bit 11 "internal limit", as drives do (no EMCY);
+  towards an active limit switch or beyond a software limit the velocity is 0. No following
+  error in CSV (the drive has no position demand).
+* CSP, IP, CSV: synchronous RPDOs missing at :data:`RPDO_TIMEOUT_SYNCS` consecutive SYNCs while
+  enabled in these modes → the abort connection reaction 0x6007 with code 0x8250 "RPDO time-out"
   (:meth:`DriveLogic.connection_lost`: 0 none, 1 fault — the EDS default —, 2 disable
   voltage, 3 quick stop per 0x605A; 2 and 3 send the code by EMCY as a warning). The node
   applies the same reaction when SYNC stops (0x1006) or NMT takes it out of operational.
@@ -65,8 +74,12 @@ from tcs.sim.drive_physics import Axis, Event, Threshold, hold, linear_profile, 
 from tcs.sim.object_store import ABORT_STATE, ABORT_VALUE_RANGE, ObjectStore, SdoAbort
 
 S = State
-MODE_NONE, MODE_PP, MODE_PV, MODE_HM, MODE_CSP = 0, 1, 3, 6, 8
-SUPPORTED_MODES = frozenset({MODE_NONE, MODE_PP, MODE_PV, MODE_HM, MODE_CSP})
+MODE_NONE, MODE_PP, MODE_PV, MODE_HM, MODE_IP, MODE_CSP, MODE_CSV = 0, 1, 3, 6, 7, 8, 9
+SUPPORTED_MODES = frozenset({MODE_NONE, MODE_PP, MODE_PV, MODE_HM, MODE_IP, MODE_CSP, MODE_CSV})
+#: Modes fed by a synchronous RPDO every SYNC (missing RPDOs: the 0x6007 reaction).
+STREAMING_MODES = frozenset({MODE_IP, MODE_CSP, MODE_CSV})
+#: Modes whose position demand is watched for a following error (0x6065/0x6066).
+FE_MODES = frozenset({MODE_PP, MODE_CSP, MODE_HM, MODE_IP})
 
 EMCY_RESET = 0x0000
 EMCY_OVERCURRENT = 0x2310
@@ -139,6 +152,7 @@ class DriveLogic:
         self.alarm_reason: str | None = None
         self.missed_in_row = 0
         self.rpdo_missed = 0
+        self.ip_ignored = 0                    # IP records received without enable-IP (bit 4)
         self.transitions: list[int] = []       # the transition numbers taken, for tests
         self._ipu: float | None = None
         self._install_defaults()
@@ -235,6 +249,10 @@ class DriveLogic:
                 self._new_setpoint(cw)
             if falling & 0x10:
                 self.setpoint_ack = False
+        elif self.mode == MODE_IP:
+            if falling & 0x10 and not self._at_rest():  # IP disabled while moving: stop
+                ax = self.axis
+                ax.set_reference(stop_profile(ax.t, ax.x, ax.v, self._decel("quick")))
         elif self.mode == MODE_HM:
             if rising & 0x10 and not cw & 0x100:
                 self._start_homing()
@@ -371,7 +389,7 @@ class DriveLogic:
                 self._on_target_velocity(self.store.get(0x60FF, 0))
             elif ax.v == 0 and ax.locked:
                 ax.set_reference(hold(ax.t, ax.x))
-            elif self.mode != MODE_CSP:
+            elif self.mode not in (MODE_CSP, MODE_IP):
                 ax.set_reference(stop_profile(ax.t, ax.x, ax.v, self._decel("profile")))
             else:
                 ax.set_reference(hold(ax.t, ax.demand()[0]))
@@ -508,7 +526,7 @@ class DriveLogic:
 
     def _on_event(self, ev: Event) -> None:
         if ev.kind == "following_error":
-            if self.state in POWERED and self.mode in (MODE_PP, MODE_CSP, MODE_HM):
+            if self.state in POWERED and self.mode in FE_MODES:
                 self.fault(EMCY_FOLLOWING_ERROR)
             return
         if ev.kind == "alarm":
@@ -547,7 +565,7 @@ class DriveLogic:
                 self._after_homing_step()
         elif name in (SW_MIN, SW_MAX):
             outward = (name == SW_MAX) == ev.upward
-            if outward and self.state is S.OPERATION_ENABLED and self.mode == MODE_PV:
+            if outward and self.state is S.OPERATION_ENABLED and self.mode in (MODE_PV, MODE_CSV):
                 ax = self.axis
                 ax.set_reference(stop_profile(ax.t, ax.x, ax.v, self._decel("quick")))
                 self.internal_limit = True
@@ -560,11 +578,11 @@ class DriveLogic:
         if self.homing is not None and self.homing.state == "running":
             th += self.homing.thresholds()
         limits = self._software_limits()
-        if limits is not None and self.mode == MODE_PV and self.state is S.OPERATION_ENABLED:
+        if limits is not None and self.mode in (MODE_PV, MODE_CSV) and self.state is S.OPERATION_ENABLED:
             th += [Threshold(SW_MIN, self.to_phys(limits[0])), Threshold(SW_MAX, self.to_phys(limits[1]))]
         ax.thresholds = th
         window = self.store.get(0x6065, 0)
-        if self.state in POWERED and self.mode in (MODE_PP, MODE_CSP, MODE_HM) and window != 0xFFFFFFFF:
+        if self.state in POWERED and self.mode in FE_MODES and window != 0xFFFFFFFF:
             ax.fe_window = max(window, 1) / self.ipu()
             ax.fe_timeout = self.store.get(0x6066, 0) / 1000.0
         else:
@@ -573,8 +591,14 @@ class DriveLogic:
     # -- SYNC --------------------------------------------------------------------------------
     def on_sync(self, fresh_rpdo: bool) -> None:
         """A SYNC (after :meth:`update` to its time and after applying the synchronous RPDOs)."""
-        if self.state is not S.OPERATION_ENABLED or self.mode != MODE_CSP:
+        if self.state is not S.OPERATION_ENABLED or self.mode not in STREAMING_MODES:
             self.missed_in_row = 0
+            return
+        if self.mode == MODE_IP and not self.controlword & 0x10:
+            # IP not enabled (controlword bit 4): the interpolation data record is ignored
+            self.missed_in_row = 0
+            if fresh_rpdo and self.store.get(0x60C1, 1) != self.to_inc(self.axis.x):
+                self.ip_ignored += 1
             return
         if not fresh_rpdo:
             self.rpdo_missed += 1
@@ -583,11 +607,33 @@ class DriveLogic:
                 self.connection_lost(EMCY_RPDO_TIMEOUT)
             return
         self.missed_in_row = 0
-        target = self._clamp_target(self.store.get(0x607A, 0))
+        if self.mode == MODE_CSV:
+            self._csv_velocity(self.store.get(0x60FF, 0))
+            return
+        record = self.store.get(0x60C1, 1) if self.mode == MODE_IP else self.store.get(0x607A, 0)
+        target = self._clamp_target(record)
         ax = self.axis
         value, exponent = self.store.get(0x60C2, 1), self.store.get(0x60C2, 2)
         period = value * 10.0 ** exponent
         ax.set_reference(linear_profile(ax.t, ax.demand()[0], self.to_phys(target), period))
+
+    def _csv_velocity(self, value: float) -> None:
+        """CSV: follow the target velocity (increments/s) from this SYNC on, with the motor's
+        acceleration; above 0x607F (or the motor) it is clamped and bit 11 set; towards an
+        active limit switch or beyond a software limit it is 0."""
+        ipu, p, ax = self.ipu(), self.params, self.axis
+        v = value / ipu
+        vmax = p.max_velocity
+        limit = self.store.get(0x607F, 0)
+        if limit > 0:
+            vmax = min(vmax, limit / ipu)
+        self.internal_limit = False
+        if abs(v) > vmax:
+            v, self.internal_limit = (vmax if v > 0 else -vmax), True
+        if self._limit_blocks(v) or self._beyond_software_limit(v):
+            v, self.internal_limit = 0.0, True
+        amax = p.max_acceleration
+        ax.set_reference(velocity_profile(ax.t, ax.x, ax.v, v, amax, amax))
 
     # -- outputs -----------------------------------------------------------------------------
     def _at_rest(self) -> bool:
@@ -637,6 +683,13 @@ class DriveLogic:
             sw |= 0x1000
             if fe:
                 sw |= 0x2000
+        elif self.mode == MODE_IP:
+            if self.controlword & 0x10:
+                sw |= 0x1000  # IP active
+            if fe:
+                sw |= 0x2000
+        elif self.mode == MODE_CSV:
+            sw |= 0x1000  # drive follows the command value
         return sw
 
     # -- object checks -----------------------------------------------------------------------

@@ -105,7 +105,7 @@ def store_options(od, params: SimDriveParams, node_id: int) -> dict[str, Any]:
     working; the wire still says the object is absent); ``scale``: the velocity and
     acceleration units of this drive; ``allowed``: the modes of 0x6502 (when the EDS has it).
     """
-    fixed = {(0x1005, 0): 0x80, (0x1014, 0): 0x80 + node_id, (0x6065, 0): 0xFFFFFFFF,
+    fixed = {(0x1000, 0): 0x00020192, (0x1005, 0): 0x80, (0x1014, 0): 0x80 + node_id, (0x6065, 0): 0xFFFFFFFF,
              (0x6066, 0): 100, (0x6067, 0): 100, (0x60C2, 1): 10, (0x60C2, 2): -3,
              (0x605A, 0): 2, (0x605E, 0): 1, (0x6098, 0): 37, (0x608F, 1): 1, (0x608F, 2): 1,
              (0x6091, 1): 1, (0x6091, 2): 1}

@@ -25,6 +25,9 @@ from the model:
   value;
 * ``allowed`` ``{(index, sub): set}``: writes of other values abort 0x06090030 before any hook
   runs (the modes 0x6502 says the drive has).
+
+Limits are the EDS ``LowLimit``/``HighLimit``; for 0x1016:n (consumer heartbeat time, ``node
+id << 16 | ms``) a HighLimit below 0x10000 bounds the time part only, as on real drives.
 """
 
 from __future__ import annotations
@@ -170,9 +173,12 @@ class ObjectStore:
     def write_value(self, var: odmod.ODVariable, value: Any) -> None:
         """Range-check the wire ``value``, convert it (``scale``), run the write hooks, store it."""
         if isinstance(value, int):
-            if var.min is not None and value < var.min:
+            checked = value
+            if var.index == 0x1016 and var.subindex >= 1 and var.max is not None and var.max <= 0xFFFF:
+                checked = value & 0xFFFF  # node id << 16 | ms: a 16-bit limit bounds the time
+            if var.min is not None and checked < var.min:
                 raise SdoAbort(ABORT_VALUE_LOW)
-            if var.max is not None and value > var.max:
+            if var.max is not None and checked > var.max:
                 raise SdoAbort(ABORT_VALUE_HIGH)
         allowed = self.allowed.get((var.index, var.subindex))
         if allowed is not None and value not in allowed:

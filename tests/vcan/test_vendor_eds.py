@@ -232,3 +232,43 @@ def test_a_fixed_homing_method_is_accepted_when_it_matches_and_refused_otherwise
         rig.enable("az")
         rig.drive("az").start_homing()
         rig.wait(lambda: rig.status("az").homing is Progress.DONE, what="homing with method 37")
+
+
+# ------------------------------------------------------- issue 21: modes and three EDS defects
+@pytest.mark.parametrize("name, mode", [
+    ("vendor-ip-only", Mode.IP), ("vendor-csv-only", Mode.CSV), ("vendor-ip-no-607a-map", Mode.IP),
+    ("vendor-homing-list", Mode.CSP), ("vendor-hb16", Mode.CSP),
+    ("vendor-no-devtype-default", Mode.CSP)])
+def test_vendor_drive_boots_enables_references_and_moves_in_its_mode(can_channel, name, mode):
+    spec = vendor(1, name, heartbeat_consumer_timeout=5.0)  # 0x1016:1 = 127 << 16 | 5000
+    with Rig(can_channel, {"m": spec}) as rig:
+        assert rig.boot_and_start() == {}
+        drive, sim = rig.drive("m"), rig.sims["m"]
+        assert drive.cyclic_mode is mode
+        if name == "vendor-hb16":
+            assert sim.read_object(0x1016, 1) == 127 << 16 | 5000
+        if name == "vendor-ip-no-607a-map":
+            assert 0x607A not in drive.layouts["rpdo1"].indices
+        rig.enable("m")
+        drive.start_homing()
+        rig.wait(lambda: rig.status("m").homed, what="referenced")
+        drive.set_mode(mode)
+        rig.wait(lambda: rig.status("m").mode is mode, what=f"mode {mode.name}")
+        start = rig.status("m").position
+        path = {"x": start}
+
+        def stream(cycle):
+            path["x"] = min(start + 0.5, path["x"] + 0.5 * rig.can.sync_period)
+            drive.set_setpoint(path["x"], 0.5 if path["x"] < start + 0.5 else 0.0)
+        rig.cycle_hooks.append(stream)
+        rig.wait(lambda: abs(sim.position - (start + 0.5)) < 0.005, what="moved")
+        rig.cycle_hooks.clear()
+
+
+def test_the_mode_chosen_is_logged_with_its_reason(can_channel, caplog):
+    with caplog.at_level("INFO"):
+        with Rig(can_channel, {"az": vendor(1, "vendor-csv-only")}) as rig:
+            assert rig.boot_and_start() == {}
+    lines = [r.getMessage() for r in caplog.records if r.levelname == "INFO"]
+    assert any(line.startswith("drive az: mode CSV") and "0x6502" in line
+               and "PP, HM, CSV" in line and "CSP, then IP, then CSV" in line for line in lines), lines

@@ -1,7 +1,14 @@
 """Benchmark of POINTING.TRACK: a star tracked in the simulated telescope for T seconds.
 
-Run: ``python3 tools/bench/tracking.py [--seconds 60] [--config hwconfig/sim.toml]``.
-Prints the figures, then (last line) one JSON object with them.
+Run: ``python3 tools/bench/tracking.py [--seconds 60] [--config hwconfig/sim.toml]
+[--mode csp,ip,csv,ip/csv]``. Prints the figures, then (last line) one JSON object with them.
+
+``--mode`` runs the benchmark once per item, one after the other, and prints the figures side
+by side: an item is the drive mode of both axes (``csp``, ``ip``, ``csv``: ``[drives.x] mode``
+of the first two axes' drives) or ``AZMODE/ZDMODE`` (``ip/csv``: AZ in IP, ZD in CSV). The
+control loop runs as a thread of the service here (the record callback and the simulated
+drives' counters need it in this process); **missed setpoints** are the SYNCs at which a
+simulated drive enabled in a streaming mode had no fresh RPDO (``rpdo_missed``).
 
 The service runs in-process (simulated CiA-402 drives on a virtual CAN bus, the real control
 loop); the benchmark powers and references the axes, tracks a star near where they stand and,
@@ -46,12 +53,22 @@ from tcs.pointing.astrometry import HUMIDITY, WAVELENGTH_UM
 ARCSEC = 3600.0
 
 
-def make_config(path: Path, state: Path):
+def make_config(path: Path, state: Path, modes: tuple[str, str] | None = None):
     config = load_config(path)
     changes = dict(server=dataclasses.replace(config.server, port=0, opentsi_port=-1),
                    state=StateSection(path=str(state)))
     if config.can is not None and config.can.interface == "virtual":
-        changes["can"] = dataclasses.replace(config.can, channel=f"bench-{uuid.uuid4().hex[:8]}")
+        changes["can"] = dataclasses.replace(config.can, channel=f"bench-{uuid.uuid4().hex[:8]}",
+                                             control_process=False)
+    # a loaded machine delays the loop thread's heartbeat now and then: the drives wait 5 s
+    drives = {name: dataclasses.replace(d, heartbeat_consumer_timeout=max(
+        d.heartbeat_consumer_timeout, 5.0)) for name, d in config.drives.items()}
+    changes["drives"] = drives
+    if modes is not None:
+        mount = [a for a in config.axes.values() if a.module in ("AZ", "ZD", "HA", "DEC")]
+        for axis, mode in zip(mount[:2], modes):
+            drives[axis.drive] = dataclasses.replace(drives[axis.drive], mode=mode)
+        changes["drives"] = drives
     new = dataclasses.replace(config, **changes)
     object.__setattr__(new, "source", config.source)
     return new
@@ -87,9 +104,9 @@ def cpu_us(fn, n: int) -> float:
     return best * 1e6
 
 
-async def run(seconds: float, config_path: Path) -> dict:
+async def run(seconds: float, config_path: Path, modes: tuple[str, str] | None = None) -> dict:
     with tempfile.TemporaryDirectory() as state:
-        service = Service(make_config(config_path, Path(state)))
+        service = Service(make_config(config_path, Path(state), modes))
         await service.start()
         tel = service.telescope
         try:
@@ -103,7 +120,9 @@ async def track(tel, seconds: float) -> dict:
     az_axis, zd_axis = p.axis1, p.axis2
     await tel.cabinet.set_power(1)
     tel.cabinet.set_reinit(0)
-    while tel.cabinet.referenced < 1.0:
+    t_deadline = time.monotonic() + 300.0
+    while min(az_axis.referenced, zd_axis.referenced) < 1.0:  # (the others may still home)
+        assert time.monotonic() < t_deadline, "the axes were not referenced"
         await asyncio.sleep(0.1)
     # a star near where the axes stand (short slew), 35° from the zenith
     utc0 = time.time() + 10.0
@@ -143,6 +162,8 @@ async def track(tel, seconds: float) -> dict:
                      and zd_axis.follower.state.value == "following"))
 
     source = tel.can.cycle
+    sims = list(tel.sims.values()) if tel.sims is not None else []
+    missed0 = sum(s.rpdo_missed for s in sims)
     spent_before = spent[:]
     cpu0, wall0 = time.process_time(), time.monotonic()
     source.add_callback(record)
@@ -152,6 +173,8 @@ async def track(tel, seconds: float) -> dict:
         source.remove_callback(record)
     cpu, wall = time.process_time() - cpu0, time.monotonic() - wall0
     tracker_cpu = spent[0] - spent_before[0]
+    missed = sum(s.rpdo_missed for s in sims) - missed0
+    modes_used = [getattr(a.drive, "cyclic_mode", None) for a in (az_axis, zd_axis)]
     shift, off1, off2 = az_axis.follower.shift, az_axis.offset, zd_axis.offset
     p.set_track(0)
     await done
@@ -199,14 +222,50 @@ async def track(tel, seconds: float) -> dict:
         "tracker_cpu_share": tracker_cpu / wall,
         "tracker_points": spent[1],
         "target_zd_deg": float(ref_zd.mean()),
+        "missed_setpoints": int(missed) if sims else None,
+        "modes": "/".join(m.name if m is not None else "?" for m in modes_used),
     }
+
+
+def side_by_side(runs: list[tuple[str, dict]]) -> None:
+    """The figures of several runs in columns (the first run is the reference: ratios)."""
+    rows = [("modes (AZ/ZD)", lambda r: r["modes"]),
+            ("tracked s", lambda r: f"{r['seconds']:.1f}"),
+            ("cycles following", lambda r: f"{r['cycles_following']}/{r['cycles']}"),
+            ("path error RMS \"", lambda r: f"{r['setpoint_error_rms_arcsec']:.5f}"),
+            ("path error max \"", lambda r: f"{r['setpoint_error_max_arcsec']:.5f}"),
+            ("following error RMS \"", lambda r: f"{r['following_error_rms_arcsec']:.4f}"),
+            ("following error max \"", lambda r: f"{r['following_error_max_arcsec']:.4f}"),
+            ("missed setpoints", lambda r: str(r["missed_setpoints"])),
+            ("process CPU %", lambda r: f"{100 * r['process_cpu_share']:.1f}")]
+    ref = runs[0][1]
+    rows.append((f"fol. RMS / {runs[0][0]}", lambda r: f"{r['following_error_rms_arcsec'] / max(ref['following_error_rms_arcsec'], 1e-12):.2f}"))
+    rows.append((f"path RMS / {runs[0][0]}", lambda r: f"{r['setpoint_error_rms_arcsec'] / max(ref['setpoint_error_rms_arcsec'], 1e-12):.2f}"))
+    width = max(14, *(len(item) + 2 for item, _ in runs))
+    print(f"{'--mode':26s}" + "".join(f"{item:>{width}s}" for item, _ in runs))
+    for label, fn in rows:
+        print(f"{label:26s}" + "".join(f"{fn(r):>{width}s}" for _, r in runs))
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=60.0, help="tracking time recorded")
     ap.add_argument("--config", default=str(DEFAULT_CONFIG), help="hardware file (simulated)")
+    ap.add_argument("--mode", default="",
+                    help="comma-separated runs, each csp|ip|csv (both axes) or AZ/ZD like "
+                         "ip/csv; figures side by side (default: the file's modes, one run)")
     args = ap.parse_args()
+    if args.mode:
+        items = [m.strip().lower() for m in args.mode.split(",") if m.strip()]
+        runs = []
+        for item in items:
+            pair = tuple(item.split("/")) if "/" in item else (item, item)
+            if len(pair) != 2 or any(m not in ("csp", "ip", "csv", "auto") for m in pair):
+                ap.error(f"--mode {item!r}: use csp, ip, csv or AZ/ZD like ip/csv")
+            runs.append((item, asyncio.run(run(args.seconds, Path(args.config), pair))))
+        side_by_side(runs)
+        print(json.dumps({item: r for item, r in runs}))
+        return
     r = asyncio.run(run(args.seconds, Path(args.config)))
     print(f"tracked {r['seconds']:.1f} s ({r['cycles_following']} of {r['cycles']} control cycles "
           f"following), target at ZD {r['target_zd_deg']:.1f}°")

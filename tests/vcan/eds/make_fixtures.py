@@ -14,6 +14,13 @@ vendor-rpm                velocities in rpm (0x60A9 says so), 0x607F HighLimit 6
 vendor-no-csp             0x6502 without cyclic synchronous position
 vendor-pdo-restricted     0x603F not PDO-mappable; no event timer (sub-index 5) in 0x1800-0x1803
 vendor-revision           another RevisionNumber (a firmware update)
+vendor-ip-only            0x6502 = PP, HM, IP: interpolated position, no CSP/CSV
+vendor-csv-only           0x6502 = PP, HM, CSV: cyclic synchronous velocity, no CSP/IP
+vendor-ip-no-607a-map     IP only, and 0x607A cannot be mapped (0x60C1:1 is the setpoint)
+vendor-homing-list        0x60E3 supported homing methods whose entries have no DefaultValue
+vendor-hb16               0x1016 consumer heartbeat entries with HighLimit 0xFFFF (the time
+                          part only; the node id sits in bits 16-23)
+vendor-no-devtype-default 0x1000 device type without a DefaultValue
 ========================  ====================================================================
 
 Usage: ``python tests/vcan/eds/make_fixtures.py``.
@@ -97,6 +104,32 @@ def pdo_no_timer(parts):
     return parts
 
 
+def unset(parts, section: str, key: str):
+    """``section`` without ``key`` (an EDS entry that states no value)."""
+    return [(n, [line for line in b if not line.startswith(f"{key}=")] if n == section else b)
+            for n, b in parts]
+
+
+def homing_list(parts):
+    """0x60E3 with three entries, none stating a method (DefaultValue left out)."""
+    parts = add(parts, "60E3", ["ParameterName=Supported homing methods", "ObjectType=0x8",
+                                "SubNumber=0x4"])
+    parts = add(parts, "60E3sub0", ["ParameterName=Number of entries", "ObjectType=0x7",
+                                    "DataType=0x0005", "AccessType=ro", "DefaultValue=3",
+                                    "PDOMapping=0"])
+    for sub in (1, 2, 3):
+        parts = add(parts, f"60E3sub{sub}", [f"ParameterName=Homing method {sub}",
+                                             "ObjectType=0x7", "DataType=0x0002",
+                                             "AccessType=ro", "PDOMapping=0"])
+    return parts
+
+
+def hb16(parts):
+    for sub in (1, 2, 3, 4):
+        parts = setkey(parts, f"1016sub{sub}", "HighLimit", "0x0000FFFF")
+    return parts
+
+
 def main() -> None:
     base = sections(SOURCE.read_text(encoding="utf-8"))
     base[0] = ("", ["; Vendor-like fixture written for the TCS tests (tests/vcan/eds/make_fixtures.py),",
@@ -120,6 +153,13 @@ def main() -> None:
                                                                          "1803sub5"))),
                                         "603F", "PDOMapping", "0"),
         "vendor-revision": setkey(base, "DeviceInfo", "RevisionNumber", "0x00020003"),
+        "vendor-ip-only": setkey(base, "6502", "DefaultValue", "0x00000061"),
+        "vendor-csv-only": setkey(base, "6502", "DefaultValue", "0x00000121"),
+        "vendor-ip-no-607a-map": setkey(setkey(base, "6502", "DefaultValue", "0x00000061"),
+                                        "607A", "PDOMapping", "0"),
+        "vendor-homing-list": homing_list(base),
+        "vendor-hb16": hb16(base),
+        "vendor-no-devtype-default": unset(base, "1000", "DefaultValue"),
     }
     for name, parts in fixtures.items():
         parts = setkey(header(relist(parts), f"TCS test fixture {name}"), "FileInfo", "FileName", f"{name}.eds")
