@@ -96,6 +96,8 @@ def test_scan_identifies_every_configured_drive(hw, capsys):
     assert az["identity"] == {"vendor": 0xABC, "product": 0x00402001, "revision": 0x00010000,
                               "serial": 1}
     assert az["state"] == "switch on disabled" and az["error_register"] == 0
+    assert az["offered"] == "PP, PV, HM, IP, CSP, CSV" and az["tcs_mode"] == "CSP"
+    assert "0x6502" in az["tcs_mode_reason"]
 
 
 def test_scan_reports_missing_and_foreign_nodes(hw, capsys, monkeypatch):

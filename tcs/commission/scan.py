@@ -8,10 +8,13 @@ How it works
    last request it waits ``--timeout`` for late answers.
 2. Each node that answered is read with ordinary SDO transfers, one after the other:
    identity 0x1018:1..4, error register 0x1001, and, for CiA-402 devices, the statusword
-   0x6041 (the power state), the error code 0x603F and the mode display 0x6061.
+   0x6041 (the power state), the error code 0x603F, the mode display 0x6061 and the
+   supported drive modes 0x6502 (optional: when the drive has it), shown as mode names.
 3. Nodes are matched with the ``[drives]`` of the hardware file by node id: identity equal
    (``ok``), different (``wrong identity``) or not configured; configured drives whose node
-   id was probed and did not answer are listed as missing.
+   id was probed and did not answer are listed as missing. For a configured drive the scan
+   also shows the mode the TCS would run its axis in (``[drives.x] mode``, or what the EDS's
+   0x6502 offers for ``auto``: :func:`tcs.drivers.eds_check.drive_mode`) and why.
 
 Nothing is written and no drive is booted. The NMT state comes from heartbeats heard during
 the scan (a node whose heartbeat producer is off shows "no heartbeat"; answering SDO, it is
@@ -31,6 +34,7 @@ import canopen
 
 from tcs.drivers.boot import DEVICE_PROFILE_402, NMT_STATE_NAMES, Sdo
 from tcs.drivers.cia402 import decode_state
+from tcs.drivers.eds_check import decode_modes, drive_mode, eds_path
 from tcs.drivers.emcy import describe
 from tcs.errors import HardwareError
 
@@ -156,6 +160,9 @@ def identify(network, node_id: int, device_type, timeout: float) -> dict:
             entry["error_code"] = code
             entry["error"] = describe(code)[0] if code else None
             entry["mode"] = optional(sdo, 0x6061, 0, "<b")
+            modes = optional(sdo, 0x6502, 0, "<I")
+            entry["supported_modes"] = modes
+            entry["offered"] = decode_modes(modes) if modes is not None else None
     return entry
 
 
@@ -197,6 +204,10 @@ def run(args, config) -> Outcome:
             if not entry.get("cia402"):
                 wrong.insert(0, f"device type {entry['device_type']} is not a CiA-402 drive")
             entry["match"] = "ok" if not wrong else "wrong identity: " + ", ".join(wrong)
+            section = config.drives[name]
+            choice = drive_mode(section, eds_path(section, config.resolve), n)
+            entry["tcs_mode"] = choice.mode.upper()
+            entry["tcs_mode_reason"] = choice.reason
     probed = set(node_ids)
     missing = [{"drive": name, "node_id": s.node_id} for name, s in config.drives.items()
                if s.node_id in probed and s.node_id not in answers]
@@ -216,6 +227,10 @@ def run(args, config) -> Outcome:
         out.lines.append(f"  node {e['node_id']:3d}: {e['device_type'] or e.get('note')} {ident_text}")
         out.lines.append(f"            NMT {nmt}, 402 {state}, error register "
                          f"{'-' if reg is None else f'0x{reg:02X}'}, {err}")
+        if e.get("cia402"):
+            offered = e.get("offered") or "not stated (no 0x6502)"
+            used = f"; the TCS uses {e['tcs_mode']} ({e['tcs_mode_reason']})" if e.get("tcs_mode") else ""
+            out.lines.append(f"            modes offered: {offered}{used}")
         out.lines.append(f"            -> {'drive ' + e['drive'] + ': ' if e['drive'] else ''}{e['match']}")
     for m in missing:
         out.lines.append(f"  MISSING: drive {m['drive']} (node {m['node_id']}) did not answer")
