@@ -90,10 +90,11 @@ def test_two_servers_started_at_once_one_master(tmp_path):
     servers = []
     try:
         _wait_ready(sim)
-        for _ in range(2):
+        for i in range(2):  # each with its own state directory (a shared one is refused first)
             servers.append(subprocess.Popen(
                 [sys.executable, "-m", "tcs.cli.server", "--config", str(hwfile), "--port",
-                 str(free_port()), "--opentsi-port", "-1", "--alpaca-port", "-1"], env=env,
+                 str(free_port()), "--opentsi-port", "-1", "--alpaca-port", "-1"],
+                env=dict(env, XDG_STATE_HOME=str(tmp_path / f"state-{i}")),
                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and all(p.poll() is None for p in servers):
