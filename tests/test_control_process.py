@@ -237,3 +237,20 @@ async def test_threaded_mode_still_runs(tmp_path):
         await c.close()
     finally:
         await service.stop()
+
+
+async def test_start_up_readbacks_are_not_dropped(tmp_path, caplog):
+    """The child's loop sends readbacks before the model has built its axes: those batches
+    are taken (their statistics kept), never dropped with an IndexError."""
+    import logging
+    caplog.set_level(logging.ERROR, logger="tcs.axes.control_process")
+    config = make_config(tmp_path / "state")
+    service = Service(config)
+    await service.start()
+    try:
+        await asyncio.sleep(0.5)
+        failed = [r for r in caplog.records if "handling batch failed" in r.getMessage()]
+        assert not failed, failed[0].exc_text
+        assert service.telescope.can.stats.get("cycles", 0) > 0
+    finally:
+        await service.stop()

@@ -90,6 +90,8 @@ class ControlProcess:
         self._gone: TcsError | None = None
         self._ut1_utc_sent: float | None = None
         self.stats: dict = {}
+        self._attach_lock = threading.Lock()
+        self._early: list = []      # conditions from the child before the axes were attached
 
     # -- start -------------------------------------------------------------------------------
     def claim(self, loop: asyncio.AbstractEventLoop) -> None:
@@ -223,10 +225,14 @@ class ControlProcess:
             self._lost()
 
     def _batch(self, snapshots: dict, items: list, stats) -> None:
-        for index, snap in snapshots.items():
-            self.axes[index].apply(snap)
+        # (the child's loop runs before the model has built the axes: a start-up batch
+        # carries readbacks and statistics, which are kept, and nothing for an axis)
         if stats is not None:
             self.stats = stats
+        axes = self.axes
+        for index, snap in snapshots.items():
+            if index < len(axes):
+                axes[index].apply(snap)
         loop = self.loop
         done = []
         for item in items:
@@ -238,10 +244,12 @@ class ControlProcess:
                 future = self._futures.pop(item[1], None)
                 if future is not None:
                     done.append((future, rebuild_error(item[2])))
-            elif what == "raise":
-                self.axes[item[1]].raise_condition(item[2], item[3], item[4])
-            elif what == "clear":
-                self.axes[item[1]].clear_condition(item[2])
+            elif what in ("raise", "clear"):
+                with self._attach_lock:
+                    if item[1] >= len(self.axes):  # (before attach: replayed by attach)
+                        self._early.append(item)
+                        continue
+                self._condition(item)
         if done and loop is not None:
             try:
                 loop.call_soon_threadsafe(complete_futures, done)
@@ -254,6 +262,21 @@ class ControlProcess:
                 self.send(("ut1_utc", ut1_utc))
             except TcsError:
                 pass
+
+    def _condition(self, item) -> None:
+        if item[0] == "raise":
+            self.axes[item[1]].raise_condition(item[2], item[3], item[4])
+        else:
+            self.axes[item[1]].clear_condition(item[2])
+
+    def attach(self, axes: list) -> None:
+        """The model's axes, by index; error conditions the child raised before they
+        existed are applied now, in order."""
+        with self._attach_lock:
+            self.axes = axes
+            early, self._early = self._early, []
+        for item in early:
+            self._condition(item)
 
     @staticmethod
     def _log(msg) -> None:
