@@ -481,12 +481,15 @@ class RemoteLoop:
         s.setdefault("realtime", int(bool(self.process.info.get("realtime"))))
         return s
 
-    def healthy(self, max_age_periods: float = 10.0) -> bool:
+    def healthy(self, max_age_periods: float = 10.0, within: float | None = None) -> bool:
+        """As :meth:`tcs.axes.control_loop.ControlLoop.healthy`, from the child's statistics
+        (its monotonic clock is this one's)."""
         last = self.process.stats.get("last_cycle")
         if self.process._gone is not None or last is None:
             return False
         # (stats come every 10th cycle: allow for that)
-        return time.monotonic() - last < (max_age_periods + 10) * self.period
+        age = max_age_periods * self.period if within is None else within
+        return time.monotonic() - last < age + 10 * self.period
 
     def samples(self, clear: bool = False):
         return self.process.samples(clear)
