@@ -42,7 +42,11 @@ Behaviour chosen where CiA-402 leaves it to the vendor (the driver can rely on i
   enabled in CSP → the abort connection reaction 0x6007 with code 0x8250 "RPDO time-out"
   (:meth:`DriveLogic.connection_lost`: 0 none, 1 fault — the EDS default —, 2 disable
   voltage, 3 quick stop per 0x605A; 2 and 3 send the code by EMCY as a warning). The node
-  applies the same reaction when SYNC stops (0x1006) or NMT takes it out of operational.
+  applies the same reaction when SYNC stops (0x1006), when an RPDO misses its deadline
+  (event timer 0x1400:5, watched in real time by the node) or NMT takes it out of
+  operational. With a deadline set, a CSP drive bridges the missing setpoints until then at
+  the last setpoints' speed (no braking at the motor's limit before the reaction starts), so
+  a lost master ends in a ramp at 0x6085 (0x6007 = 3, 0x605A = 2).
 * Disable operation (transition 5) ramps down with the profile deceleration when 0x605C = 1,
   brakes at once when 0. Every SYNC without a fresh
   RPDO while enabled in CSP counts in ``rpdo_missed``. The velocity offset 0x60B1 is accepted
@@ -139,6 +143,7 @@ class DriveLogic:
         self.alarm_reason: str | None = None
         self.missed_in_row = 0
         self.rpdo_missed = 0
+        self.rpdo_deadlines: dict[int, float] = {}  # RPDO → deadline, s (set by the node)
         self.transitions: list[int] = []       # the transition numbers taken, for tests
         self._ipu: float | None = None
         self._install_defaults()
@@ -587,7 +592,23 @@ class DriveLogic:
         ax = self.axis
         value, exponent = self.store.get(0x60C2, 1), self.store.get(0x60C2, 2)
         period = value * 10.0 ** exponent
-        ax.set_reference(linear_profile(ax.t, ax.demand()[0], self.to_phys(target), period))
+        start, goal = ax.demand()[0], self.to_phys(target)
+        ax.set_reference(linear_profile(ax.t, start, goal, period,
+                                        self._bridge(start, goal, period)))
+
+    def _bridge(self, start: float, goal: float, period: float) -> float:
+        """How long the CSP demand goes on at the last setpoints' speed when the next ones do
+        not come: the RPDO deadline (0x1400:5; the drive then stops per 0x6007 at 0x6085),
+        never past a software limit; 0 (hold the last setpoint) without a deadline."""
+        deadline = max(self.rpdo_deadlines.values(), default=0.0)
+        if deadline <= 0 or period <= 0 or goal == start:
+            return 0.0
+        v = (goal - start) / period
+        limits = self._software_limits()
+        if limits is not None:
+            edge = self.to_phys(limits[1] if v > 0 else limits[0])
+            deadline = min(deadline, max(0.0, (edge - goal) / v))
+        return deadline
 
     # -- outputs -----------------------------------------------------------------------------
     def _at_rest(self) -> bool:

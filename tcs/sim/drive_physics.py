@@ -168,12 +168,16 @@ def position_profile(t: float, x: float, v: float, target: float, vmax: float, a
     return b.finish(0.0, target)
 
 
-def linear_profile(t: float, x: float, target: float, duration: float) -> Profile:
-    """Straight line from ``x`` to ``target`` in ``duration``, then hold (CSP interpolation)."""
+def linear_profile(t: float, x: float, target: float, duration: float,
+                   extrapolate: float = 0.0) -> Profile:
+    """Straight line from ``x`` to ``target`` in ``duration``, on at the same speed for
+    ``extrapolate`` s more (a drive bridging missing setpoints), then hold (CSP
+    interpolation)."""
     if duration <= 0:
         return hold(t, target)
     v = (target - x) / duration
-    return Profile((Segment(t, x, v, 0.0, t + duration), Segment(t + duration, target, 0.0, 0.0, INF)))
+    end = t + duration + max(extrapolate, 0.0)
+    return Profile((Segment(t, x, v, 0.0, end), Segment(end, x + v * (end - t), 0.0, 0.0, INF)))
 
 
 @dataclass(frozen=True)

@@ -34,7 +34,7 @@ def drive_section(node_id: int, **overrides) -> DriveSection:
         increments_per_unit=SCALE, min_position=-100.0, max_position=100.0,
         following_error_window=0.5, following_error_timeout=0.05,
         max_velocity=4.0, max_acceleration=4.0, heartbeat_period=0.2,
-        heartbeat_consumer_timeout=1.0,
+        heartbeat_consumer_timeout=1.0, master_loss_timeout=0.5,  # (generous: shared machine)
         homing=HomingSection(method=37, speed_switch=2.0, speed_zero=0.5, acceleration=20.0,
                              timeout=20.0))
     return replace(base, **overrides)
