@@ -45,7 +45,7 @@ Behaviour chosen where CiA-402 leaves it to the vendor (the driver can rely on i
   applies the same reaction when SYNC stops (0x1006), when an RPDO misses its deadline
   (event timer 0x1400:5, watched in real time by the node) or NMT takes it out of
   operational. With a deadline set, a CSP drive bridges the missing setpoints until then at
-  the motor's speed at the last SYNC (no braking at the motor's limit before the reaction starts), so
+  the last step's speed (no braking at the motor's limit before the reaction starts), so
   a lost master ends in a ramp at 0x6085 (0x6007 = 3, 0x605A = 2).
 * Disable operation (transition 5) ramps down with the profile deceleration when 0x605C = 1,
   brakes at once when 0. Every SYNC without a fresh
@@ -593,15 +593,14 @@ class DriveLogic:
         value, exponent = self.store.get(0x60C2, 1), self.store.get(0x60C2, 2)
         period = value * 10.0 ** exponent
         start, goal = ax.demand()[0], self.to_phys(target)
-        trend = ax.v
-        ax.set_reference(linear_profile(ax.t, start, goal, period,
-                                        self._bridge(goal, trend), trend))
+        rate = (goal - start) / period if period > 0 else 0.0
+        ax.set_reference(linear_profile(ax.t, start, goal, period, self._bridge(goal, rate)))
 
     def _bridge(self, goal: float, v: float) -> float:
-        """How long the CSP demand goes on at the motor's speed ``v`` at the last SYNC (not the
-        last step's: one late step does not set it) when the next setpoints do not come: the
-        RPDO deadline (0x1400:5; the drive then stops per 0x6007 at 0x6085), never past a
-        software limit; 0 (hold the last setpoint) without one."""
+        """How long the CSP demand goes on at the last step's speed ``v`` (continuous: no
+        step in the demand) when the next setpoints do not come: the RPDO deadline (0x1400:5;
+        the drive then stops per 0x6007 at 0x6085), never past a software limit; 0 (hold the
+        last setpoint) without one."""
         deadline = max(self.rpdo_deadlines.values(), default=0.0)
         if deadline <= 0 or v == 0:
             return 0.0
