@@ -275,3 +275,19 @@ async def test_start_up_readbacks_are_not_dropped(tmp_path, caplog):
         assert service.telescope.can.stats.get("cycles", 0) > 0
     finally:
         await service.stop()
+
+
+def test_orphan_stop_time_follows_the_configured_stop(tmp_path):
+    """An orphaned control process waits for the longest configured stop (max speed / stop
+    deceleration) plus a margin — not a fixed 10 s that a slow-braking axis outlasts."""
+    from types import SimpleNamespace
+
+    from tcs.axes.control_core import STOP_MARGIN, orphan_stop_time
+
+    config = make_config(tmp_path / "state")
+    axes = [SimpleNamespace(section=s) for s in config.axes.values()]
+    expected = max(s.max_velocity / (s.stop_deceleration or 2 * s.max_acceleration)
+                   for s in config.axes.values())
+    assert orphan_stop_time(axes) == pytest.approx(expected + STOP_MARGIN)
+    slow = dataclasses.replace(config.axes["az"], stop_deceleration=0.25)   # 20 s from 5 °/s
+    assert orphan_stop_time([SimpleNamespace(section=slow)]) == pytest.approx(20.0 + STOP_MARGIN)
