@@ -291,3 +291,22 @@ def test_orphan_stop_time_follows_the_configured_stop(tmp_path):
     assert orphan_stop_time(axes) == pytest.approx(expected + STOP_MARGIN)
     slow = dataclasses.replace(config.axes["az"], stop_deceleration=0.25)   # 20 s from 5 °/s
     assert orphan_stop_time([SimpleNamespace(section=slow)]) == pytest.approx(20.0 + STOP_MARGIN)
+
+
+async def test_core_drive_diagnostics_come_from_the_control_process(proc_service):
+    """CABINET.CORE.DRIVE[] reads the drives of the control process: names, states and
+    positions, not blanks, ``none`` and 0."""
+    service, port = proc_service
+    c = await Client.connect(port)
+    try:
+        await ready(c, "AZ")
+        await c.set("AZ.TARGETPOS=12.5")
+        deadline = time.monotonic() + 30
+        while await c.get("CABINET.CORE.DRIVE[0].NAME") != '"az"':
+            assert time.monotonic() < deadline
+            await asyncio.sleep(0.1)
+        assert await c.get("CABINET.CORE.DRIVE[0].AXIS") == '"AZ"'
+        assert await c.get("CABINET.CORE.DRIVE[0].STATE") == '"operation enabled"'
+        await c.wait("CABINET.CORE.DRIVE[0].POSITION", lambda v: abs(v - 12.5) < 1e-3)
+    finally:
+        await c.close()

@@ -21,7 +21,8 @@ pickled tuples; the service is the only peer):
   value)``; ``("samples", rid, clear)``; ``("close",)``.
 * out: ``("claimed",)``, then ``("ready", info)``, or ``("refused", kind, error)``; one
   ``("batch", snapshots, items, stats)`` per cycle with the readbacks of every axis, then the
-  cycle's events, error conditions and completions in the order they happened (so a client
+  cycle's events, error conditions, completions and (every 10th cycle) drive statuses for
+  ``CABINET.CORE.DRIVE[]`` in the order they happened (so a client
   that gets ``DATA OK`` reads the new state); ``("reply", rid, ok, value)``; ``("log",
   name, level, text)``; ``("closed",)``.
 
@@ -35,6 +36,7 @@ as after a crash of the whole service.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import logging
 import os
 import signal
@@ -287,6 +289,12 @@ class Core:
         stats = None
         if self._cycles % self._stats_every == 0:
             stats = dict(self.loop.stats(), last_cycle=self.loop.last_cycle)
+            for axis in self.axes:  # CABINET.CORE.DRIVE[] (errors as plain data: see below)
+                st = axis.last_status
+                if st is not None:
+                    self.outbox.item(("status", axis.index, dataclasses.replace(
+                        st, fault=None, warning=None, request_error=None), error_tuple(st.fault),
+                        error_tuple(st.warning), error_tuple(st.request_error)))
         self.outbox.cycle(snaps, stats)
 
     # -- receiver ----------------------------------------------------------------------------

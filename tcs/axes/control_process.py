@@ -38,6 +38,7 @@ connected:
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import itertools
 import logging
 import socket
@@ -266,6 +267,11 @@ class ControlProcess:
                 future = self._futures.pop(item[1], None)
                 if future is not None:
                     done.append((future, rebuild_error(item[2])))
+            elif what == "status":
+                if item[1] < len(axes):
+                    axes[item[1]].last_status = dataclasses.replace(
+                        item[2], fault=rebuild_error(item[3]), warning=rebuild_error(item[4]),
+                        request_error=rebuild_error(item[5]))
             elif what in ("raise", "clear"):
                 with self._attach_lock:
                     if item[1] >= len(self.axes):  # (before attach: replayed by attach)
