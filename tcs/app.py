@@ -141,7 +141,10 @@ async def _watchdog(service: Service, notifier: Notifier) -> None:
     while True:
         await asyncio.sleep(interval)
         loop = service.telescope.control_loop if service.telescope else None
-        if loop is None or loop.healthy():
+        # alive = the loop ran at all since the previous check (a busy host makes it late,
+        # not dead); a loop that did not run for a whole interval is dead: no ping
+        if loop is None or loop.healthy(within=interval):
             notifier.send("WATCHDOG=1")
         else:
-            log.error("control loop is not running: withholding the systemd watchdog")
+            log.error("control loop has not run for %.1f s: withholding the systemd watchdog",
+                      interval)

@@ -2,8 +2,10 @@
 
 A datagram to the AF_UNIX socket named in ``$NOTIFY_SOCKET`` (a leading ``@`` means the
 abstract namespace). Without ``$NOTIFY_SOCKET`` every call does nothing, so the service runs
-the same by hand. ``WATCHDOG=1`` is sent by :class:`tcs.app.Service` only while the control
-loop is healthy (never from an independent timer): a hung loop lets systemd restart us.
+the same by hand. ``WATCHDOG=1`` is sent by :class:`tcs.app.Service` every half
+``$WATCHDOG_USEC`` when the control loop ran at all during that half (never from an
+independent timer): a loop that is late on a busy host keeps it fed; a dead one (no cycle for
+half the watchdog time) lets systemd restart us.
 """
 
 from __future__ import annotations

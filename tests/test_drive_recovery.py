@@ -66,7 +66,8 @@ async def test_power_cycled_drive_recovers_without_restart(tmp_path):
         with can.Bus(interface="virtual", channel=svc.config.can.channel) as bus:
             bus.send(can.Message(arbitration_id=0x000, data=[0x81, 2], is_extended_id=False))
         await c.wait("ZD.ERROR_STATE", lambda v: int(v) & 2)
-        assert await c.num("ZD.POWER_STATE") == 0.0
+        # (FAILED 4 while the rebooting drive gives no data: unknown, not the last value)
+        await c.wait("ZD.POWER_STATE", lambda v: v == 0.0)
         await acknowledge(c, "ZD")
         assert await c.num("ZD.ERROR_STATE") == 0
         assert await c.num("ZD.REFERENCED") == 0.0  # its position was lost with the reboot
@@ -308,4 +309,54 @@ async def test_cabinet_acknowledge_fails_when_an_axis_cannot_be_reset(tmp_path):
     finally:
         sim.set_responding(True)
         await c.close()
+
+
+async def test_status_without_fresh_data_is_unknown_on_every_front_end(tmp_path):
+    """While ZD's drive sends no data, its power and motion states are unknown too, not the
+    last value: OpenTCI POWER_STATE / MOTION_STATE / LIMIT_STATE answer FAILED 4, OpenTSI
+    TELESCOPE.MOTION_STATE FAILED 4, Alpaca's position and Slewing an error; live again after."""
+    import json
+    import urllib.error
+    import urllib.request
+
+    base = make_config(tmp_path / "state")
+    config = dataclasses.replace(base, can=dataclasses.replace(base.can, control_process=False))
+    object.__setattr__(config, "source", base.source)
+    svc = Service(config)
+    port = await svc.start()
+    c = await Client.connect(port)
+    tsi = await Client.connect(svc.opentsi_port)
+    sim = svc.telescope.sims[config.drives["zd"].node_id]
+
+    def alpaca(member: str) -> dict:
+        url = f"http://127.0.0.1:{svc.alpaca_port}/api/v1/telescope/0/{member}"
+        with urllib.request.urlopen(url, timeout=10) as r:
+            return json.loads(r.read())
+
+    try:
+        await ready(c, "ZD")
+        assert await c.num("ZD.POWER_STATE") == 1.0
+        await asyncio.to_thread(lambda: urllib.request.urlopen(urllib.request.Request(
+            f"http://127.0.0.1:{svc.alpaca_port}/api/v1/telescope/0/connected",
+            data=b"Connected=True&ClientID=1&ClientTransactionID=1", method="PUT"), timeout=10).close())
+        assert (await asyncio.to_thread(alpaca, "altitude"))["ErrorNumber"] == 0
+        sim.mute_tpdos(True)
+        deadline = time.monotonic() + WAIT
+        while "FAILED" not in (lines := await c.command(77, "GET ZD.REALPOS"))[1]:
+            assert time.monotonic() < deadline, lines
+            await asyncio.sleep(0.05)
+        lines = await c.command(78, "GET ZD.POWER_STATE;ZD.MOTION_STATE;ZD.LIMIT_STATE;ZD.POWER")
+        assert lines[1:5] == ["78 DATA INLINE ZD.POWER_STATE=FAILED 4", "78 DATA INLINE ZD.MOTION_STATE=FAILED 4",
+                              "78 DATA INLINE ZD.LIMIT_STATE=FAILED 4", "78 DATA INLINE ZD.POWER=FAILED 4"], lines
+        lines = await tsi.command(79, "GET TELESCOPE.MOTION_STATE")
+        assert lines[1].endswith("TELESCOPE.MOTION_STATE=FAILED 4"), lines
+        for member in ("altitude", "azimuth", "slewing"):
+            answer = await asyncio.to_thread(alpaca, member)
+            assert answer["ErrorNumber"] != 0 and "no fresh data" in answer["ErrorMessage"], answer
+        sim.mute_tpdos(False)
+        await c.wait("ZD.POWER_STATE", lambda v: isinstance(v, float))
+        assert (await asyncio.to_thread(alpaca, "altitude"))["ErrorNumber"] == 0
+    finally:
+        await c.close()
+        await tsi.close()
         await svc.stop()

@@ -439,3 +439,27 @@ def test_save_survives_kill(tmp_path):
         assert seen <= valid
         assert store.list() == ["m"]
         assert store.load("m") in valid
+
+
+def test_unfinished_saves_do_not_survive_a_restart(tmp_path):
+    """A kill during SAVE leaves ``.<name>.model.<random>.tmp``; the next start (a new
+    ModelStore on the directory) removes it once it is older than a save can take, and leaves
+    saved models and a save in progress alone."""
+    import os
+    import time
+
+    from tcs.pointing.model import PointingModel
+    from tcs.pointing.storage import ORPHAN_AGE, ModelStore
+
+    store = ModelStore(tmp_path)
+    store.save("night1", PointingModel())
+    orphan = tmp_path / ".night1.model.abc123.tmp"
+    orphan.write_text("ia 1.0\n")                      # a save killed half-way
+    old = time.time() - 10 * ORPHAN_AGE
+    os.utime(orphan, (old, old))
+    busy = tmp_path / ".night2.model.def456.tmp"
+    busy.write_text("ia 2.0\n")                        # another process saving right now
+    ModelStore(tmp_path)                               # the service starts again
+    assert not orphan.exists()
+    assert busy.exists()
+    assert ModelStore(tmp_path).list() == ["night1"]

@@ -162,3 +162,74 @@ def test_install_is_idempotent_and_keeps_the_hardware_file(tmp_path):
     third = subprocess.run(install, env=env, capture_output=True, text=True, timeout=600)
     assert "nothing changed" in third.stdout, third.stdout
     assert "systemctl stop tcs-server" in third.stdout
+
+
+def test_watchdog_fed_while_the_loop_is_late_withheld_when_it_is_dead(tmp_path):
+    """A control loop that runs late (its process held for 0.5 s at a time, as on a busy
+    host) keeps the watchdog fed within every WATCHDOG_USEC; one that does not run at all is
+    not fed (systemd then restarts the service)."""
+    from test_control_process import _children
+
+    path = str(tmp_path / "notify.sock")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(path)
+    port = free_port()
+    usec = 2.0
+    env = dict(os.environ, NOTIFY_SOCKET=path, WATCHDOG_USEC=str(int(usec * 1e6)),
+               XDG_STATE_HOME=str(tmp_path / "state"))
+    env.pop("WATCHDOG_PID", None)
+    proc = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--port", str(port),
+                             "--opentsi-port", "-1", "--alpaca-port", "-1"], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    child = None
+    try:
+        assert "READY=1" in receive_all(sock, "READY=1")
+        (child,) = _children(proc.pid)
+
+        def pings(seconds: float, hold: float | None) -> list[float]:
+            """WATCHDOG=1 arrival times over ``seconds``, the child held ``hold`` s of every
+            ``hold + 0.1`` s (None: held all the time)."""
+            times = []
+            end = time.monotonic() + seconds
+            sock.settimeout(0.02)
+            running = True
+            switch = time.monotonic()
+            while time.monotonic() < end:
+                now = time.monotonic()
+                if hold is None and running:
+                    os.kill(child, signal.SIGSTOP)
+                    running = False
+                elif hold is not None and now >= switch:
+                    os.kill(child, signal.SIGSTOP if running else signal.SIGCONT)
+                    running = not running
+                    switch = now + (hold if not running else 0.1)
+                try:
+                    data = sock.recv(4096).decode()
+                except socket.timeout:
+                    continue
+                times += [time.monotonic() for m in data.split("\n") if m == "WATCHDOG=1"]
+            if hold is not None and not running:
+                os.kill(child, signal.SIGCONT)
+            return times
+
+        receive_all(sock, "WATCHDOG=1", timeout=30)
+        late = pings(8.0, hold=0.5)
+        gaps = [b - a for a, b in zip(late, late[1:])]
+        assert len(late) >= 4 and max(gaps) < usec, late   # a late loop is alive
+        pings(1.5, hold=None)                                 # (the last ping may be on its way)
+        dead = pings(3.0, hold=None)
+        assert dead == [], dead                               # a dead loop is not fed
+    finally:
+        if child is not None:
+            try:
+                os.kill(child, signal.SIGCONT)
+            except OSError:
+                pass
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(60)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+        proc.communicate()
+        sock.close()

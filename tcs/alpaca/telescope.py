@@ -210,12 +210,15 @@ class TelescopeDevice(Device):
 
     # -- where it points --------------------------------------------------------------------------
     def get_rightascension(self, r) -> float:
+        self.ops.check_fresh()
         return float(self.p.current.ra)
 
     def get_declination(self, r) -> float:
+        self.ops.check_fresh()
         return float(self.p.current.dec)
 
     def _altaz(self) -> tuple[float, float]:
+        self.ops.check_fresh()  # (no fresh readback: an error, not the last position)
         p = self.p
         place = p.place()
         n1, n2, _rev = to_normal(place.ideal1, place.ideal2, p.mount)
@@ -381,6 +384,7 @@ class TelescopeDevice(Device):
         return bool(self.ops.pulse_guiding)
 
     def get_slewing(self, r) -> bool:
+        self.ops.check_fresh()
         p = self.telescope.pointing
         ops = self.ops
         if p is not None and p.track:

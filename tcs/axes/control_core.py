@@ -67,6 +67,23 @@ def drive_tuple(st) -> tuple | None:
             st.heartbeat_ok)
 
 
+#: s added to the stopping time an orphaned control process waits for (late cycles, jerk).
+STOP_MARGIN = 2.0
+
+
+def orphan_stop_time(axes) -> float:
+    """How long an orphaned control process waits for its axes to stop before it powers them
+    off: the longest stop from full speed at the configured stop deceleration (``[axes]
+    max_velocity`` / ``stop_deceleration``, default 2 × max_acceleration) plus
+    :data:`STOP_MARGIN` — never a fixed time a slow-braking axis could outlast."""
+    longest = 0.0
+    for axis in axes:
+        section = axis.section
+        stop = section.stop_deceleration or 2 * section.max_acceleration
+        longest = max(longest, abs(section.max_velocity) / stop)
+    return longest + STOP_MARGIN
+
+
 def error_tuple(error: BaseException | None):
     """An exception as plain data: (class name, message, number, keyword)."""
     if error is None:
@@ -367,11 +384,13 @@ class Core:
         log.critical("control process: the service is gone; stopping and powering off every axis")
         for axis in self.axes:
             axis.receive(axis.received_seq, "stop", None, None, None)
-        deadline = time.monotonic() + 10.0
+        deadline = time.monotonic() + orphan_stop_time(self.axes)
         while time.monotonic() < deadline and any(a.motion_state & 1 for a in self.axes):
             time.sleep(0.02)
         for axis in self.axes:
             axis.receive(axis.received_seq, "power", False, None, None)
+        deadline = time.monotonic() + max(
+            (getattr(a.drive, "power_timeout", 0.0) for a in self.axes), default=0.0) + STOP_MARGIN
         while time.monotonic() < deadline and any(a.power_state != 0.0 for a in self.axes):
             time.sleep(0.02)
         log.critical("control process: axes stopped and powered off: %s", ", ".join(

@@ -108,6 +108,9 @@ class ControlLoop:
             source.callback_time.clear()
         return lateness, loop, dict(source.stats().__dict__)
 
-    def healthy(self, max_age_periods: float = 10.0) -> bool:
-        """True when the loop ran within the last ``max_age_periods`` SYNC periods."""
-        return self.cycles > 0 and self.clock() - self.last_cycle < max_age_periods * self.source.period
+    def healthy(self, max_age_periods: float = 10.0, within: float | None = None) -> bool:
+        """True when the loop ran within the last ``max_age_periods`` SYNC periods (or the
+        last ``within`` seconds: the systemd watchdog asks whether it ran at all since its
+        previous ping — a late loop on a busy host is alive, only a dead one is not)."""
+        age = max_age_periods * self.source.period if within is None else within
+        return self.cycles > 0 and self.clock() - self.last_cycle < age

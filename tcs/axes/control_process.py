@@ -15,9 +15,24 @@ loop (``call_soon_threadsafe``), in the child's order. ``TRAJECTORY.ADDPOINTS`` 
 round trip (the child's receiver adds the points under the queue's own lock and answers with
 the queue's new size), so a refusal is the SET's reply as before.
 
-If the child ends on its own (a crash), every axis reads stale (``FAILED 4``), pending SETs
-fail, :meth:`RemoteLoop.healthy` turns false (the systemd watchdog is withheld: systemd
-restarts the service) and the drives, no longer hearing the TCS heartbeat, stop themselves.
+If the child ends on its own (a crash, kill -9), the service stays up and its clients stay
+connected:
+
+1. every axis reads stale (``FAILED 4``) and gets a latched ``control process`` error
+   (ERROR_STATE, STATUS.LIST); pending SETs fail;
+2. the drives stop themselves: their RPDO deadline (``master_loss_timeout``, see
+   :func:`tcs.drivers.boot.master_loss_writes`) passes and they quick-stop at 0x6085, capped at
+   the axis's stop deceleration; the service also commands that quick stop itself on any
+   path it still has (:meth:`ControlProcess.quick_stop_all`: on a socketcand or socketcan
+   bus, a controlword *quick stop* by SDO to every drive; a ``virtual`` bus died with the
+   child);
+3. the child is started again in place (:meth:`ControlProcess._respawn`): it claims the bus,
+   boots and takes the drives over (:mod:`tcs.drivers.takeover`: a drive still powered is
+   stopped and disabled), the same axis objects read its readbacks; every drive is off and
+   drive faults stay until an operator acknowledges them (``ERROR_STATE=0``), the
+   ``control process`` error too — nothing moves until commanded. During the respawn the
+   watchdog stays fed (the service works on it); after :data:`RESPAWN_TRIES` failed starts
+   :meth:`RemoteLoop.healthy` turns false and systemd restarts the whole service.
 """
 
 from __future__ import annotations
@@ -46,6 +61,8 @@ log = logging.getLogger(__name__)
 START_TIMEOUT = 120.0  # s for the child to boot every drive and start (boot timeouts are per drive)
 REPLY_TIMEOUT = 5.0    # s for a round trip (TRAJECTORY points, figures)
 CLOSE_TIMEOUT = 30.0   # s for the child to release the drives and end
+RESPAWN_TRIES = 3      # starts of a new control process after a crash before giving up
+RESPAWN_BACKOFF = 2.0  # s between them
 
 
 def rebuild_error(data) -> TcsError | None:
@@ -91,6 +108,13 @@ class ControlProcess:
         self._gone: TcsError | None = None
         self._ut1_utc_sent: float | None = None
         self.stats: dict = {}
+        self._attach_lock = threading.Lock()
+        self._early: list = []      # conditions from the child before the axes were attached
+        self._closing = False       # close() was called: no respawn
+        self._recovery: threading.Thread | None = None
+        self.respawning = False     # a new child is being started after a crash
+        self.respawns = 0
+        self.given_up = False       # RESPAWN_TRIES starts failed
 
     # -- start -------------------------------------------------------------------------------
     def claim(self, loop: asyncio.AbstractEventLoop) -> None:
@@ -220,14 +244,18 @@ class ControlProcess:
                     self._closed.set()
             except Exception:
                 log.exception("control process: handling %s failed", kind)
-        if not self._closed.is_set():
+        if not self._closed.is_set() and conn is self.conn:
             self._lost()
 
     def _batch(self, snapshots: dict, items: list, stats) -> None:
-        for index, snap in snapshots.items():
-            self.axes[index].apply(snap)
+        # (the child's loop runs before the model has built the axes: a start-up batch
+        # carries readbacks and statistics, which are kept, and nothing for an axis)
         if stats is not None:
             self.stats = stats
+        axes = self.axes
+        for index, snap in snapshots.items():
+            if index < len(axes):
+                axes[index].apply(snap)
         loop = self.loop
         done = []
         for item in items:
@@ -239,10 +267,12 @@ class ControlProcess:
                 future = self._futures.pop(item[1], None)
                 if future is not None:
                     done.append((future, rebuild_error(item[2])))
-            elif what == "raise":
-                self.axes[item[1]].raise_condition(item[2], item[3], item[4])
-            elif what == "clear":
-                self.axes[item[1]].clear_condition(item[2])
+            elif what in ("raise", "clear"):
+                with self._attach_lock:
+                    if item[1] >= len(self.axes):  # (before attach: replayed by attach)
+                        self._early.append(item)
+                        continue
+                self._condition(item)
         if done and loop is not None:
             try:
                 loop.call_soon_threadsafe(complete_futures, done)
@@ -256,6 +286,21 @@ class ControlProcess:
             except TcsError:
                 pass
 
+    def _condition(self, item) -> None:
+        if item[0] == "raise":
+            self.axes[item[1]].raise_condition(item[2], item[3], item[4])
+        else:
+            self.axes[item[1]].clear_condition(item[2])
+
+    def attach(self, axes: list) -> None:
+        """The model's axes, by index; error conditions the child raised before they
+        existed are applied now, in order."""
+        with self._attach_lock:
+            self.axes = axes
+            early, self._early = self._early, []
+        for item in early:
+            self._condition(item)
+
     @staticmethod
     def _log(msg) -> None:
         _, name, level, text = msg
@@ -264,11 +309,12 @@ class ControlProcess:
     def _lost(self) -> None:
         """The child ended without being asked: nothing moves under our control any more."""
         error = ControlProcessGone("CABINET", "the control process has ended: the drives "
-                                   "stop by themselves (heartbeat lost); restart tcs-server")
+                                   "stop by themselves; a new one is started (acknowledge "
+                                   "with ERROR_STATE=0)")
         self._gone = error
         code = self.proc.poll() if self.proc is not None else None
         log.critical("control process ended (exit status %s): every axis is stale; the drives "
-                     "stop by themselves when the TCS heartbeat stops", code)
+                     "stop by themselves when the setpoints stop", code)
         for axis in self.axes:
             axis.stale = error
             axis.raise_condition("control process", 2, error.message)
@@ -280,6 +326,101 @@ class ControlProcess:
                 self.loop.call_soon_threadsafe(complete_futures, [(f, error) for f in pending])
             except RuntimeError:
                 pass
+        if not self._closing:
+            self.respawning = True
+            self._recovery = threading.Thread(target=self._recover, name="tcs-control-respawn",
+                                              daemon=True)
+            self._recovery.start()
+
+    # -- after a crash -------------------------------------------------------------------------
+    def quick_stop_all(self) -> int:
+        """Command *quick stop* (controlword 0x0002 by expedited SDO) to every drive of the
+        hardware file over a bus connection of this process's own — the path the service
+        still has when the control process died (blocking; ``virtual``: none, 0 sent).
+        Returns the number of drives it was sent to."""
+        can_section = self.config.can
+        if can_section.interface == "virtual":
+            return 0
+        import can as python_can
+        from tcs.drivers.canbus import probe_socketcand
+        try:
+            if can_section.interface == "socketcand":
+                probe_socketcand(can_section.host, can_section.port)
+            bus = python_can.Bus(**can_section.bus_kwargs())
+        except Exception as exc:
+            log.error("quick stop after the crash: cannot open the bus (%s); the drives stop "
+                      "by their own watch of the master", exc)
+            return 0
+        sent = 0
+        try:
+            for section in self.config.drives.values():
+                frame = bytes([0x2B, 0x40, 0x60, 0x00, 0x02, 0x00, 0x00, 0x00])
+                try:
+                    bus.send(python_can.Message(arbitration_id=0x600 + section.node_id, data=frame,
+                                                is_extended_id=False))
+                    sent += 1
+                except Exception as exc:
+                    log.error("quick stop of node %d failed: %s", section.node_id, exc)
+        finally:
+            try:
+                bus.shutdown()
+            except Exception:
+                pass
+        log.warning("quick stop commanded to %d drives over a bus connection of the service", sent)
+        return sent
+
+    def _recover(self) -> None:
+        """(thread) Stop the drives, then start a new control process in place."""
+        try:
+            self.quick_stop_all()
+            for attempt in range(1, RESPAWN_TRIES + 1):
+                if self._closing:
+                    return
+                try:
+                    self._respawn()
+                    return
+                except Exception as exc:
+                    log.error("control process: restart %d of %d failed: %s", attempt,
+                              RESPAWN_TRIES, exc)
+                    time.sleep(RESPAWN_BACKOFF)
+            self.given_up = True
+            log.critical("control process could not be restarted; giving up (the systemd "
+                         "watchdog is withheld: restart tcs-server)")
+        finally:
+            self.respawning = False
+
+    def _respawn(self) -> None:
+        """Start a new child, let it claim the bus and take the drives over, attach the axes."""
+        from tcs.model.health import ERROR, WARNING
+        if self.proc is not None:
+            self._wait_exit(5.0)
+        try:
+            self.conn.close()
+        except OSError:
+            pass
+        reader = self._reader
+        if reader is not None and reader is not threading.current_thread():
+            reader.join(5.0)
+        self._reader = None
+        self._closed.clear()
+        self.stats = {}
+        log.warning("control process: starting a new one (the drives are taken over; faults "
+                    "stay until acknowledged, nothing moves until commanded)")
+        self.claim(self.loop)
+        for axis in self.axes:
+            axis.respawned()
+        info = self.boot()  # (readbacks from here on; the axes read fresh again)
+        self.info = info
+        self._gone = None
+        self.respawns += 1
+        for axis in self.axes:
+            failure = info.get("failures", {}).get(axis.section.drive)
+            if failure is not None:
+                axis.raise_condition("drive offline", ERROR, rebuild_error(failure).message)
+            for condition, text in info.get("conditions", {}).get(axis.section.drive, ()):
+                axis.raise_condition(condition, WARNING, text)
+            axis.clear_condition("control process")  # (latched until ERROR_STATE=0)
+        log.warning("control process restarted (pid %d)", self.proc.pid)
 
     # -- figures -------------------------------------------------------------------------------
     def samples(self, clear: bool = False):
@@ -292,6 +433,10 @@ class ControlProcess:
 
     def close(self) -> None:
         """Ask the child to release the drives, close the bus and end (blocking)."""
+        self._closing = True
+        recovery = self._recovery
+        if recovery is not None and recovery is not threading.current_thread():
+            recovery.join(START_TIMEOUT + 10.0)  # (a respawn under way ends first)
         if self.proc is None:
             return
         if self._reader is None:  # claimed the bus but never booted (the start failed later)
@@ -408,6 +553,12 @@ class RemoteAxis(Axis):
         self._reference_seq = 0
         self._stale_key = None
 
+    def respawned(self) -> None:
+        """A new control process counts commands from 0; its first readback sets ``stale``."""
+        self._seq = 0
+        self._reference_seq = 0
+        self._stale_key = ()
+
     def _send(self, kind: str, value=None, future=None) -> None:
         from tcs.model.events import current_cause
         self._seq += 1
@@ -466,7 +617,7 @@ class RemoteLoop:
 
     @property
     def alive(self) -> bool:
-        """False once the control process has ended (nothing to wait for at stop)."""
+        """False while no control process runs (nothing to wait for at stop)."""
         return self.process._gone is None
 
     def stats(self) -> dict:
@@ -475,12 +626,18 @@ class RemoteLoop:
         s.setdefault("realtime", int(bool(self.process.info.get("realtime"))))
         return s
 
-    def healthy(self, max_age_periods: float = 10.0) -> bool:
-        last = self.process.stats.get("last_cycle")
-        if self.process._gone is not None or last is None:
+    def healthy(self, max_age_periods: float = 10.0, within: float | None = None) -> bool:
+        """As :meth:`tcs.axes.control_loop.ControlLoop.healthy`, from the child's statistics
+        (its monotonic clock is this one's)."""
+        process = self.process
+        if process.respawning:
+            return True  # a new control process is being started (bounded: RESPAWN_TRIES)
+        last = process.stats.get("last_cycle")
+        if process._gone is not None or last is None:
             return False
         # (stats come every 10th cycle: allow for that)
-        return time.monotonic() - last < (max_age_periods + 10) * self.period
+        age = max_age_periods * self.period if within is None else within
+        return time.monotonic() - last < age + 10 * self.period
 
     def samples(self, clear: bool = False):
         return self.process.samples(clear)

@@ -290,6 +290,11 @@ class DriveSection:
     heartbeat_consumer_timeout: float = setting(
         0.5, min=0.01, max=65.535, doc="0x1016 time the drive waits for the TCS heartbeat "
                                        "before it faults, s")
+    master_loss_timeout: float | None = setting(
+        None, min=0.0, max=65.535,
+        doc="s without the TCS's cyclic setpoints (RPDO) after which the drive stops by itself "
+            "(0x1400:5 deadline monitoring, then 0x6007 → quick stop at 0x6085; optional "
+            "object); default 3 SYNC periods, 0 = off")
     default_mode: Literal["csp", "pp"] = setting(
         "csp", doc="mode set at boot: pp (profile moves: filter wheel, M3) or csp = the "
                    "drive's streaming mode ('mode'); a trajectory axis switches to its "
@@ -434,6 +439,11 @@ def check_can_drives(can: CanSection | None, drives: dict[str, DriveSection]) ->
         if can is not None and can.sync_period < drive.min_sync_period - 1e-12:
             problems.append(("can.sync_period", f"{can.sync_period} s is shorter than drive "
                                                 f"{name!r} accepts ({drive.min_sync_period} s)"))
+        if can is not None and drive.master_loss_timeout and \
+                drive.master_loss_timeout < 2 * can.sync_period - 1e-12:
+            problems.append((f"drives.{name}.master_loss_timeout",
+                             f"must be 0 (off) or at least 2 × can.sync_period "
+                             f"({2 * can.sync_period:g} s)"))
         if can is not None and drive.heartbeat_consumer_timeout < 1.5 * can.heartbeat_period:
             problems.append((f"drives.{name}.heartbeat_consumer_timeout",
                              f"must be at least 1.5 × can.heartbeat_period "

@@ -24,7 +24,8 @@ Sequence:
    quick-stop deceleration (0x6081/0x6083/0x6084/0x6085), homing method / speeds / acceleration / offset
    (0x6098/0x6099/0x609A/0x607C; none for an ``absolute`` drive), the PDO mapping
    (:mod:`tcs.drivers.pdo`), the ``[drives.<name>.sdo]`` raw writes in file order, and the
-   default mode of operation (0x6060, read back from 0x6061 within ``mode_switch_timeout``).
+   default mode of operation (0x6060, read back from 0x6061 within ``mode_switch_timeout``);
+   the drive's own watch of the master (:func:`master_loss_writes`: RPDO deadlines).
    Every write passes :func:`tcs.drivers.eds_check.usable_writes`: an object of
    :data:`OPTIONAL` the drive's EDS lacks is skipped; values were checked against the EDS
    limits at start (:func:`tcs.drivers.eds_check.check_config`);
@@ -39,6 +40,7 @@ drive's factor group (0x608F/0x6091/0x6092), which stays as commissioned (or is 
 
 from __future__ import annotations
 
+import math
 import struct
 import threading
 import time
@@ -316,6 +318,27 @@ def configuration(section: DriveSection, can: CanSection, device: str,
     ] + ([(0x60C0, 0, "<h", 0)] if mode == 7 else [])
 
 
+def master_loss_writes(section: DriveSection, can: CanSection,
+                       layouts: dict[str, PdoLayout]) -> list[tuple[int, int, str, int]]:
+    """How the drive notices a lost master (a crashed control process, a cut bus) and stops
+    by itself: the deadline of each cyclic RPDO (0x1400+n:5, event timer in ms; CiA-301
+    deadline monitoring) is ``master_loss_timeout`` (default 3 SYNC periods), so the drive
+    sees the setpoints stop within a few cycles even when SYNC stops with them; it then reacts
+    per 0x6007 (``abort_connection_option``, 3 = quick stop) with 0x605A
+    (``quick_stop_option``, 2 = ramp at 0x6085 and disable) — written by :func:`configuration`
+    with the heartbeat consumer 0x1016 (the slower, independent watch) and 0x6085, which
+    :class:`~tcs.drivers.can_system.CanDrives` caps at the axis's stop deceleration. Each
+    write only as the drive's EDS allows (an absent event timer is skipped)."""
+    timeout = section.master_loss_timeout
+    if timeout is None:
+        timeout = 3 * can.sync_period
+    ms = min(0xFFFF, math.ceil(round(timeout * 1000, 6)))
+    if ms <= 0:
+        return []
+    return [(0x1400 + pdo.number - 1, 5, "<H", ms) for pdo in layouts.values()
+            if pdo.receive and pdo.synchronous]
+
+
 def check_eds(od: canopen.ObjectDictionary, layouts: dict[str, PdoLayout], device: str) -> None:
     """The PDO mapping against the EDS: objects exist, may be mapped, enough entries."""
     for pdo in layouts.values():
@@ -371,6 +394,9 @@ def boot_node(network: canopen.Network, sdo: Sdo, hb: HeartbeatWatch, section: D
         writes = configuration_writes(layouts.get(name), name, node_id)
         for index, sub, fmt, value in usable_writes(od, writes, section, device):
             sdo.write(index, sub, fmt, value)
+    for index, sub, fmt, value in usable_writes(od, master_loss_writes(section, can, layouts),
+                                                section, device):
+        sdo.write(index, sub, fmt, value)
     for index, sub, fmt, value in raw_writes(od, section, device):  # [drives.x.sdo], in order
         sdo.write(index, sub, fmt, value)
     shown = set_mode(sdo, mode, section.mode_switch_timeout)

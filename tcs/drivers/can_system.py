@@ -67,6 +67,24 @@ log = logging.getLogger(__name__)
 SIM_EDS = hwconfig_file("eds/tcs-sim-drive.eds")  # package data (tcs.resources)
 
 
+def stop_decelerations(drives: dict[str, DriveSection], axes) -> dict[str, DriveSection]:
+    """The drives with 0x6085 (``quick_stop_deceleration``) at most their axis's configured
+    stop deceleration (``[axes.x] stop_deceleration``, default 2 × max_acceleration): a drive
+    that stops by itself — the master lost, a quick stop or a fault reaction — decelerates no
+    harder than the TCS's own STOP."""
+    import dataclasses
+    out = dict(drives)
+    for axis in (axes or {}).values():
+        section = out.get(axis.drive)
+        if section is None:
+            continue
+        stop = axis.stop_deceleration or 2 * axis.max_acceleration
+        quick = section.quick_stop_deceleration or section.max_acceleration
+        if stop < quick:
+            out[axis.drive] = dataclasses.replace(section, quick_stop_deceleration=stop)
+    return out
+
+
 class CanDrives:
     """Bus, CiA-402 drives and SYNC cycle of one ``[can]`` section and its ``[drives]``.
 
@@ -122,8 +140,8 @@ class CanDrives:
         """From a whole :class:`~tcs.config.HwConfig` (which must have a ``[can]`` section)."""
         if config.can is None:
             raise ConfigError(str(config.source), "can", "no [can] section")
-        return cls(config.can, dict(config.drives), resolve=config.resolve,
-                   file=str(config.source), **kwargs)
+        return cls(config.can, stop_decelerations(config.drives, getattr(config, "axes", None)),
+                   resolve=config.resolve, file=str(config.source), **kwargs)
 
     # ----------------------------------------------------------------- life cycle
     def open(self, heartbeat: bool = True) -> CanDrives:

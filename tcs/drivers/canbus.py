@@ -21,7 +21,9 @@
 
 **Reconnect.** A bus whose link broke (sends fail: the socketcand peer went away, the
 interface is down) is reopened by a thread of its own (``tcs-can-reconnect``) with back-off
-(0.2 s doubling to 5 s): the python-can bus and the notifier are replaced under the same
+(0.2 s doubling to 5 s; a socketcand peer that is not listening fails a try within
+:data:`PROBE_TIMEOUT`, see :func:`probe_socketcand`, instead of python-can's 10 s of
+retries): the python-can bus and the notifier are replaced under the same
 canopen ``Network``, so every subscription stays; callbacks of :meth:`add_reconnect_callback`
 then run (the drives are booted again, as after a power blip). Kernel SYNC
 (``send_periodic`` on socketcan) is not moved to the new socket: on socketcan the socket
@@ -42,6 +44,7 @@ when each SYNC went out. All receive callbacks run in the one notifier thread an
 from __future__ import annotations
 
 import logging
+import socket
 import threading
 import time
 from collections.abc import Callable
@@ -58,6 +61,20 @@ log = logging.getLogger(__name__)
 SYNC_COB_ID = 0x080
 #: python-can interfaces whose ``send`` is not safe from several threads (a byte stream).
 SERIALIZED_INTERFACES = frozenset({"socketcand"})
+
+
+#: s a socketcand connection attempt may take before it counts as failed.
+PROBE_TIMEOUT = 1.0
+
+
+def probe_socketcand(host: str, port: int, timeout: float = PROBE_TIMEOUT) -> None:
+    """Fail at once (OSError) when no socketcand server accepts a connection at host:port.
+
+    python-can's socketcand client retries a refused connection for 10 s in a busy loop
+    before it gives up; a reconnect try (or the service's quick stop after a crash) must not
+    block that long on a peer that is simply gone."""
+    with socket.create_connection((host, port), timeout=timeout):
+        pass
 
 
 def serialize_sends(bus: can.BusABC) -> can.BusABC:
@@ -188,6 +205,8 @@ class CanBus:
         return self
 
     def _new_bus(self) -> can.BusABC:
+        if self.section.interface == "socketcand":
+            probe_socketcand(self.section.host, self.section.port)
         bus = can.Bus(**self.section.bus_kwargs())
         return serialize_sends(bus) if self.section.interface in SERIALIZED_INTERFACES else bus
 

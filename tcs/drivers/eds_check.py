@@ -242,6 +242,8 @@ def is_optional(index: int, sub: int, section: DriveSection) -> bool:
     from tcs.drivers.boot import OPTIONAL
     if 0x1800 <= index <= 0x1803 and sub in (3, 5):
         return True  # inhibit time / event timer of an event-driven TPDO
+    if 0x1400 <= index <= 0x1403 and sub == 5:
+        return True  # RPDO deadline (master loss): without it, 0x1016 and SYNC loss remain
     if index in (0x6081, 0x6083) and section.profile_moves:
         return False
     return index in OPTIONAL

@@ -197,6 +197,15 @@ class Operations(ModuleHealth):
     def power(self) -> int:
         return 1 if self.cabinet.power_state == 1.0 else 0
 
+    def check_fresh(self) -> None:
+        """Raise the ``stale`` error of a main axis without fresh readbacks (drive offline,
+        bus lost, control process restarting): the front ends answer their error for it
+        (OpenTSI ``FAILED 4``, an Alpaca error), never the last value."""
+        for axis in self.main_axes():
+            stale = getattr(axis, "stale", None)
+            if stale is not None:
+                raise stale
+
     # -- READY -------------------------------------------------------------------------------------
     def set_ready(self, value: int):
         """``READY`` 1 / 0 (long-running; a newer one supersedes the older)."""

@@ -217,7 +217,7 @@ class Telescope:
             for condition, text in info.get("conditions", {}).get(section.drive, ()):
                 axis.raise_condition(condition, WARNING, text)
             self.axes.append(axis)
-        process.axes = self.axes
+        process.attach(self.axes)
         self.cabinet.attach(axes=self.axes)
         self.control_loop = RemoteLoop(process, config.can.sync_period)
         self.cabinet.loop_stats = self.control_loop.stats

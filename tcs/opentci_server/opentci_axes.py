@@ -52,7 +52,8 @@ TRAJECTORY = module(
 
 def _measured(attr: str):
     """Getter of a measured value: the axis's ``stale`` error (FAILED 4) while its drive gives
-    no fresh data (offline, stale TPDOs), so a frozen position never reads as live."""
+    no fresh data (offline, stale TPDOs, no control process), so a frozen position — or a
+    power or motion state — never reads as live."""
     def get(axis):
         stale = getattr(axis, "stale", None)
         if stale is not None:
@@ -65,12 +66,12 @@ def axis_members():
     """The variables of the generic axis (§5.1), in the spec's order."""
     return (
         *common(),
-        var("POWER", INT, get=lambda a: 1 if a.power_state == 1.0 else 0, set="set_power", min=0, max=1,
+        var("POWER", INT, get=lambda a: 1 if _measured("power_state")(a) == 1.0 else 0, set="set_power", min=0, max=1,
             long=True, info="0 off, 1 on; returns when reached"),
-        var("POWER_STATE", FLOAT, get="power_state", info="-1 emergency off, 0 off, 0.75 standby, 1 on"),
-        var("LIMIT_STATE", INT, get="limit_state",
+        var("POWER_STATE", FLOAT, get=_measured("power_state"), info="-1 emergency off, 0 off, 0.75 standby, 1 on"),
+        var("LIMIT_STATE", INT, get=_measured("limit_state"),
             info="bits 0/1 hardware min/max, 7 hardware blocking, 8/9 software min/max, 15 software blocking"),
-        var("MOTION_STATE", INT, get="motion_state",
+        var("MOTION_STATE", INT, get=_measured("motion_state"),
             info="bits 0 moving, 1 trajectory, 2 blocked, 3 on target, 4 limited by speed/acc/jerk"),
         var("REFERENCED", FLOAT, get="referenced", info="0 not referenced … 1 referenced (progress)"),
         var("REINIT", INT, set="set_reinit", min=0, max=1, rlevel=NOBODY,

@@ -109,7 +109,7 @@ TELESCOPE = module(
         long=True, info="as READY"),
     var("STOP", INT, get=_zero, set=lambda r, v: (r.ops.halt(), r.telescope.cabinet.stop()) and None,
         min=0, max=1, info="stop all motion and READY sequences; returns at once"),
-    var("MOTION_STATE", INT, get=lambda r: r.ops.motion_state,
+    var("MOTION_STATE", INT, get=lambda r: r.ops.check_fresh() or r.ops.motion_state,
         info="0 at rest; bit 0 moving, 1 tracking, 3 on target (11: tracking on target), 5 parking"),
     STATUS,
     CONFIG,

@@ -18,7 +18,8 @@ directory, text ``key value`` lines ending with the line ``end``; a fit report m
 header as ``#`` comment lines. SAVE writes a temporary file ``.<name>.<random>.tmp`` in the same
 directory, fsyncs it, renames it over the target (atomic on POSIX) and fsyncs the directory:
 a kill at any moment leaves either the old model or the new one, never a mixture. LIST
-ignores temporary files; a file without its ``end`` line is reported as damaged.
+ignores temporary files, and every start removes those of saves that never finished (older
+than a minute); a file without its ``end`` line is reported as damaged.
 
 Model names: 1–64 characters of letters, digits, ``_ - + .``, not starting with ``.``.
 
@@ -31,11 +32,13 @@ last rename wins).
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import re
 import stat
 import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -51,6 +54,11 @@ MODEL_FORMAT = "tcs-pointing-model 1"
 _SAMPLE_FIELDS = ("utc", "ra", "dec", "ideal1", "ideal2", "axis1", "axis2", "offset1", "offset2")
 _NAME = re.compile(r"[A-Za-z0-9_+\-][A-Za-z0-9_+.\-]{0,63}")
 _SUFFIX = ".model"
+_SUFFIX_TMP = ".tmp"
+#: s after which a temporary file of a save is an orphan (a save takes milliseconds).
+ORPHAN_AGE = 60.0
+
+log = logging.getLogger(__name__)
 
 
 def atomic_write_text(path: str | os.PathLike, text: str, *, keep_mode: bool = False) -> None:
@@ -217,6 +225,32 @@ class ModelStore:
 
     def __init__(self, directory: str | os.PathLike):
         self.directory = Path(directory)
+        self.sweep_orphans()
+
+    def sweep_orphans(self, min_age: float = ORPHAN_AGE) -> list[str]:
+        """Remove temporary files of saves that never finished (a kill mid-SAVE) and are older
+        than ``min_age`` s (a save in progress elsewhere takes milliseconds); returns their
+        names. Run at every start, so they do not pile up across restarts."""
+        removed = []
+        try:
+            entries = os.listdir(self.directory)
+        except OSError:
+            return removed
+        now = time.time()
+        for entry in entries:
+            if not (entry.startswith(".") and entry.endswith(_SUFFIX_TMP) and _SUFFIX in entry):
+                continue
+            path = self.directory / entry
+            try:
+                if now - path.stat().st_mtime >= min_age:
+                    path.unlink()
+                    removed.append(entry)
+            except OSError:
+                continue
+        if removed:
+            log.info("pointing models: removed %d unfinished save(s) in %s: %s", len(removed),
+                     self.directory, ", ".join(removed))
+        return removed
 
     def path(self, name: str) -> Path:
         """File of a model name (validated)."""

@@ -30,7 +30,10 @@ CANopen behaviour (CiA-301):
   drive enabled in operational that sees no SYNC for :data:`SYNC_LOSS_PERIODS` periods (at
   least :data:`SYNC_LOSS_MIN` s) reacts per 0x6007 with code 0x8250 (see
   :meth:`tcs.sim.drive_logic.DriveLogic.connection_lost`); so it does when NMT stop /
-  pre-operational takes it out of operational while enabled. Missing RPDOs: see drive_logic.
+  pre-operational takes it out of operational while enabled, and when an RPDO with an event
+  timer (0x1400:5, deadline monitoring) has not come for that long since its last reception
+  (watched by the 10 ms poll, in real time: SYNC may have stopped with the master). Missing
+  RPDOs: see drive_logic.
 * EMCY (0x1014, default 0x80 + id): ``[code lo, code hi, error register, 0, 0, 0, 0, 0]``.
 
 Host stalls (what real drive hardware never has): the SYNC-loss, RPDO-time-out and heartbeat
@@ -176,6 +179,7 @@ class SimDrive:
         self.emcy_sent: list[int] = []
         self._rpdo_since_sync = False
         self._last_sync: float | None = None  # real time of the last SYNC while operational
+        self._rpdo_seen: dict[int, float] = {}  # RPDO → last reception (port's awake clock), deadline armed
         self._subscribed: dict[int, str] = {}
         self._sync_cob = 0x080
         self._timers: list[TimerHandle] = []
@@ -388,6 +392,9 @@ class SimDrive:
                 if node not in consumers:
                     del self._consumer_seen[node]
             self._consumers = consumers
+            self.logic.rpdo_deadlines = self.pdo.rpdo_deadlines()
+        else:
+            self.logic.rpdo_deadlines = {}
         for cob in [c for c in self._subscribed if c not in wanted]:
             self._port.unsubscribe(cob, self._on_frame)
         for cob in wanted:
@@ -429,6 +436,7 @@ class SimDrive:
             self.logic.update(self.clock())
             self.logic.connection_lost(None)  # leaving operational while enabled: 0x6007
         self._last_sync = None
+        self._rpdo_seen.clear()
         if command == 0x01:
             self.nmt_state = OPERATIONAL
         elif command == 0x02:
@@ -472,6 +480,8 @@ class SimDrive:
             self._on_logic_emcy(EMCY_PDO_LENGTH, self.store.get(0x1001, 0) | 0x10)
         else:
             self._rpdo_since_sync = True
+            if n in self.logic.rpdo_deadlines:
+                self._rpdo_seen[n] = self._port.awake
 
     def _on_sync(self) -> None:
         self.sync_count += 1
@@ -508,6 +518,7 @@ class SimDrive:
             return  # (frames wait unread: the master is not judged silent meanwhile)
         now = self._port.awake  # supervision runs on the port's awake clock
         if self.nmt_state == OPERATIONAL:
+            self._watch_rpdos(now)
             self._watch_sync(now)  # (the shorter time-out first, should a poll come late)
         for node, last in list(self._consumer_seen.items()):
             timeout = self._consumers.get(node)
@@ -540,10 +551,27 @@ class SimDrive:
             self._last_sync = now
         for node in self._consumer_seen:
             self._consumer_seen[node] = now
+        for n in self._rpdo_seen:  # the RPDO deadlines too
+            self._rpdo_seen[n] = now
         self.logic.missed_in_row = 0
         self.host_stalls += 1
         log.debug("simulated drive %d: its host stalled for %.2f s; supervision windows restarted",
                   self.node_id, stall)
+
+    def _watch_rpdos(self, now: float) -> None:
+        """An RPDO past its deadline (0x1400:5, armed by its first reception): the master is
+        gone, react per 0x6007 with 0x8250 "RPDO time-out"."""
+        deadlines = self.logic.rpdo_deadlines
+        for n, last in list(self._rpdo_seen.items()):
+            limit = deadlines.get(n)
+            if limit is None:
+                del self._rpdo_seen[n]
+            elif now - last > limit:
+                del self._rpdo_seen[n]  # re-armed by the next RPDO
+                log.info("simulated drive %d: RPDO%d deadline (%.0f ms) passed", self.node_id,
+                         n + 1, limit * 1e3)
+                self.logic.update(self.clock())
+                self.logic.connection_lost(EMCY_RPDO_TIMEOUT)
 
     def _watch_sync(self, now: float) -> None:
         """SYNC stopped while enabled (0x1006 > 0): the master is gone, react per 0x6007."""

@@ -168,12 +168,21 @@ def position_profile(t: float, x: float, v: float, target: float, vmax: float, a
     return b.finish(0.0, target)
 
 
-def linear_profile(t: float, x: float, target: float, duration: float) -> Profile:
-    """Straight line from ``x`` to ``target`` in ``duration``, then hold (CSP interpolation)."""
+def linear_profile(t: float, x: float, target: float, duration: float,
+                   extrapolate: float = 0.0, trend: float | None = None) -> Profile:
+    """Straight line from ``x`` to ``target`` in ``duration``, then on at ``trend`` units/s
+    (default: the line's speed) for ``extrapolate`` s more (a drive bridging missing
+    setpoints), then hold (CSP interpolation)."""
     if duration <= 0:
         return hold(t, target)
     v = (target - x) / duration
-    return Profile((Segment(t, x, v, 0.0, t + duration), Segment(t + duration, target, 0.0, 0.0, INF)))
+    if extrapolate <= 0:
+        return Profile((Segment(t, x, v, 0.0, t + duration),
+                        Segment(t + duration, target, 0.0, 0.0, INF)))
+    w = v if trend is None else trend
+    t1, t2 = t + duration, t + duration + extrapolate
+    return Profile((Segment(t, x, v, 0.0, t1), Segment(t1, target, w, 0.0, t2),
+                    Segment(t2, target + w * extrapolate, 0.0, 0.0, INF)))
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,9 @@ write hooks here enforce what real devices enforce (CiA-301):
 * transmission types: RPDO 0–240 synchronous (applied at the next SYNC), 254/255 at once;
   TPDO 0 (at SYNC when changed), 1–240 (every n-th SYNC), 254/255 (on change, at most once
   per inhibit time 100 µs units, and at least every event-timer ms when that is not 0);
-  the RTR-only types 252/253 are refused (0x06090030).
+  the RTR-only types 252/253 are refused (0x06090030);
+* RPDO event timer (sub-index 5, ms): deadline monitoring — :meth:`PdoEngine.rpdo_deadlines`
+  tells the node how long it may wait for each RPDO (the node reacts, see ``cia402_drive``).
 
 :class:`PdoEngine` is pure logic: the node hands it received PDO frames, SYNCs and polls, and
 it returns frames to send. Nothing here knows CiA-402.
@@ -167,6 +169,19 @@ class PdoEngine:
     def rpdo_cob_ids(self) -> dict[int, int]:
         """COB-ID → RPDO number (0-based) of every valid RPDO."""
         return {cob: n for n in range(COUNT) if (cob := self.cob_id(RPDO_COMM, n)) is not None}
+
+    def rpdo_deadlines(self) -> dict[int, float]:
+        """RPDO number (0-based) → deadline (s) of every valid RPDO whose event timer
+        (sub-index 5: CiA-301's deadline monitoring of a received PDO) is set."""
+        out = {}
+        for n in self.rpdo_cob_ids().values():
+            try:
+                ms = self.store.get(RPDO_COMM + n, 5)
+            except KeyError:  # (an EDS without the sub-index)
+                continue
+            if ms > 0:
+                out[n] = ms / 1000.0
+        return out
 
     # -- receive -----------------------------------------------------------------------------
     def receive(self, n: int, data: bytes) -> bool:

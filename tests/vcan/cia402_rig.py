@@ -43,6 +43,7 @@ def drive_section(node_id: int, **overrides) -> DriveSection:
         following_error_window=0.5, following_error_timeout=0.05 * SLOWDOWN,
         max_velocity=4.0, max_acceleration=4.0, heartbeat_period=0.2 * SLOWDOWN,
         heartbeat_consumer_timeout=1.0 * SLOWDOWN,
+        master_loss_timeout=0.5 * SLOWDOWN,  # (generous: shared machine)
         homing=HomingSection(method=37, speed_switch=2.0, speed_zero=0.5, acceleration=20.0,
                              timeout=20.0 * SLOWDOWN))
     return replace(base, **overrides)

@@ -114,3 +114,31 @@ def test_repeated_log_lines_are_counted_not_repeated():
     assert records == ["send of 0x080 failed after 0.00 s", "something else", "an info line",
                        "an info line",
                        "send of 0x080 failed after 12.00 s (999 more like it in the last 12 s)"]
+
+
+async def test_a_reconnect_try_to_a_silent_peer_fails_at_once(monkeypatch, caplog):
+    """While the socketcand peer is gone, each reconnect try fails at once (nothing listens)
+    and the tries follow the back-off — not one try blocked in python-can's 10 s of retries."""
+    import canopen
+
+    monkeypatch.setattr(canopen.network.Network, "NOTIFIER_SHUTDOWN_TIMEOUT", 0.0)
+    caplog.set_level(logging.WARNING, logger="tcs.drivers.canbus")
+    cabinet = Cabinet()
+    port = await cabinet.start()
+    section = CanSection(interface="socketcand", channel="can0", port=port, sync_period=0.01,
+                         heartbeat_period=0.05, boot_timeout=3.0, sdo_timeout=0.3,
+                         options={"tcp_tune": "true"})
+    system = CanDrives(section, {"az": drive_section(1)})
+    system.cycle.add_callback(system.step_all)
+    try:
+        await asyncio.to_thread(system.open)
+        assert await asyncio.to_thread(system.boot) == {}
+        system.start()
+        await cabinet.kill()
+
+        def tries() -> int:
+            return sum("reopening failed" in r.getMessage() for r in caplog.records)
+
+        await wait(lambda: tries() >= 3, "three reconnect tries", timeout=8.0)
+    finally:
+        await asyncio.to_thread(system.close)
