@@ -7,6 +7,7 @@ import os
 import signal
 import socket
 import subprocess
+from pathlib import Path
 import sys
 import time
 
@@ -86,6 +87,43 @@ def test_a_second_server_on_the_same_state_directory_is_refused(tmp_path):
         if first.poll() is None:
             first.kill()
         first.communicate()
+
+
+def test_a_folder_named_tcs_in_the_working_directory_shadows_nothing(tmp_path):
+    """tcs-server started where a folder ``tcs/sim`` exists (the state directory's parent, as
+    ``XDG_STATE_HOME=$PWD`` makes it, or a clone's parent): its control process found
+    ``tcs.sim`` there and could not start the simulated drives."""
+    (tmp_path / "tcs" / "sim").mkdir(parents=True)
+    port = free_port()
+    env = dict(os.environ, XDG_STATE_HOME=str(tmp_path / "state"), PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([str(Path(sys.executable).parent / "tcs-server"), "--port", str(port),
+                             "--opentsi-port", "-1", "--alpaca-port", "-1"], cwd=tmp_path, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        s = connect(port, timeout=120)
+        f = s.makefile("rb")
+        f.readline()
+        s.sendall(b'AUTH PLAIN "admin" "admin"\n')
+        assert f.readline() == b"AUTH OK 0 0\n"
+        deadline = time.monotonic() + 120
+        while True:  # the drives (in the control process) boot after the port is open
+            s.sendall(b"1 GET AZ.REALPOS\n")
+            lines = [f.readline()]
+            while not lines[-1].startswith((b"1 COMMAND COMPLETE", b"1 COMMAND FAILED")):
+                lines.append(f.readline())
+            if any(line.startswith(b"1 DATA INLINE AZ.REALPOS=") for line in lines):
+                break
+            assert time.monotonic() < deadline and proc.poll() is None, lines
+            time.sleep(0.5)
+        f.close()
+        s.close()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(60) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        _, err = proc.communicate()
+    assert "Traceback" not in err, err
 
 
 def test_bad_hardware_file_is_refused_with_a_clear_message(tmp_path):

@@ -130,8 +130,10 @@ class ControlProcess:
         self.loop = loop
         parent, child = socket.socketpair()
         try:
+            # -P: the working directory is not put on the child's sys.path (a folder named
+            # tcs there, such as <state>/tcs/<file> or a clone's parent, would shadow the package)
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "tcs.axes.control_core", str(child.fileno())],
+                [sys.executable, "-P", "-m", "tcs.axes.control_core", str(child.fileno())],
                 pass_fds=(child.fileno(),), close_fds=True)
         finally:
             child.close()
