@@ -311,7 +311,7 @@ def test_info_of_a_silent_drive_is_hardware_error(hw, capsys):
 
 def test_drives_left_disabled_and_quiet_after_the_tool(hw, capsys):
     # The simulated drives run outside the tool here, as real hardware would.
-    from tcs.model.telescope import start_simulated_drives
+    from tcs.sim.drive_network import start_simulated_drives
 
     sims = start_simulated_drives(load_config(hw))
     try:
@@ -488,7 +488,7 @@ async def test_refuses_a_bus_with_another_master_over_socketcand(hw, capsys):
     # SYNC on that bus. The tool hears it and refuses; once it is gone, the tool works.
     import asyncio
 
-    from tcs.model.telescope import start_simulated_drives
+    from tcs.sim.drive_network import start_simulated_drives
     from tcs.sim.socketcand_server import SocketcandServer
 
     config = load_config(hw)

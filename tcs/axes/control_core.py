@@ -277,7 +277,7 @@ class Core:
             self.can.bus.start_heartbeat()
         else:
             if config.simulation is not None and config.simulation.drives:
-                from tcs.model.telescope import start_simulated_drives
+                from tcs.sim.drive_network import start_simulated_drives
                 self.sims = start_simulated_drives(config)
             self.can = CanDrives.from_config(config)
             self.can.open()

@@ -4,7 +4,7 @@ How it works
 ------------
 :func:`prepare_config` decides whether to simulate: with ``--simulate``, or by default when
 ``[can]`` is the in-process ``virtual`` bus and the file has ``[simulation.drives]``, the
-simulated drives are started in this process (:func:`tcs.model.telescope.start_simulated_drives`)
+simulated drives are started in this process (:func:`tcs.sim.drive_network.start_simulated_drives`)
 — on a file whose bus is not virtual, ``--simulate`` moves ``[can]`` to a private virtual
 channel first, so the real bus is never touched.
 
@@ -124,7 +124,7 @@ class DriveSession:
         self.close()
 
     def open(self) -> None:
-        from tcs.model.telescope import start_simulated_drives
+        from tcs.sim.drive_network import start_simulated_drives
 
         if self.simulate:
             self.sims = start_simulated_drives(self.config)

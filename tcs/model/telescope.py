@@ -165,6 +165,7 @@ class Telescope:
         if config.simulation is not None and config.simulation.drives and config.can.interface == "virtual":
             # simulated drives on an in-process bus live here; on any other bus they are
             # somebody else's (tcs-sim, a gateway), and only the bus settings differ
+            from tcs.sim.drive_network import start_simulated_drives
             self.sims = start_simulated_drives(config)
         if self.can is None:
             self.can = CanDrives.from_config(config)
@@ -262,9 +263,3 @@ class Telescope:
             self._blocking.shutdown(wait=True)
             self._blocking = None
 
-
-def start_simulated_drives(config: HwConfig):
-    """Start the ``[simulation]`` drives on the ``[can]`` bus of ``config`` (same process)."""
-    from tcs.sim.drive_network import SimDriveNetwork, params_from_config
-
-    return SimDriveNetwork(config.can.bus_kwargs(), params_from_config(config))

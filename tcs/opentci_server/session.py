@@ -52,7 +52,7 @@ import itertools
 import logging
 import time
 from collections import deque
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Protocol
 
 from tcs.errors import TcsError
 from tcs.model.events import ERROR, LEVEL_BITS, Event, current_cause
@@ -64,7 +64,35 @@ from tcs.opentci_server.tree import module_of
 from tcs.opentci_server.values import ascii_text
 
 if TYPE_CHECKING:  # pragma: no cover
-    from tcs.opentci_server.server import Tpl2Server
+    from tcs.opentci_server.guard import ConnectionGuard
+    from tcs.opentci_server.scheduler import FairScheduler
+
+
+class SessionHost(Protocol):
+    """What a session may use of the server that made it (the TPL2 server gives itself;
+    nothing else of the server is the session's business): the settings, accounts and events,
+    the tree, the connection guard and fair scheduler, the other sessions (for ``ABORT`` of
+    another connection's command), and the calls below."""
+
+    settings: Any
+    users: dict
+    events: Any
+    tree: Any
+    guard: "ConnectionGuard"
+    scheduler: "FairScheduler"
+    sessions: dict
+
+    def admit(self, session: "Session") -> str | None:
+        """Take ``session`` in (None) or say why not."""
+
+    def forget(self, session: "Session") -> None:
+        """The session ended."""
+
+    def spawn(self, coro) -> asyncio.Task:
+        """Run a command's coroutine as a task the server keeps track of."""
+
+    async def authenticate(self, name: str, password: str) -> Any:
+        """The user when ``password`` is right, else None."""
 
 log = logging.getLogger(__name__)
 
@@ -99,7 +127,7 @@ class _Command:
 class Session(asyncio.Protocol):
     """The server side of one TPL2 connection (also the object behind SERVER.CONNECTION.*)."""
 
-    def __init__(self, server: "Tpl2Server", conn_id: int):
+    def __init__(self, server: SessionHost, conn_id: int):
         self.server = server
         self.id = conn_id
         cfg = server.settings

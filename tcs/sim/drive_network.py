@@ -118,3 +118,10 @@ def params_from_config(config) -> dict[int, SimDriveParams]:
             acceleration_scale=sim.acceleration_factor / ipu if sim.acceleration_factor else 1.0,
             objects={sdo_entry(k): v for k, v in sim.objects.items()})
     return params
+
+
+def start_simulated_drives(config):
+    """Start the ``[simulation]`` drives of the hardware file ``config`` on its ``[can]`` bus, in
+    this process. Called by whoever builds that bus (the service's model or its control
+    process, ``tcs-commission``), never by the model for another process."""
+    return SimDriveNetwork(config.can.bus_kwargs(), params_from_config(config))
