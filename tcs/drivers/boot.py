@@ -51,7 +51,7 @@ import canopen
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from tcs.config.can import PDO_SUBS, CanSection, DriveSection, interpolation_period
-from tcs.drivers.eds_check import raw_writes, usable_writes
+from tcs.drivers.eds import LOST, NAMES, OPTIONAL, object_name, raw_writes, usable_writes  # noqa: F401
 from tcs.drivers.pdo import PdoLayout, configuration_writes
 from tcs.drivers.takeover import stop_if_powered
 from tcs.errors import CommunicationError, ErrorNumber, HardwareError
@@ -82,63 +82,8 @@ SDO_ABORTS = {
     0x08000022: "data cannot be stored in the present device state",
 }
 
-#: Objects whose absence (abort 0x06020000 / 0x06090011) is no error: optional in CiA 301/402.
-#: The EDS check (:mod:`tcs.drivers.eds_check`) skips them on a drive that lacks them.
-OPTIONAL = {0x1006, 0x607F, 0x1016, 0x60C2, 0x607D, 0x6065, 0x6066, 0x6081, 0x6083, 0x6084,
-            0x6085, 0x6099, 0x609A, 0x607C, 0x603F}
-
-#: What is lost without an optional object (logged when skipped; README table).
-LOST = {
-    0x1006: "the drive takes the SYNC period from the bus (no 0x1006 check)",
-    0x1016: "THE DRIVE WILL NOT NOTICE A DEAD MASTER (no heartbeat consumer): if the TCS "
-            "stops, the drive keeps its last command until its own RPDO/SYNC watchdog, if any",
-    0x60C2: "the drive interpolates CSP setpoints over its own period (set it on the drive)",
-    0x607D: "no software limits in the drive: only the TCS's own limits protect the axis",
-    0x6065: "the drive's following-error window stays as commissioned",
-    0x6066: "the drive's following-error time-out stays as commissioned",
-    0x607F: "the drive's max profile velocity stays as commissioned",
-    0x6081: "profile moves use the drive's commissioned velocity",
-    0x6083: "profile moves use the drive's commissioned acceleration",
-    0x6084: "profile deceleration stays as commissioned",
-    0x6085: "quick stop decelerates as commissioned",
-    0x6099: "homing speeds stay as commissioned",
-    0x609A: "homing acceleration stays as commissioned",
-    0x607C: "no home offset (set the vendor's object with [drives.<name>.sdo])",
-    0x603F: "the error code comes from EMCY only (read by SDO on a fault)",
-    0x6007: "the drive reacts to a lost connection (SYNC/RPDOs) as commissioned",
-    0x605A: "quick stop behaves as commissioned",
-    0x605C: "disable operation behaves as commissioned",
-    0x605E: "the fault reaction is the drive's commissioned one",
-}
-#: The drive's own reactions to a lost master (written when the drive has them).
-OPTIONAL |= {0x6007, 0x605A, 0x605C, 0x605E}
-#: IP sub-mode select: drives with linear interpolation only may lack it.
-OPTIONAL.add(0x60C0)
-LOST[0x60C0] = "the drive interpolates IP data as commissioned (linear expected)"
-
-NAMES = {
-    0x1000: "device type", 0x1006: "SYNC period", 0x1016: "consumer heartbeat time",
-    0x1017: "producer heartbeat time", 0x1018: "identity", 0x603F: "error code",
-    0x6041: "statusword", 0x6060: "modes of operation", 0x6061: "modes of operation display",
-    0x6064: "position actual value", 0x6065: "following-error window",
-    0x6066: "following-error time-out", 0x607C: "home offset", 0x607D: "software position limit",
-    0x607F: "max profile velocity",
-    0x6081: "profile velocity", 0x6083: "profile acceleration", 0x6084: "profile deceleration",
-    0x6085: "quick-stop deceleration", 0x6098: "homing method", 0x6099: "homing speeds",
-    0x609A: "homing acceleration", 0x60C2: "interpolation time period",
-    0x60C0: "interpolation sub-mode", 0x60C1: "interpolation data record",
-    0x6007: "abort connection option", 0x605A: "quick stop option",
-    0x605C: "disable operation option", 0x605E: "fault reaction option",
-}
-
-
-def object_name(index: int) -> str:
-    if 0x1400 <= index < 0x1C00:
-        kind = "RPDO" if index < 0x1800 else "TPDO"
-        number = (index & 0xFF) + 1
-        what = "mapping" if index & 0x0200 else "communication"
-        return f"{kind}{number} {what}"
-    return NAMES.get(index, "")
+# The object tables (OPTIONAL, LOST, NAMES, object_name) live in tcs.drivers.eds, below the
+# boot and the EDS check that share them; they are imported here for the boot's use.
 
 
 class Sdo:

@@ -213,7 +213,7 @@ def mapping_for(section: DriveSection, eds, node_id: int,
                 mode: str = "csp") -> dict[str, tuple[int, ...]]:
     """The effective mapping of a drive run in ``mode`` from its EDS file (the configured one
     if unreadable)."""
-    from tcs.drivers.eds_check import load_od
+    from tcs.drivers.eds import load_od
     fallback = section.mapping if section.pdo else default_mapping(mode)
     try:
         od = load_od(eds, node_id)
