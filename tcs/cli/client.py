@@ -794,7 +794,8 @@ def parser() -> argparse.ArgumentParser:
     s.add_argument("--value-only", "-v", action="store_true", help="print only the values, one a line")
     s = sub.add_parser("set", parents=[common], help="write variables and wait for the result")
     s.add_argument("assignments", nargs="+", metavar="VAR=VALUE",
-                   help='e.g. AZ.TARGETPOS=120 or POINTING.TARGET.NAME="M 42"; all in one SET')
+                   help='e.g. AZ.TARGETPOS=120 or POINTING.TARGET.NAME="M 42"; all in one SET, set '
+                        'one after another (a long one completes before the next starts)')
     s.add_argument("--no-wait", action="store_true",
                    help="return once the command runs (after --grace seconds without a failure)")
     s.add_argument("--grace", type=float, default=1.0, help="see --no-wait (default %(default)s s)")
