@@ -139,6 +139,10 @@ def test_install_is_idempotent_and_keeps_the_hardware_file(tmp_path):
     assert "users: no [[users]]" in first.stderr and "tcs-passwd" in first.stdout
     units = root / "etc" / "systemd" / "system"
     assert (units / "tcs-server.service").is_file() and (units / "tcs-can@.service").is_file()
+    # the DESTDIR venv names /opt/tcs, where it is meant to be copied, not the DESTDIR
+    script = (root / "opt" / "tcs" / "venv" / "bin" / "tcs-server").read_text()
+    assert script.startswith("#!/opt/tcs/venv/bin/python"), script[:80]
+    assert str(root) not in (root / "opt" / "tcs" / "venv" / "bin" / "activate").read_text()
     assert "After=tcs-can@can0.service" in (units / "tcs-server.service.d" / "can.conf").read_text()
     assert "BITRATE=1000000" in (root / "etc" / "tcs" / "can-can0.env").read_text()
     # an older install had put sim.toml (public admin/admin) here: the upgrade says so loudly

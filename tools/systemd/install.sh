@@ -18,6 +18,7 @@
 # copy it over, and give it with --wheelhouse DIR: pip then installs from DIR only (--no-index).
 #
 # DESTDIR=DIR installs below DIR instead of / (no user, no systemctl: for tests and packaging);
+# the venv's scripts then name $prefix, where the tree is meant to be copied;
 # TCS_VENV_OPTIONS (e.g. --system-site-packages) is passed to `python3 -m venv`.
 set -euo pipefail
 prefix=/opt/tcs
@@ -81,11 +82,18 @@ else
 fi
 if [ -n "$wheelhouse" ]; then
   # offline: tcs and its dependencies from the wheelhouse only
-  "$venv/bin/pip" install --quiet --upgrade --no-index --find-links "$wheelhouse" tcs
+  "$venv/bin/python" -m pip install --quiet --upgrade --no-index --find-links "$wheelhouse" tcs
 else
-  "$venv/bin/pip" install --quiet --upgrade "$src"
+  "$venv/bin/python" -m pip install --quiet --upgrade "$src"
 fi
 after=$("$venv/bin/python" -c 'import tcs; print(tcs.__version__)')
+if [ -n "$root" ]; then
+  # a DESTDIR venv is used from $prefix once the tree is copied there (a package, an image):
+  # its scripts and activate name $prefix/venv, not $root$prefix/venv (this script itself only
+  # runs "$venv/bin/python", which works from either place)
+  grep -rlI --exclude-dir=__pycache__ -e "$root$prefix/venv" "$venv/bin" "$venv/pyvenv.cfg" 2>/dev/null |
+    while read -r f; do sed -i "s#$root$prefix/venv#$prefix/venv#g" "$f"; done || true
+fi
 if [ -z "$before" ]; then
   note "installed tcs $after"
 elif [ "$before" != "$after" ]; then
@@ -166,7 +174,7 @@ for user in users:
         print(f"WARNING: user {user.get('name')!r} of {sys.argv[1]} has the PUBLIC password hash of "
               "hwconfig/sim.toml (admin/admin): replace it with one made by tcs-passwd")
 PY
-if "$venv/bin/tcs-server" --check-config "$hwfile"; then
+if "$venv/bin/python" -m tcs.cli.server --check-config "$hwfile"; then
   echo "The hardware file is valid."
   if [ -z "$root" ] && systemctl is-active --quiet tcs-server 2>/dev/null; then
     echo "The service runs the old version until:  systemctl restart tcs-server"
