@@ -32,7 +32,7 @@ from tcs.model.events import EventHub
 from tcs.model.health import ERROR, WARNING, ModuleHealth
 from tcs.model.state_store import StateStore
 from tcs.opentci_server.opentci import SERVER, Root
-from tcs.opentci_server.opentci_cabinet import CABINET
+from tcs.opentci_server.opentci.cabinet import CABINET
 from tcs.opentci_server.server import Tpl2Server
 from tcs.opentci_server.tree import Tree
 

@@ -6,7 +6,7 @@ The PLC runs the motion; the TCS writes a target and a command and reads the sta
 (:class:`~tcs.drivers.plc_axis.PlcAxis`, the axis convention of :mod:`tcs.config.plc`).
 :class:`PlcAxisModule` serves the same attribute names as the drive-based
 :class:`~tcs.axes.axis.Axis`, so the one generic-axis declaration
-(:func:`tcs.opentci_server.opentci_axes.axis_members`) serves both. Everything runs on the event
+(:func:`tcs.opentci_server.opentci.axes.axis_members`) serves both. Everything runs on the event
 loop: setters validate at once and return an ``asyncio.Future`` for long SETs; the PLC
 driver's poll listener (:meth:`PlcAxisModule._on_poll`, once per poll cycle) publishes the
 readbacks, emits the change events and resolves the futures. An :class:`AxisGroup` lets one

@@ -4,7 +4,7 @@ its accounts and its event log.
 How it works
 ------------
 One :class:`ServerModule` per :class:`~tcs.opentci_server.server.Tpl2Server` (see
-:meth:`ServerModule.of`); the declaration in ``opentci.py`` binds ``SERVER`` to it. It reads
+:meth:`ServerModule.of`); the declaration in ``opentci/__init__.py`` binds ``SERVER`` to it. It reads
 the server (sessions, settings, users) and the host (``os``, ``platform``, ``/proc``), keeps
 the event log (``LOG.*``: the recent events a client that connects late can read), and owns
 the accounts written over TPL2.

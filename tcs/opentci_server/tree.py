@@ -2,7 +2,7 @@
 
 How it works
 ------------
-The OpenTCI tree is *declared* once (``tcs/opentci_server/opentci.py``) with the helpers
+The OpenTCI tree is *declared* once (``tcs/opentci_server/opentci/``) with the helpers
 :func:`var`, :func:`sysvar`, :func:`var_array`, :func:`module` and :func:`module_array`. A
 declaration names, for every variable, its type, access levels, range and how it reads and
 writes the **domain object** the module is bound to (an attribute/method name, or a callable).

@@ -23,8 +23,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from tcs.opentci_server.opentci import SERVER
-from tcs.opentci_server.opentci_axes import AXES, axis_members
-from tcs.opentci_server.opentci_enclosure import COVER, COVER_ARRAY, DOME
+from tcs.opentci_server.opentci.axes import AXES, axis_members
+from tcs.opentci_server.opentci.enclosure import COVER, COVER_ARRAY, DOME
 from tcs.opentci_server.tree import (CONFIGURE, FLOAT, INT, STRING, Tree, module, module_array, var)
 from tcs.opentsi import views
 

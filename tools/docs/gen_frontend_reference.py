@@ -159,7 +159,7 @@ async def collect(config: Path) -> dict[str, str]:
         devices = build_devices(service.telescope)
         alpaca = _alpaca_page(devices, config)
     return {
-        "opentci.md": _tree_page("OpenTCI", "tcs/opentci_server/opentci.py", "", config, tci),
+        "opentci.md": _tree_page("OpenTCI", "tcs/opentci_server/opentci/", "", config, tci),
         "opentsi.md": _tree_page("OpenTSI", "tcs/opentsi/declaration.py", " --tree opentsi", config, tsi),
         "alpaca.md": alpaca,
     }

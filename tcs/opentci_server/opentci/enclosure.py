@@ -11,8 +11,8 @@ only where the object has one: the dome rotation). Sensors, switches and the GPS
 
 from __future__ import annotations
 
-from tcs.opentci_server.opentci_axes import axis_members
-from tcs.opentci_server.opentci_common import common
+from tcs.opentci_server.opentci.axes import axis_members
+from tcs.opentci_server.opentci.common import common
 from tcs.opentci_server.tree import FLOAT, INT, STRING, module, module_array, var
 
 

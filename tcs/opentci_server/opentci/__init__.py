@@ -15,11 +15,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from tcs.opentci_server.opentci_axes import AXES
-from tcs.opentci_server.opentci_cabinet import CABINET
-from tcs.opentci_server.opentci_common import common
-from tcs.opentci_server.opentci_enclosure import ENCLOSURE
-from tcs.opentci_server.opentci_pointing import POINTING
+from tcs.opentci_server.opentci.axes import AXES
+from tcs.opentci_server.opentci.cabinet import CABINET
+from tcs.opentci_server.opentci.common import common
+from tcs.opentci_server.opentci.enclosure import ENCLOSURE
+from tcs.opentci_server.opentci.pointing import POINTING
 from tcs.opentci_server.server_module import ServerModule, command_rate
 from tcs.opentci_server.tree import (CONFIGURE, FLOAT, INT, NOBODY, OPERATE, READ_ALL, STRING, Tree, module,
                                      module_array, sysvar, var)

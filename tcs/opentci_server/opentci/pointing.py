@@ -10,7 +10,7 @@ mount binds, the other is absent. Behaviour and units are documented in
 
 from __future__ import annotations
 
-from tcs.opentci_server.opentci_common import common
+from tcs.opentci_server.opentci.common import common
 from tcs.opentci_server.tree import FLOAT, INT, NOBODY, STRING, module, var
 from tcs.pointing.model import MOUNT_TERMS
 

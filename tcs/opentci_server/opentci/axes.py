@@ -8,7 +8,7 @@ hardware file's ``[axes]`` (and so the mount). Part of the one declaration of th
 
 from __future__ import annotations
 
-from tcs.opentci_server.opentci_common import common
+from tcs.opentci_server.opentci.common import common
 from tcs.opentci_server.tree import FLOAT, INT, NOBODY, OPERATE, module, module_array, var
 
 

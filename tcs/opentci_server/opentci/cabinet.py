@@ -8,7 +8,7 @@ documented in ``tcs/model/cabinet.py`` and ``tcs/model/status_list.py``; the COR
 
 from __future__ import annotations
 
-from tcs.opentci_server.opentci_common import common
+from tcs.opentci_server.opentci.common import common
 from tcs.errors import ErrorNumber
 from tcs.opentci_server.tree import (CONFIGURE, FLOAT, INT, NOBODY, STRING, module, module_array, var,
                                      var_array)
