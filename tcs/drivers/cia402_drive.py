@@ -221,7 +221,8 @@ class Cia402Drive:
         if self._boot_count > 0 and self._hb.bootups != self._bootups_at_boot:
             self._lost_position = True  # a boot-up since the last boot: power blip or reset
         self._booted = False
-        self._boot_error = None
+        # (the last boot's error stays while this one tries: a drive retried for ever keeps
+        # showing why it is not there)
         try:
             result = self._boot()
         except TcsError as exc:
@@ -253,6 +254,7 @@ class Cia402Drive:
         if result.error_code and not self._emcy:
             self._emcy = DriveFault(self.device, result.error_code)
         self._bootups_at_boot = self._hb.bootups
+        self._boot_error = None
         self._last_step = None
         self._boot_count += 1
         self._reboot_wanted = False
