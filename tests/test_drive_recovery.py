@@ -309,6 +309,7 @@ async def test_cabinet_acknowledge_fails_when_an_axis_cannot_be_reset(tmp_path):
     finally:
         sim.set_responding(True)
         await c.close()
+        await svc.stop()
 
 
 async def test_status_without_fresh_data_is_unknown_on_every_front_end(tmp_path):
