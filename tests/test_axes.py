@@ -320,8 +320,9 @@ async def test_cable_wrap_goes_the_allowed_way(live):
         lines = await c.until(cmd, WAIT)
         assert lines[-2:] == [f"{cmd} DATA OK AZ.TARGETPOS", f"{cmd} COMMAND COMPLETE"], lines
         assert abs(await c.num("AZ.REALPOS") + 80) <= 0.0005
-        assert max(seen) <= 260.0 + 1e-9, max(seen)
-        assert min(seen) >= -80.0 - 1e-9, min(seen)
+        # (measured positions: an encoder increment of settling, 1e-4°, is no wrong way)
+        assert max(seen) <= 260.0 + 0.0005, max(seen)
+        assert min(seen) >= -80.0 - 0.0005, min(seen)
         assert any(-10 < x < 250 for x in seen), "did not go the long way"
         assert await c.num("AZ.LIMIT_STATE") == 0
         # a direction the axis already points to is reached without moving (the nearest

@@ -173,7 +173,9 @@ def test_server_drives_the_simulator_in_another_process(tmp_path):
             n += 1
             time.sleep(0.05)
         assert b"9 DATA OK AZ.TARGETPOS" in replies, replies
-        assert fastest >= 0.99 * speed, (fastest, speed)
+        # near the configured speed (a late cycle's step is cut to the limit, so a loaded
+        # machine reads a little less; a following-error stop would fail the SET above)
+        assert fastest >= 0.8 * speed, (fastest, speed)
         real = float(command(f, s, 8, "GET AZ.REALPOS")[1].split(b"=")[1])
         assert abs(real - target) < 0.01
         (_, err_bus), (_, err_port) = (other.communicate(timeout=60) for other in others)
