@@ -213,8 +213,6 @@ async def test_load_and_uptime_need_no_proc_files_and_a_refused_reboot_says_why(
     come from sysinfo(2), so they are the host's figures, not 0. A REBOOT the system refuses
     (the unit's NoNewPrivileges: systemctl is denied) fails with systemctl's words instead of
     answering OK. (A stand-in systemctl on PATH: this test must never reboot the machine.)"""
-    import os
-
     from tcs.opentci_server.server_module import host_sysinfo
 
     uptime, load = host_sysinfo()
