@@ -32,11 +32,11 @@ HW = Path(__file__).with_name("hw_alpaca.toml")
 NODE = {"AZ": 1, "ZD": 2, "DEROTATOR[2]": 3}
 MOVING = 1
 WAIT = 60.0
-#: A CSP target step against a MoveAxis's direction larger than this fails the randomized test.
-#: Steps of a few arcseconds back were seen once on a loaded machine (0.00084° on AZ after a
-#: late cycle's step was cut to the speed limit and the motion re-planned): noted in issue 22
-#: to be explained; a motion the wrong way is far larger.
-BACKSTEP = 0.01
+#: A CSP target step against a MoveAxis's direction larger than this fails the randomized test
+#: (two drive increments of rounding). Steps back of 0.0008°–0.07° were seen on a loaded machine: a MoveAxis
+#: arriving while the axis braked hard towards an earlier goal behind it, whose jerk-limited
+#: unwinding of the deceleration reversed the axis first (fixed: MotionPlanner._unwound).
+BACKSTEP = 2e-5
 
 live = live_service(HW)
 
@@ -478,7 +478,7 @@ async def test_late_cycles_never_send_more_than_the_speed_limit(live):
 
 # ------------------------------------------------------------ the seeded randomized test
 
-SEED = 22
+SEED = int(os.environ.get("TCS_FUZZ_SEED", "22"))   # another seed: TCS_FUZZ_SEED=n
 COMMANDS = 2000
 
 

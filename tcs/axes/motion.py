@@ -346,17 +346,34 @@ class MotionPlanner:
         self._end = float(end)
         self._state = state
 
+    def _unwound(self, sp: Setpoint, demanded: float) -> Setpoint:
+        """``sp`` with an acceleration against the way to ``demanded`` cut so that the new
+        move never goes the other way first. Braking hard (towards an earlier goal on the
+        other side), a jerk-limited unwinding of the deceleration takes ``a/j`` seconds and
+        loses ``a²/2j`` of velocity: more than the axis has left, and the axis would reverse
+        — a MoveAxis(+) at 2.9°/s with −120°/s² (jerk 1000) went back 0.07° at −3.1°/s. The
+        acceleration steps to ``√(2·j·|v|)`` at most (where unwinding at the jerk limit
+        ends exactly at rest): one step of jerk above the limit (the next setpoint reports it),
+        never a motion nobody asked for."""
+        way = demanded - sp.position
+        if way * sp.velocity < 0 or way * sp.acceleration >= 0:
+            return sp
+        cap = math.sqrt(2.0 * self.dynamics.max_jerk * abs(sp.velocity))
+        if abs(sp.acceleration) <= cap:
+            return sp
+        return Setpoint(sp.position, sp.velocity, math.copysign(cap, sp.acceleration), 0.0)
+
     def _plan_to(self, demanded: float, speed: float | None = None) -> None:
         """Plan from the current setpoint to rest at ``demanded`` (drive frame), at most at
         ``speed`` (default: :attr:`speed`)."""
-        sp = self._sp
+        d = self.dynamics
+        sp = self._unwound(self._sp, demanded)
         self._softlimit = None
         self._guard.reset()
         self._pending = None
         if sp.at_rest and sp.position == demanded:
             self._idle()
             return
-        d = self.dynamics
         speed = self._speed if speed is None else speed
         self._pending_speed = speed
         traj = self._solver.move(sp, demanded, max_velocity=speed,
