@@ -372,7 +372,9 @@ class PathRecorder:
     """Observes the control loop from inside the service (a cycle callback after the loop's
     own): per cycle, the setpoint sent with the UT1 time the drive reaches it (one SYNC period
     after the next SYNC: linear CSP interpolation, docs/cia402.md), and the drive's actual
-    position with the UT1 time it was measured (this cycle's SYNC). Test instrumentation only."""
+    position with the UT1 time it was measured (this cycle's SYNC) — both the times the loop
+    itself used (a clock read of its own here, preempted on a busy host, misplaced samples by
+    velocity × preemption: 4″ at 3°/s). Test instrumentation only."""
 
     def __init__(self, svc, module: str):
         self.telescope = svc.telescope
@@ -382,14 +384,12 @@ class PathRecorder:
         self.source = svc.telescope.can.cycle
 
     def __call__(self, cycle) -> None:
-        now = time.monotonic()
-        ut1 = self.telescope.local.ut1()
+        loop = self.telescope.control_loop   # (its step ran before this callback, same cycle)
         st = self.axis.drive.status()
         if st.setpoint is not None:
-            reached = cycle.next_sync + self.source.period
-            self.setpoints.append((ut1 + reached - now, st.setpoint))
+            self.setpoints.append((loop.setpoint_ut1, st.setpoint))
         if self.axis.last_status is not None:
-            self.actual.append((ut1 - (now - cycle.sync_time), self.axis.last_status.position))
+            self.actual.append((loop.measured_ut1, self.axis.last_status.position))
 
     def __enter__(self):
         self.source.add_callback(self)

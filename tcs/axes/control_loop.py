@@ -51,16 +51,42 @@ class ControlLoop:
         self.cycles = 0
         self.last_cycle = 0.0
         self.max_step = 0.0
+        self.setpoint_ut1 = self.measured_ut1 = 0.0
         self.mount = [a for a in self.axes if getattr(getattr(a, "section", None), "module", None)
                       in MOUNT_MODULES and getattr(a.section, "index", None) is None]
         self._mount_faulted: set = set()
         source.add_callback(self.step)
 
+    #: a monotonic/UT1 reading pair is taken again when a preemption between the reads
+    #: made them further apart than this (s)
+    PAIR_SPREAD = 50e-6
+
+    def _clocks(self) -> tuple[float, float, float]:
+        """(monotonic now, the monotonic time ``ut1`` was read at, ``ut1``). The UT1 clock and
+        the cycle's monotonic clock are read one after the other: a thread preempted between
+        the two reads on a busy host maps cycle times to UT1 wrongly by the preemption, and a
+        trajectory sampled there is off its path by velocity × preemption (4″ at 3°/s for
+        0.4 ms were seen). So the UT1 read is bracketed by two monotonic reads and taken
+        again (twice at most; the tightest pair is kept) when they are far apart."""
+        now = before = self.clock()
+        best = None
+        for _ in range(3):
+            ut1 = self.ut1()
+            after = self.clock()
+            spread = after - before
+            if best is None or spread < best[0]:
+                best = (spread, (before + after) / 2, ut1)
+            if spread <= self.PAIR_SPREAD:
+                break
+            before = after
+        return now, best[1], best[2]
+
     def step(self, cycle: Cycle) -> None:
-        now = self.clock()
-        ut1 = self.ut1()
-        t = ut1 + (cycle.next_sync - now) + self.reach_delay
-        measured = ut1 + (cycle.sync_time - now)  # the drives sampled their position at SYNC
+        now, at, ut1 = self._clocks()
+        t = ut1 + (cycle.next_sync - at) + self.reach_delay
+        measured = ut1 + (cycle.sync_time - at)  # the drives sampled their position at SYNC
+        #: for observers (tests, diagnostics): this cycle's setpoint and measurement times
+        self.setpoint_ut1, self.measured_ut1 = t, measured
         for axis in self.axes:
             try:
                 axis.cycle(t, now, measured)
