@@ -3,8 +3,10 @@
 ``_no_leaks`` (autouse) fails any test that leaves threads or asyncio tasks behind: servers,
 buses, notifiers and simulators must be stopped by the test that started them.
 
-The suite runs in pytest-xdist workers (``-n 3 --dist loadfile``, pyproject.toml): a file runs
-on one worker, in order, and its module-scoped service starts once. What a test uses is its
+The suite runs in pytest-xdist workers (``-n 4 --dist loadfile``, pyproject.toml): a file runs
+on one worker, in order, and its module-scoped service starts once. xdist hands the files out
+in collection order, so the longest files are collected first (``SLOW_FIRST``; longest-first
+scheduling: a long file handed out last would set the suite's wall time on its own). What a test uses is its
 own: free ports, ``tmp_path``, a private virtual CAN channel, ``XDG_STATE_HOME`` in ``tmp_path``
 for the processes it starts. A kernel CAN bus is shared: see ``tests/vcan/conftest.py``.
 """
@@ -16,6 +18,22 @@ import threading
 import time
 
 import pytest
+
+#: The files that take longest (their tests' total, a run of the whole suite with
+#: ``--durations=0``), longest first; the rest follow in their usual order.
+SLOW_FIRST = (
+    "test_pointing_module.py", "test_alpaca.py", "test_motion_safety.py",
+    "test_control_process.py", "test_motion.py", "test_systemd.py", "test_two_processes.py",
+    "test_axes.py", "test_busy_host.py", "test_commission.py", "test_vendor_drives.py",
+    "test_opentsi.py", "test_server.py", "test_drive_recovery.py", "test_wheel.py",
+    "test_enclosure.py", "test_cli_server.py", "test_driver_modes.py",
+    "test_conformance_server.py", "test_client.py",
+)
+
+
+def pytest_collection_modifyitems(session, config, items):
+    rank = {name: i for i, name in enumerate(SLOW_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # (stable: file order kept)
 
 
 def _extra_threads(before: set[int]) -> list[threading.Thread]:
