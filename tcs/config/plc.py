@@ -341,16 +341,6 @@ class PlcSection:
         return resolved
 
     def axis_names(self) -> list[str]:
-        """Axes that follow the axis convention (``X_target``/``_command``/``_position``/``_status``)."""
-        names = []
-        for name in self.points:
-            if name.endswith("_target"):
-                axis = name[: -len("_target")]
-                if all(f"{axis}_{s}" in self.points for s in ("command", "position", "status")):
-                    names.append(axis)
-        return names
-
-    def axis_names(self) -> list[str]:
         """Every axis of the map that follows the axis convention (``X_command``, ``X_target`` …)."""
         return [name[:-len("_command")] for name in self.map
                 if name.endswith("_command") and not self.axis_problems(name[:-len("_command")])]
