@@ -8,6 +8,9 @@ port, and the fast ``tests/hw_axes_fast.toml``).
 3  ADDPOINTS that cannot be done (non-increasing times, more points than fit) is FAILED n,
    not RANGE (RANGE is the !MIN/!MAX check only).
 5  MOTION_STATE bit 3 on FILTER[2] at rest after referencing.
+9  SERVER (TPL2 §9): ACCOUNTS.USERNAMES/BLOCKED/UNBLOCKED and the MODIFY form, CLIENT[] read at
+   level 0 only, LOG.CLEAR/EVENTMASK written at level 0, INFO.FLAGS a string, "no restriction"
+   readable by any login (levels 10 10 too).
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import pytest
 from support.live import LiveService
 from support.opentci_client import Client, upload
 from support.service import start_service
+from support.tpl2 import RawClient
 
 FAST = Path(__file__).with_name("hw_axes_fast.toml")
 WAIT = 60.0  # generous: behaviour, not timing
@@ -150,5 +154,105 @@ async def test_addpoints_that_cannot_be_done_is_failed_not_range(live):
         assert lines[-2:] == ["13 DATA ERROR AZ.TRAJECTORY.ADDPOINTS RANGE", "13 COMMAND COMPLETE"], lines
         assert ok(await c.set("AZ.TRAJECTORY.RUN=0"), "AZ.TRAJECTORY.RUN")
         assert await c.get("AZ.TRAJECTORY.FREEPOINTS") == str(free)
+    finally:
+        await c.close()
+
+
+# ------------------------------------------------------------------ item 9
+
+
+async def auth(port: int, user: str, password: str, levels: str = "") -> tuple[RawClient, str]:
+    c = await RawClient.connect(port, login=None)
+    await c.send(f'AUTH PLAIN "{user}" "{password}"{" " + levels if levels else ""}')
+    return c, await c.readline()
+
+
+async def test_server_levels_flags_client_and_log(live):
+    port = live
+    anyone, reply = await auth(port, "admin", "admin", "10 10")
+    assert reply == "AUTH OK 10 10"
+    lines = await anyone.command(1, "GET SERVER.CONNECTION.RLEVEL;SERVER.CONNECTION.WLEVEL;SERVER.INFO.FLAGS;"
+                                    "SERVER.CONNECTION.RLEVEL!RLEVEL")
+    assert lines[1:-1] == ["1 DATA INLINE SERVER.CONNECTION.RLEVEL=10", "1 DATA INLINE SERVER.CONNECTION.WLEVEL=10",
+                           '1 DATA INLINE SERVER.INFO.FLAGS=""', "1 DATA INLINE SERVER.CONNECTION.RLEVEL!RLEVEL=9"]
+    assert await anyone.get("SERVER.INFO.FLAGS!TYPE") == "3"
+    # its own per-connection settings have no restriction either; operating has
+    assert (await anyone.command(2, "SET SERVER.CONNECTION.EVENTMASK=0"))[1] == \
+        "2 DATA OK SERVER.CONNECTION.EVENTMASK"
+    assert (await anyone.command(3, "SET AZ.STOP=1"))[1] == "3 DATA ERROR AZ.STOP DENIED"
+    config, reply = await auth(port, "admin", "admin", "1 1")
+    assert reply == "AUTH OK 1 1"
+    admin = await RawClient.connect(port)
+    for c, ok in ((anyone, False), (config, False), (admin, True)):
+        lines = await c.command(4, "GET SERVER.CLIENT[0].ID;SERVER.CLIENT[0].USERNAME;SERVER.ACCOUNTS.USERNAMES")
+        if ok:
+            assert all("DENIED" not in x for x in lines), lines
+        else:
+            assert lines[1:-1] == ["4 DATA INLINE SERVER.CLIENT[0].ID=DENIED",
+                                   "4 DATA INLINE SERVER.CLIENT[0].USERNAME=DENIED",
+                                   "4 DATA INLINE SERVER.ACCOUNTS.USERNAMES=DENIED"], lines
+        for n, obj in ((5, "SERVER.LOG.CLEAR=1"), (6, "SERVER.LOG.EVENTMASK=15")):
+            lines = await c.command(n, f"SET {obj}")
+            name = obj.split("=")[0]
+            assert lines[1] == (f"{n} DATA OK {name}" if ok else f"{n} DATA ERROR {name} DENIED"), lines
+    assert await admin.get("SERVER.LOG.CLEAR!WLEVEL") == "0"
+    assert await admin.get("SERVER.CLIENT[0].ID!RLEVEL") == "0"
+    for c in (anyone, config, admin):
+        await c.close()
+
+
+async def test_accounts_modify_form(live):
+    port = live
+    c = await RawClient.connect(port)
+    m = "SERVER.ACCOUNTS.MODIFY"
+    try:
+        assert await c.get("SERVER.ACCOUNTS.USERNAMES") == '"admin"'
+        assert await c.get("SERVER.ACCOUNTS.MODIFY!MEMBERS") == "12"
+        # a new account through the form
+        lines = await c.command(1, f'SET {m}.USERNAME="obs9";{m}.NAME="Night observer";{m}.PASSWORD="pw9";'
+                                   f'{m}.MIN_RLEVEL=3;{m}.MIN_WLEVEL=3;{m}.DEFAULT_RLEVEL=5;{m}.DEFAULT_WLEVEL=6;'
+                                   f'{m}.TYPE=0;{m}.ADD=1', timeout=30)
+        assert lines[-2:] == [f"1 DATA OK {m}.ADD", "1 COMMAND COMPLETE"], lines
+        assert await c.get(f"{m}.PASSWORD") == "DENIED"  # write-only
+        assert await c.get("SERVER.ACCOUNTS.USERNAMES") == '"admin,obs9"'
+        assert await c.get("SERVER.ACCOUNTS.UNBLOCKED") == '"admin,obs9"'
+        assert await c.get("SERVER.ACCOUNTS.BLOCKED") == '""'
+        # a login asking for no levels gets the defaults, never more than the minimum
+        for levels, expect in (("", "AUTH OK 5 6"), ("4 4", "AUTH OK 4 4"), ("0 0", "AUTH OK 3 3")):
+            o, reply = await auth(port, "obs9", "pw9", levels)
+            assert reply == expect, (levels, reply)
+            await o.close()
+        # it exists now: ADD is an action that cannot be done (FAILED), not a value out of range
+        lines = await c.command(2, f"SET {m}.ADD=1")
+        assert lines[-2:] == [f"2 DATA ERROR {m}.ADD FAILED 5", "2 COMMAND COMPLETE"], lines
+        assert (await c.command(3, f"SET {m}.TYPE=1"))[1] == f"3 DATA ERROR {m}.TYPE RANGE"
+        # another connection's form is its own; writing USERNAME loads the account
+        other = await RawClient.connect(port)
+        assert await other.get(f"{m}.USERNAME") == '""'
+        assert (await other.command(4, f'SET {m}.USERNAME="obs9"'))[1] == f"4 DATA OK {m}.USERNAME"
+        lines = await other.command(5, f"GET {m}.NAME;{m}.MIN_RLEVEL;{m}.MIN_WLEVEL;{m}.DEFAULT_RLEVEL;"
+                                       f"{m}.DEFAULT_WLEVEL;{m}.BLOCKED")
+        assert [x.split("=", 1)[1] for x in lines[1:-1]] == ['"Night observer"', "3", "3", "5", "6", "0"], lines
+        # UPDATE: block it and change its password
+        lines = await other.command(6, f'SET {m}.BLOCKED=1;{m}.PASSWORD="pw10";{m}.UPDATE=1', timeout=30)
+        assert lines[-2:] == [f"6 DATA OK {m}.UPDATE", "6 COMMAND COMPLETE"], lines
+        assert (await auth(port, "obs9", "pw10"))[1] == "AUTH FAILED"
+        assert await c.get("SERVER.ACCOUNTS.BLOCKED") == '"obs9"'
+        assert (await c.command(7, 'SET SERVER.ACCOUNTS.UNBLOCKED="obs9"'))[1] == \
+            "7 DATA OK SERVER.ACCOUNTS.UNBLOCKED"
+        o, reply = await auth(port, "obs9", "pw10")
+        assert reply == "AUTH OK 5 6"
+        await o.close()
+        # the hardware file's user: not removed, never more privilege than the file gives
+        assert (await other.command(8, f'SET {m}.USERNAME="admin";{m}.REMOVE=1'))[-2] == \
+            f"8 DATA ERROR {m}.REMOVE FAILED 5"
+        # REMOVE of the TPL2 account
+        lines = await other.command(9, f'SET {m}.USERNAME="obs9";{m}.REMOVE=1')
+        assert lines[-2:] == [f"9 DATA OK {m}.REMOVE", "9 COMMAND COMPLETE"], lines
+        assert await c.get("SERVER.ACCOUNTS.USERNAMES") == '"admin"'
+        assert (await auth(port, "obs9", "pw10"))[1] == "AUTH FAILED"
+        await other.close()
+        # the string shortcuts that do not collide with §9 stay
+        assert await c.get("SERVER.ACCOUNTS.LIST") == '"admin:0:0:0:file"'
     finally:
         await c.close()
