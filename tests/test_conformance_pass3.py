@@ -11,6 +11,8 @@ port, and the fast ``tests/hw_axes_fast.toml``).
 9  SERVER (TPL2 §9): ACCOUNTS.USERNAMES/BLOCKED/UNBLOCKED and the MODIFY form, CLIENT[] read at
    level 0 only, LOG.CLEAR/EVENTMASK written at level 0, INFO.FLAGS a string, "no restriction"
    readable by any login (levels 10 10 too).
+11 A ZD-ZD telescope ships (``hwconfig/sim-zdzd.toml``): ZD[2] and the azimuth rotator
+   DEROTATOR[0] served and moving, POINTING absent (README: why).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from support.service import start_service
 from support.tpl2 import RawClient
 
 FAST = Path(__file__).with_name("hw_axes_fast.toml")
+ZDZD = Path(__file__).resolve().parent.parent / "hwconfig" / "sim-zdzd.toml"
 WAIT = 60.0  # generous: behaviour, not timing
 MOVING, TRAJ, ON_TARGET = 1, 2, 8
 
@@ -256,3 +259,40 @@ async def test_accounts_modify_form(live):
         assert await c.get("SERVER.ACCOUNTS.LIST") == '"admin:0:0:0:file"'
     finally:
         await c.close()
+
+
+# ------------------------------------------------------------------ item 11
+
+
+async def test_zd_zd_telescope_serves_its_axes_and_no_pointing(tmp_path):
+    svc, port = await start_service(tmp_path / "state", ZDZD)
+    c = await Client.connect(port)
+    try:
+        lines = await c.command(1, "GET CONFIG.MOUNT;CONFIG.MOUNTOPTIONS;CONFIG.ORIENTATION;ZD!COUNT;ZD!CLASS;"
+                                   "DEROTATOR!COUNT;AZ.VERSION;POINTING.TRACK;HA.VERSION")
+        assert lines[1:-1] == ['1 DATA INLINE CONFIG.MOUNT="ZD-ZD"', '1 DATA INLINE CONFIG.MOUNTOPTIONS="ZD-ZD"',
+                               "1 DATA INLINE CONFIG.ORIENTATION=0.0", "1 DATA INLINE ZD!COUNT=2",
+                               "1 DATA INLINE ZD!CLASS=1003", "1 DATA INLINE DEROTATOR!COUNT=1",
+                               "1 DATA INLINE AZ.VERSION=UNKNOWN", "1 DATA INLINE POINTING.TRACK=UNKNOWN",
+                               "1 DATA INLINE HA.VERSION=UNKNOWN"], lines
+        # the two ZD axes and the rotator are whole generic axes (same members as AZ-ZD's ZD)
+        assert await c.get("ZD[0]!MEMBERS") == await c.get("ZD[1]!MEMBERS") == await c.get("DEROTATOR[0]!MEMBERS")
+        for ax in ("ZD[0]", "ZD[1]", "DEROTATOR[0]"):
+            assert int(await c.num(f"{ax}.TYPE")) >= 1
+            await c.wait(f"{ax}.REALPOS", lambda v: isinstance(v, float), WAIT)
+            real, target = await c.nums(f"{ax}.REALPOS", f"{ax}.TARGETPOS")
+            assert target == real, (ax, real, target)
+        assert await c.nums("ZD[0].REALPOS", "ZD[1].REALPOS") == [10.0, -5.0]
+        await ready(c, "ZD[0]", "ZD[1]")
+        assert await c.nums("ZD[0].REALPOS", "ZD[1].REALPOS") == [pytest.approx(10.0, abs=0.01),
+                                                                  pytest.approx(-5.0, abs=0.01)]
+        lines = await c.set("ZD[0].TARGETPOS=10.5;ZD[1].TARGETPOS=-5.5", WAIT)
+        assert ok(lines, "ZD[0].TARGETPOS") and ok(lines, "ZD[1].TARGETPOS"), lines
+        assert await c.nums("ZD[0].REALPOS", "ZD[1].REALPOS") == [pytest.approx(10.5, abs=0.01),
+                                                                  pytest.approx(-5.5, abs=0.01)]
+        lines = await c.command(2, "SET ZD[1].TARGETPOS=86")
+        assert lines[-2:] == ["2 DATA ERROR ZD[1].TARGETPOS RANGE", "2 COMMAND COMPLETE"], lines
+        assert int(await c.num("ZD[1].TRAJECTORY.FREEPOINTS")) > 0
+    finally:
+        await c.close()
+        await svc.stop()
