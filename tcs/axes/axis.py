@@ -835,9 +835,14 @@ class Axis(ModuleHealth):
                     if abs(st.position - self.positions[nearest]) > max(self.section.tolerance, 1e-9):
                         # homing stops past the index (a wheel 0.125 deg off its port was seen):
                         # the profile move a TARGETPOS of that port makes ends the referencing
-                        self.drive.move_to(self.positions[nearest])
-                        self._settle, self._settle_since, self._settle_started = True, now, False
-                        self.referenced = 0.99
+                        try:
+                            self.drive.move_to(self.positions[nearest])
+                        except TcsError as exc:  # referenced all the same, not on target
+                            log.warning("%s: cannot settle on port %d after homing: %s",
+                                        self.module_name, nearest, exc.message)
+                        else:
+                            self._settle, self._settle_since, self._settle_started = True, now, False
+                            self.referenced = 0.99
                 if not self._settle:
                     self._referenced_now()
             elif st.homing is Progress.FAILED:
