@@ -64,12 +64,12 @@ async def test_freepoints_rise_while_running_and_after_the_end(fast):
     run = await c.start("AZ.TRAJECTORY.RUN=1")
     await c.wait("AZ.TRAJECTORY.FREEPOINTS", lambda v: free - 12 < v < free - 1, WAIT)  # rising
     assert ok(await c.until(run, WAIT), "AZ.TRAJECTORY.RUN")
-    # all executed: every point is free again but the one the path ended on
-    await c.wait("AZ.TRAJECTORY.FREEPOINTS", lambda v: v >= free - 1, WAIT)
+    # all executed: every point is free again (issue 24 item 2: the one the path ended on too)
+    assert await c.num("AZ.TRAJECTORY.FREEPOINTS") == free
     # a full buffer fits again, without RUN=0 first
     t1 = await c.num("LOCAL.UT1") + 1.0
     p1 = await c.num("AZ.REALPOS")
-    lines = await upload(c, "AZ", [(t1 + 0.25 * i, p1) for i in range(free - 1)])
+    lines = await upload(c, "AZ", [(t1 + 0.25 * i, p1) for i in range(free)])
     assert ok(lines, "AZ.TRAJECTORY.ADDPOINTS"), lines
     assert await c.num("AZ.TRAJECTORY.FREEPOINTS") == 0
     assert ok(await c.set("AZ.TRAJECTORY.RUN=0"), "AZ.TRAJECTORY.RUN")

@@ -44,7 +44,7 @@ from tcs.axes.follower import TrajectoryFollower
 from tcs.axes.limits import SoftLimits, limit_text
 from tcs.axes.motion import MotionPlanner
 from tcs.axes.profile import AxisDynamics, Setpoint
-from tcs.axes.trajectory import TrajectoryQueue
+from tcs.axes.trajectory import TrajectoryBufferFull, TrajectoryQueue
 from tcs.config.axes import DISCRETE_MODULES, TRAJECTORY_MODULES, AxisSection
 from tcs.drivers.drive import Drive, DriveState, DriveStatus, Mode, Progress
 from tcs.errors import CommunicationError, ErrorNumber, RangeRefused, RequestRefused, TcsError
@@ -103,13 +103,19 @@ def add_staged_points(axis, buffer: list[BufferSlot], queue: TrajectoryQueue, co
     """``ADDPOINTS=count``: move ``buffer[0..count-1]`` into ``queue`` (all or nothing), empty
     those slots, announce points already in the past (event 1000); returns ``count``.
     Shared by the drive axes' and the PLC dome's TRAJECTORY."""
-    if not 0 < count <= len(buffer):
-        raise RangeRefused(f"ADDPOINTS must be 1..{len(buffer)}")
+    if count <= 0:  # (the tree's !MIN answers RANGE before)
+        raise RangeRefused("ADDPOINTS must be 1 or more")
+    if count > len(buffer):  # an action that cannot be done, not a value out of range
+        raise TrajectoryBufferFull(f"{axis.module_name}.TRAJECTORY: {count} points offered, "
+                                   f"BUFFER[] holds {len(buffer)}")
     slots = buffer[:count]
     if any(s.time is None or s.targetpos is None for s in slots):
         raise TcsError(f"{axis.module_name}.TRAJECTORY: BUFFER[0..{count - 1}] "
                        "has points without TIME or TARGETPOS", ErrorNumber.NOPOINTS)
-    result = queue.add_points([s.time for s in slots], [s.targetpos for s in slots], now)
+    try:
+        result = queue.add_points([s.time for s in slots], [s.targetpos for s in slots], now)
+    except RangeRefused as exc:  # times that do not increase: unusable points (11 nopoints)
+        raise TcsError(f"{axis.module_name}.TRAJECTORY: {exc.message}", ErrorNumber.NOPOINTS) from None
     for s in slots:
         s.time = s.targetpos = None
     if result.dropped:
@@ -238,6 +244,9 @@ class Axis(ModuleHealth):
         self._homing = False
         self._homing_started = False  # the drive showed this run in progress (not the last end)
         self._homing_since = 0.0
+        self._settle = False  # a discrete axis homed off its port moves onto it (_watch_settle)
+        self._settle_since = 0.0
+        self._settle_started = False
         self._reference_cause = None  # the REINIT that started homing (events 19/20 name it)
         self._sp = Setpoint(0.0)
         self._sent: float | None = None  # the last setpoint sent (for _limit_step)
@@ -300,7 +309,7 @@ class Axis(ModuleHealth):
         if powered and self.power_state != 1.0:
             raise TcsError(f"{self.module_name}: cannot {what}: power is off", ErrorNumber.INVMODE)
         if referenced and self.referenced < 1.0:
-            why = "referencing in progress" if self._homing else "not referenced (REINIT first)"
+            why = "referencing in progress" if self._homing or self._settle else "not referenced (REINIT first)"
             raise TcsError(f"{self.module_name}: cannot {what}: {why}", ErrorNumber.INVMODE)
 
     def set_power(self, value: int):
@@ -747,6 +756,8 @@ class Axis(ModuleHealth):
             for key in ("power", "reference"):
                 self._resolve(key, fault)
             self._homing = False
+            if self._settle:  # (homed, not yet on its port: referenced all the same)
+                self._settle, self.referenced = False, 1.0
             self.drive.disable()
         if self._ack_pending and now - self._ack_since > ACK_TIMEOUT:
             self._ack_pending = False
@@ -815,15 +826,25 @@ class Axis(ModuleHealth):
         elif self._homing:
             if st.homing is Progress.DONE:
                 self._homing = False
-                self.referenced = 1.0
                 self._sp = Setpoint(st.position)
                 self.planner.take_over(self._sp)
-                if self.discrete:  # TARGETPOS: where it stands (a port: on target, bit 3)
-                    self.target_position = self._discrete_position(st.position)
-                    on_port = float(self.target_position).is_integer() and int(self.target_position) in self.positions
-                    self._discrete_target = int(self.target_position) if on_port else None
-                self._resolve("reference")
-                self.emit(INFO, ErrorNumber.REFERENCE_GOOD, "referenced", self._reference_cause)
+                if self.discrete:  # the nearest port is the target; settle on it (bit 3 there)
+                    nearest = min(self.positions, key=lambda k: abs(self.positions[k] - st.position))
+                    self._discrete_target = nearest
+                    self.target_position = float(nearest)
+                    if abs(st.position - self.positions[nearest]) > max(self.section.tolerance, 1e-9):
+                        # homing stops past the index (a wheel 0.125 deg off its port was seen):
+                        # the profile move a TARGETPOS of that port makes ends the referencing
+                        try:
+                            self.drive.move_to(self.positions[nearest])
+                        except TcsError as exc:  # referenced all the same, not on target
+                            log.warning("%s: cannot settle on port %d after homing: %s",
+                                        self.module_name, nearest, exc.message)
+                        else:
+                            self._settle, self._settle_since, self._settle_started = True, now, False
+                            self.referenced = 0.99
+                if not self._settle:
+                    self._referenced_now()
             elif st.homing is Progress.FAILED:
                 self._homing = False
                 self.referenced = 0.0
@@ -832,6 +853,26 @@ class Axis(ModuleHealth):
                 self.emit(ERROR, ErrorNumber.REFERENCE_BAD, error.message, self._reference_cause)
             else:
                 self.referenced = min(0.99, st.homing_progress)
+        if self._settle:
+            self._watch_settle(st, now)
+
+    def _referenced_now(self) -> None:
+        self.referenced = 1.0
+        self._resolve("reference")
+        self.emit(INFO, ErrorNumber.REFERENCE_GOOD, "referenced", self._reference_cause)
+
+    def _watch_settle(self, st: DriveStatus, now: float) -> None:
+        """A discrete axis homed off its nearest port moves onto it; REFERENCED reaches 1 (and
+        event 19 is sent) when it stands there, or when the move ended or never started (then
+        it is referenced but not on target: MOTION_STATE bit 3 stays 0)."""
+        if st.move is Progress.RUNNING:
+            self._settle_started = True
+            return
+        on_port = abs(st.position - self.positions[self._discrete_target]) <= max(self.section.tolerance, 1e-9)
+        if on_port or self._settle_started or not self._powered or \
+                now - self._settle_since > HOMING_START_TIMEOUT:
+            self._settle = False
+            self._referenced_now()
 
     def _power_lost(self, st: DriveStatus) -> None:
         """The drive dropped out of Operation enabled by itself, without a fault (a quick stop
@@ -865,6 +906,10 @@ class Axis(ModuleHealth):
                           self.follower.end_reason or "", self._run_cause)
             if self.follower.state.value == "ended":
                 self._running = False
+                # the path's points are executed (``t`` is past the end a cycle or two before
+                # the clock is): free them now, so FREEPOINTS reads the whole capacity as soon
+                # as RUN=1 answered (points added meanwhile for later stay)
+                self.queue.drop_before(t)
                 if self.follower.end_reason == "softlimit":
                     self._resolve("run", TcsError(f"{self.module_name}: trajectory stopped at the "
                                                   f"software limit", ErrorNumber.SOFTLIMIT))
@@ -901,12 +946,22 @@ class Axis(ModuleHealth):
         error = abs(st.position - sp.position)
         # power state
         self.power_state = 1.0 if self._powered else 0.0
-        # target position in the user frame
+        # target position in the user frame: where the axis is going; at rest with nothing
+        # to go to (never powered, never referenced, a port not reached), where it is
         if self._running:
             if len(self.queue):  # (empty while stopping after RUN=0: keep the last demand)
                 self.target_position = self.follower.path_position(t) - self.offset
-        elif not self.discrete:
+        elif self.discrete:
+            at_rest = st.move is not Progress.RUNNING and not self._homing
+            if self._discrete_target is None and at_rest:
+                rp = self.real_position
+                if self._powered and self.referenced >= 1.0 and rp.is_integer() and int(rp) in self.positions:
+                    self._discrete_target = int(rp)  # settled on a port after homing: on target
+                self.target_position = rp
+        elif self._powered and not self._homing:
             self.target_position = self.planner.target
+        else:  # the planner is not in charge (power off, homing): the demand is where it stands
+            self.target_position = self.real_position - self.offset
         # MOVING (bit 0) comes from the commanded motion, which is free of noise: a slow
         # trajectory (sidereal rate) measures close to _standstill and would make the bit and
         # its MOTIONCHANGE event flap every few cycles. A measured velocity alone (pushed,
@@ -916,12 +971,15 @@ class Axis(ModuleHealth):
         measured = self._drift_cycles >= (1 if prev_motion & MOVING else MEASURED_MOVING_CYCLES)
         commanded = not self.discrete and self._powered and (self.planner.moving or abs(sp.velocity) > 1e-9)
         motion = 0
-        if measured or commanded or (self.discrete and st.move is Progress.RUNNING) or self._homing:
+        if measured or commanded or (self.discrete and st.move is Progress.RUNNING) or self._homing or self._settle:
             motion |= MOVING
         if self._running:
-            motion |= TRAJECTORY
-            if self.follower.on_path:
-                motion |= ON_TARGET
+            # bit 1 while the path is executed; after RUN=0 or STOP (queue freed) the axis may
+            # still brake, but no trajectory is executed any more
+            if len(self.queue):
+                motion |= TRAJECTORY
+                if self.follower.on_path:
+                    motion |= ON_TARGET
             if self.follower.limited:
                 motion |= LIMITED
         elif self.discrete:

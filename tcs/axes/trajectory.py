@@ -138,10 +138,10 @@ class TrajectoryQueue:
     def free_points_at(self, now: float) -> int:
         """``FREEPOINTS`` at UT1 ``now``: points already executed count as free, as
         :meth:`add_points` drops them (all but the last one at or before ``now``, which starts
-        the current segment); so it rises while a run goes on and after it ended."""
+        the current segment; once the path's end is past, all of them); so it rises while a
+        run goes on and is the whole capacity after it ended."""
         with self._lock:
-            ts = self._t
-            return self.capacity - len(ts) + max(0, bisect.bisect_right(ts, now) - 1)
+            return self.capacity - len(self._t) + self._past_count(self._t, now)
 
     @property
     def start_time(self) -> float | None:

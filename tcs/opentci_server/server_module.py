@@ -46,6 +46,7 @@ import socket
 import subprocess
 import time
 from collections import deque
+from dataclasses import dataclass
 from typing import Any
 
 from tcs.config.passwords import hash_password
@@ -60,6 +61,42 @@ LOG_CAPACITY = 200          # events kept for LOG.EVENTS
 RATE_WINDOW = 10.0          # s over which COMMAND_RATE counts
 BLOCKED_HASH = "blocked"    # not a valid hash: verify_password() is False for every password
 _NAME = re.compile(r"[A-Za-z0-9_.-]{1,64}\Z")
+
+
+@dataclass(frozen=True)
+class Account(UserSection):
+    """A user as the server's user table holds it: the hardware file's ``[[users]]`` entry
+    (``rlevel``/``wlevel``: the most privileged levels a login may ask for, TPL2's MIN_ levels)
+    plus what ``ACCOUNTS.MODIFY`` adds: the levels a login that asks for none gets, and a
+    descriptive name."""
+
+    default_rlevel: int = 0
+    default_wlevel: int = 0
+    fullname: str = ""
+
+
+class AccountForm:
+    """``SERVER.ACCOUNTS.MODIFY`` of one connection (each connection has its own form):
+    writing ``USERNAME`` loads that account (a name without an account keeps the form for
+    ``ADD``), the other fields are staged, then ``ADD=1``, ``UPDATE=1`` or ``REMOVE=1``."""
+
+    def __init__(self) -> None:
+        self.username = ""
+        self.fullname = ""
+        self.type = 0
+        self.password: str | None = None
+        self.default_rlevel = self.default_wlevel = 9
+        self.min_rlevel = self.min_wlevel = 9
+        self.blocked = 0
+
+
+def account_form(conn: Any) -> AccountForm:
+    """The MODIFY form of connection ``conn`` (made on first use)."""
+    form = getattr(conn, "account_form", None)
+    if form is None:
+        form = AccountForm()
+        conn.account_form = form
+    return form
 
 
 class ServerModule:
@@ -136,7 +173,8 @@ class ServerModule:
     def manufacturer(self) -> str:
         return self.server.manufacturer
 
-    flags = 0  # INFO.FLAGS: no optional TPL2 features (no ENC, no sub-servers)
+    flags = ""  # INFO.FLAGS: the optional TPL2 features offered, comma-separated: none (no ENC,
+    # no sub-servers)
 
     @property
     def info(self) -> str:
@@ -306,8 +344,11 @@ class ServerModule:
         # a blocked user stays in the table (other code may look it up) with a hash that no
         # password matches: every login fails
         password = BLOCKED_HASH if entry.get("blocked") else entry["password"]
-        users[name] = UserSection(name=name, password=password, rlevel=int(entry["rlevel"]),
-                                  wlevel=int(entry["wlevel"]))
+        users[name] = Account(name=name, password=password, rlevel=int(entry["rlevel"]),
+                              wlevel=int(entry["wlevel"]),
+                              default_rlevel=int(entry.get("default_rlevel", entry["rlevel"])),
+                              default_wlevel=int(entry.get("default_wlevel", entry["wlevel"])),
+                              fullname=str(entry.get("fullname", "")))
 
     def _entry(self, name: str) -> dict:
         entry = self.accounts.get(name)
@@ -379,19 +420,113 @@ class ServerModule:
         entry["blocked"] = False
         self._commit(name, entry)
 
-    def modify_account(self, spec: str) -> None:
-        """``ACCOUNTS.MODIFY="name:rlevel:wlevel"`` — never more privilege than the file gives."""
-        parts = spec.split(":")
-        if len(parts) != 3:
-            raise RequestRefused("MODIFY takes name:rlevel:wlevel", keyword="RANGE")
-        name, rlevel, wlevel = parts[0], _level(parts[1]), _level(parts[2])
+    # -- the TPL2 §9 form: USERNAMES, BLOCKED, UNBLOCKED and the MODIFY submodule ------------
+    def _names(self) -> list[str]:
+        return sorted(set(self.file_users) | set(self.accounts))
+
+    @property
+    def usernames(self) -> str:
+        """``ACCOUNTS.USERNAMES``: every account's name, comma-separated."""
+        return ",".join(self._names())
+
+    @property
+    def blocked_names(self) -> str:
+        return ",".join(n for n in self._names() if self._entry(n).get("blocked"))
+
+    @property
+    def unblocked_names(self) -> str:
+        return ",".join(n for n in self._names() if not self._entry(n).get("blocked"))
+
+    def set_blocked(self, names: str) -> None:
+        """``ACCOUNTS.BLOCKED="a,b"``: block these users (the others stay as they are)."""
+        for name in self._name_list(names):
+            self.block_account(name)
+
+    def set_unblocked(self, names: str) -> None:
+        for name in self._name_list(names):
+            self.unblock_account(name)
+
+    def _name_list(self, names: str) -> list[str]:
+        out = [n.strip() for n in names.split(",") if n.strip()]
+        for name in out:  # all or nothing
+            self._entry(name)
+        return out
+
+    def load_form(self, conn: Any, name: str) -> None:
+        """``MODIFY.USERNAME`` written: the form shows that account (a new name: the form
+        keeps what was staged, for ``ADD``)."""
+        if not _NAME.match(name):
+            raise RequestRefused(f"{name!r} is not a user name (letters, digits, _ . -)", keyword="RANGE")
+        form = account_form(conn)
+        form.username = name
+        form.password = None
+        if name in self.file_users or name in self.accounts:
+            entry = self._entry(name)
+            form.fullname = str(entry.get("fullname", ""))
+            form.min_rlevel, form.min_wlevel = int(entry["rlevel"]), int(entry["wlevel"])
+            form.default_rlevel = int(entry.get("default_rlevel", entry["rlevel"]))
+            form.default_wlevel = int(entry.get("default_wlevel", entry["wlevel"]))
+            form.blocked = int(bool(entry.get("blocked")))
+
+    @staticmethod
+    def _form_entry(form: AccountForm) -> dict:
+        # a default more privileged than the minimum is the minimum (as a login asking for it)
+        return {"rlevel": form.min_rlevel, "wlevel": form.min_wlevel,
+                "default_rlevel": max(form.default_rlevel, form.min_rlevel),
+                "default_wlevel": max(form.default_wlevel, form.min_wlevel),
+                "fullname": form.fullname, "blocked": bool(form.blocked)}
+
+    def form_add(self, conn: Any):
+        """``MODIFY.ADD=1``: the form as a new account (FAILED 5 when the name exists, is
+        not set, or no password was staged)."""
+        form = account_form(conn)
+        name = form.username
+        if not name:
+            raise TcsError("MODIFY.ADD: write MODIFY.USERNAME first", ErrorNumber.INVMODE)
+        if name in self.file_users or name in self.accounts:
+            raise TcsError(f"MODIFY.ADD: account {name!r} exists (UPDATE changes it)", ErrorNumber.INVMODE)
+        if not form.password:
+            raise TcsError(f"MODIFY.ADD: account {name!r} needs a PASSWORD", ErrorNumber.INVMODE)
+        entry = self._form_entry(form)
+        password, form.password = form.password, None
+
+        async def add():
+            entry["password"] = await asyncio.to_thread(hash_password, password)
+            self._commit(name, entry)
+            log.info("account %s added over TPL2", name)
+        return add()
+
+    def form_update(self, conn: Any):
+        """``MODIFY.UPDATE=1``: the form written to the existing account (its password only
+        when one was staged); never more privilege than the hardware file gives."""
+        form = account_form(conn)
+        name = form.username
+        if name not in self.file_users and name not in self.accounts:
+            raise TcsError(f"MODIFY.UPDATE: no account {name!r} (ADD makes one)", ErrorNumber.INVMODE)
         base = self.file_users.get(name)
-        if base is not None and (rlevel < base.rlevel or wlevel < base.wlevel):
-            raise RequestRefused(f"{name!r}: the hardware file gives at most levels "
-                                 f"{base.rlevel} {base.wlevel}", keyword="RANGE")
+        if base is not None and (form.min_rlevel < base.rlevel or form.min_wlevel < base.wlevel):
+            raise TcsError(f"MODIFY.UPDATE: {name!r}: the hardware file gives at most levels "
+                           f"{base.rlevel} {base.wlevel}", ErrorNumber.INVMODE)
         entry = dict(self._entry(name))
-        entry.update(rlevel=rlevel, wlevel=wlevel)
-        self._commit(name, entry)
+        entry.update(self._form_entry(form))
+        password, form.password = form.password, None
+
+        async def update():
+            if password:
+                entry["password"] = await asyncio.to_thread(hash_password, password)
+            self._commit(name, entry)
+            log.info("account %s updated over TPL2", name)
+        return update()
+
+    def form_remove(self, conn: Any) -> None:
+        """``MODIFY.REMOVE=1``: remove the account USERNAME (one added over TPL2)."""
+        name = account_form(conn).username
+        if name in self.file_users:
+            raise TcsError(f"MODIFY.REMOVE: {name!r} is a user of the hardware file: block it instead",
+                           ErrorNumber.INVMODE)
+        if name not in self.accounts:
+            raise TcsError(f"MODIFY.REMOVE: no account {name!r}", ErrorNumber.INVMODE)
+        self._commit(name, None)
 
 
 def _level(text: str) -> int:
@@ -490,7 +625,7 @@ class ClientSlot:
         self.drop(1)
 
 
-__all__ = ["ServerModule", "ClientSlot", "command_rate"]
+__all__ = ["ServerModule", "ClientSlot", "Account", "AccountForm", "account_form", "command_rate"]
 
 
 def host_sysinfo() -> tuple[int, float] | None:

@@ -195,7 +195,8 @@ class Session(asyncio.Protocol):
                             self.id, self.address, user.name)
                 self.send(m.AuthFailed())
                 return
-            self._login(user.name, user.rlevel, user.wlevel)
+            self._login(user.name, max(user.rlevel, getattr(user, "default_rlevel", 0)),
+                        max(user.wlevel, getattr(user, "default_wlevel", 0)))
 
     def data_received(self, data: bytes) -> None:
         self._last_input = time.monotonic()
@@ -437,8 +438,10 @@ class Session(asyncio.Protocol):
                     self._closed = True
                     self.close()
                 return
-            rlevel = max(user.rlevel, msg.rlevel if msg.rlevel is not None else 0)
-            wlevel = max(user.wlevel, msg.wlevel if msg.wlevel is not None else 0)
+            # levels asked for, else the account's defaults (SERVER.ACCOUNTS.MODIFY.DEFAULT_*);
+            # never more privileged than the account's own (MIN_*)
+            rlevel = max(user.rlevel, msg.rlevel if msg.rlevel is not None else getattr(user, "default_rlevel", 0))
+            wlevel = max(user.wlevel, msg.wlevel if msg.wlevel is not None else getattr(user, "default_wlevel", 0))
             self._login(user.name, rlevel, wlevel)
         finally:
             self._auth_task = None

@@ -60,6 +60,12 @@ ROOT, MODULE, MODULEARR, VARIABLE, VARIABLEARR, SYSVAR, SYSVARARR = 1001, 1002, 
 READ_ALL, OPERATE, CONFIGURE = 9, 3, 1
 NOBODY = -1
 
+
+def allowed(conn_level: int, level: int) -> bool:
+    """May a connection at ``conn_level`` read (write) an object of ``level``? ``READ_ALL`` is
+    "no restriction" (TPL2 §9): any login, also one that asked for levels above 9."""
+    return level != NOBODY and (level >= READ_ALL or conn_level <= level)
+
 INT, FLOAT, STRING = ValueType.INT, ValueType.FLOAT, ValueType.STRING
 
 Getter = str | Callable[[Any], Any] | None
@@ -364,7 +370,7 @@ class Tree:
             return target.error
         node = target.node
         fast = getattr(node, "fast", None) if prop is None and target.element is None else None
-        if fast is not None and conn.rlevel <= node.spec.rlevel:  # the common case: a plain variable
+        if fast is not None and allowed(conn.rlevel, node.spec.rlevel):  # the common case: a plain variable
             try:
                 return fast()
             except TcsError as exc:
@@ -379,7 +385,7 @@ class Tree:
             if not isinstance(node, VarNode):
                 return "INVALID"
             spec = node.spec
-            if conn.rlevel > spec.rlevel:
+            if not allowed(conn.rlevel, spec.rlevel):
                 return "DENIED"
             if node.absent:
                 return node.fast()  # type: ignore[misc]
@@ -411,7 +417,7 @@ class Tree:
                 or (node.spec.count is not None and target.element is None)):
             return "TYPE"
         spec = node.spec
-        if conn.rlevel > spec.rlevel or spec.get is None:
+        if not allowed(conn.rlevel, spec.rlevel) or spec.get is None:
             return "DENIED"
         if node.absent:
             return node.fast()  # type: ignore[misc]
@@ -474,7 +480,7 @@ class Tree:
             raise RequestRefused(f"{node.path} is not a settable variable")
         spec = node.spec
         wlevel = node.wlevel
-        if wlevel == NOBODY or spec.set is None or conn.wlevel > wlevel:
+        if spec.set is None or not allowed(conn.wlevel, wlevel):
             raise AccessDenied(f"{node.path} is not writable at level {conn.wlevel}")
         if node.absent:
             raise TcsError(f"{node.path}: no hardware at this index", ErrorNumber.NOCON)
