@@ -483,6 +483,31 @@ async def test_abort_of_ready_stops_the_park_move_and_the_referencing(live):
         await o.close()
 
 
+async def test_a_lost_dome_plc_reads_as_failed_not_the_last_position(live):
+    """The dome PLC switched off: POSITION.INSTRUMENTAL.DOME[0].REALPOS (and POWER_STATE,
+    MOTION_STATE) answer FAILED 4 instead of the last value polled; readable again once it is
+    back (issue 22 item 8)."""
+    c = await tsi(live)
+    plc = live.telescope.peripherals.sims.plcs["dome"]
+    dome = "POSITION.INSTRUMENTAL.DOME[0]"
+    try:
+        float(await c.value(f"{dome}.REALPOS"))
+        await live.call(plc.power_off)
+        deadline = time.monotonic() + WAIT
+        while await c.value(f"{dome}.REALPOS") != "FAILED 4":
+            assert time.monotonic() < deadline, "REALPOS kept a value"
+            await asyncio.sleep(0.05)
+        for var in ("POWER_STATE", "MOTION_STATE", "CURRPOS"):
+            assert await c.value(f"{dome}.{var}") == "FAILED 4", var
+    finally:
+        await live.call(plc.power_on)
+    deadline = time.monotonic() + WAIT
+    while (await c.value(f"{dome}.REALPOS")).startswith("FAILED"):
+        assert time.monotonic() < deadline, "REALPOS did not come back"
+        await asyncio.sleep(0.05)
+    await c.close()
+
+
 # ------------------------------------------------------------------------------ other clients
 
 async def test_chimera_slew_and_park(live):
