@@ -787,6 +787,7 @@ class Axis(ModuleHealth):
                     st.mode != Mode.IP or st.statusword & 0x1000)):  # IP: "IP active" shown
             self._powered = True
             self._want_power = None
+            self._after_homing = False
             self._sp = Setpoint(st.position)
             self.planner.take_over(self._sp)
             if self.referenced < 1.0 and st.homed:
