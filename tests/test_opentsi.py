@@ -409,7 +409,7 @@ async def test_abort_of_opentsi_verbs_stops_their_motion(live):
     """ABORT of POINTING.TRACK=1 (before it completed: the tracking), =4 (focus), =3 (filter wheel, a
     profile-position move in the drive), of USE_PORT (M3) and of an OpenTCI FILTER TARGETPOS:
     each motion stops short of its goal with the normal deceleration, the command ends
-    ABORTEDBY, nothing moves on (issue 22 item 3)."""
+    ABORTEDBY, nothing moves on (issue 22 item 3); the wheel's STOP stops it too."""
     c, o = await tsi(live), await tci(live)
     try:
         await ready(c)
@@ -441,6 +441,13 @@ async def test_abort_of_opentsi_verbs_stops_their_motion(live):
         await _aborted_short(live, c, "POINTING.TRACK=3", "FILTER", 135.0, 10.0)
         await _aborted_short(live, o, "FILTER[2].TARGETPOS=3", "FILTER", 135.0, 10.0)
         await _aborted_short(live, c, "POINTING.SETUP.USE_PORT=3", "MIRROR", 180.0, 10.0)
+        # axis STOP of a wheel moving in the drive (PP) stops it too; the TARGETPOS fails with 10
+        cmd = await o.start("FILTER[2].TARGETPOS=0")
+        await moved(live, "FILTER", 10.0)
+        assert complete(await o.set("FILTER[2].STOP=1"))
+        assert any(line.endswith("DATA ERROR FILTER[2].TARGETPOS FAILED 10") for line in await o.until(cmd))
+        stopped = await stands(live, "FILTER")
+        assert stopped > 10.0, stopped
         # after a halted move a new one goes where it is asked
         assert complete(await pyobs_set(c, "POINTING.SETUP.USE_PORT", 2))
         assert abs(drive_sim(live, "MIRROR").position) < 0.01
