@@ -416,6 +416,41 @@ def test_rain_makes_it_unsafe_and_opening_is_refused(live):
         d.Disconnect()
 
 
+def test_a_lost_dome_plc_reads_as_an_error_not_the_last_azimuth(live):
+    """The dome PLC switched off: Alpaca Dome.Azimuth and Slewing answer a driver error and
+    ShutterStatus reads Error, and OpenTCI DOME[0].REALPOS / POWER_STATE / MOTION_STATE answer
+    FAILED 4, instead of the last values polled (issue 22 item 8); all read again once the PLC
+    is back."""
+    from alpaca.dome import Dome, ShutterState
+    from alpaca.exceptions import DriverException
+
+    dome = Dome(address(live), 0)
+    dome.Connect()
+    azimuth = dome.Azimuth
+    plc = live.telescope.peripherals.sims.plcs["dome"]
+    asyncio.run(live.call(plc.power_off))
+    try:
+        until(lambda: live.telescope.dome[0].link_error() is not None, "the PLC lost")
+        with pytest.raises(DriverException, match="no fresh data"):
+            dome.Azimuth
+        with pytest.raises(DriverException, match="no fresh data"):
+            dome.Slewing
+        assert dome.ShutterStatus == ShutterState.shutterError
+
+        async def tci() -> list[str]:
+            c = await Client.connect(live.port)
+            try:
+                return [await c.value(f"DOME[0].{v}") for v in ("REALPOS", "POWER_STATE", "MOTION_STATE")]
+            finally:
+                await c.close()
+        assert asyncio.run(tci()) == ["FAILED 4"] * 3
+    finally:
+        asyncio.run(live.call(plc.power_on))
+    until(lambda: live.telescope.dome[0].link_error() is None, "the PLC back")
+    assert abs((dome.Azimuth - azimuth + 180.0) % 360.0 - 180.0) < 1.0
+    dome.Disconnect()
+
+
 # ------------------------------------------------------------------ protocol rules, raw HTTP
 
 def http(live, method: str, path: str, query: str = "", form: str | None = None, timeout: float = 10.0):

@@ -77,3 +77,51 @@ def test_equatorial_slew_altaz_sync_and_guiding(live):
             params.set_coefficient(name, value)
         t.Tracking = False
         t.Disconnect()
+
+
+def test_moveaxis_on_an_equatorial_mount_stops_at_the_horizon_limit(live):
+    """MoveAxis of HA (west) or Dec (south) from the meridian on the equator would take the
+    telescope far below ``[pointing] min_altitude`` (15°) before the software limits: each stops
+    with the telescope at the horizon limit; lowering it further is refused, raising it works
+    (issue 22 item 6)."""
+    import asyncio
+
+    from alpaca.exceptions import InvalidValueException
+    from alpaca.telescope import TelescopeAxes
+
+    from support.opentci_client import Client, done_ok
+
+    async def goto(**targets) -> None:
+        c = await Client.connect(live.port)
+        try:
+            for ax, pos in targets.items():
+                assert done_ok(await c.set(f"{ax}.TARGETPOS={pos}", 60.0), f"{ax}.TARGETPOS")
+        finally:
+            await c.close()
+
+    t = Telescope(f"127.0.0.1:{live.service.alpaca_port}", 0)
+    t.Connect()
+    t.Unpark()
+    until(lambda: live.telescope.operations.ready_state == 1.0, "READY_STATE 1")
+    t.Tracking = False
+    until(lambda: not t.Slewing, "at rest")
+    ha, dec = live.telescope.axis("HA"), live.telescope.axis("DEC")
+    floor = live.telescope.pointing.config.min_altitude
+    try:
+        for axis, rate, lowered in ((TelescopeAxes.axisPrimary, 30.0, ha), (TelescopeAxes.axisSecondary, -30.0, dec)):
+            asyncio.run(goto(HA=0.0, DEC=0.0))
+            assert t.Altitude > 45.0
+            t.MoveAxis(axis, rate)
+            until(lambda: abs(lowered.real_position) > 2.0, "moving")
+            until(lambda: not t.Slewing and not lowered.motion_state & 1, "stopped")
+            assert abs(t.Altitude - floor) < 0.01, (axis, t.Altitude, lowered.real_position)
+            assert lowered.section.min + 1.0 < lowered.real_position < lowered.section.max - 1.0
+            with pytest.raises(InvalidValueException):
+                t.MoveAxis(axis, rate)     # lower still: refused
+            t.MoveAxis(axis, -rate)        # up again: allowed
+            until(lambda: t.Altitude > floor + 1.0, "rising")
+            t.MoveAxis(axis, 0.0)
+            until(lambda: not t.Slewing and not lowered.motion_state & 1, "stopped")
+    finally:
+        t.AbortSlew()
+        t.Disconnect()

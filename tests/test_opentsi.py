@@ -352,6 +352,169 @@ async def test_pyobs_park(live):
         await c.close()
 
 
+# ------------------------------------------------------------------------------ ABORT (issue 22)
+
+NODE = {"AZ": 1, "ZD": 2, "FOCUS": 5, "FILTER": 6, "MIRROR": 7}
+
+
+def drive_sim(live, name: str):
+    return live.telescope.sims[NODE[name]]
+
+
+async def moved(live, name: str, away: float) -> float:
+    """Wait until the simulated drive of ``name`` stands more than ``away`` from where it stood
+    when called; returns that start."""
+    s = drive_sim(live, name)
+    start = s.position
+    deadline = time.monotonic() + WAIT
+    while abs(s.position - start) <= away:
+        assert time.monotonic() < deadline, f"{name} did not move (at {s.position})"
+        await asyncio.sleep(0.01)
+    return start
+
+
+async def stands(live, name: str) -> float:
+    """Wait until the simulated drive of ``name`` stands still (0.3 s without a change of
+    1e-4); returns where."""
+    s = drive_sim(live, name)
+    deadline = time.monotonic() + WAIT
+    last, since = s.position, time.monotonic()
+    while time.monotonic() - since < 0.3:
+        assert time.monotonic() < deadline, f"{name} did not stop"
+        await asyncio.sleep(0.02)
+        if abs(s.position - last) > 1e-4:
+            last, since = s.position, time.monotonic()
+    return last
+
+
+async def abort(c: Client, cmd: int) -> None:
+    await c.send(f"{cmd + 500000} ABORT {cmd}")
+    line = await c.event(rf"^{cmd} COMMAND (ABORTEDBY|COMPLETE|FAILED)")
+    assert line.endswith(f"ABORTEDBY {cmd + 500000}"), line
+
+
+async def _aborted_short(live, c: Client, text: str, name: str, goal: float, away: float) -> None:
+    """``SET text`` moves ``name`` towards ``goal``; ABORTed once it moved ``away``: the drive
+    stops short of the goal and stays there."""
+    cmd = await c.start(text)
+    await moved(live, name, away)
+    await abort(c, cmd)
+    stopped = await stands(live, name)
+    assert abs(stopped - goal) > away, (name, stopped, goal)
+    await asyncio.sleep(0.3)
+    assert abs(drive_sim(live, name).position - stopped) < 1e-3, f"{name} moved on after the ABORT"
+
+
+async def test_abort_of_opentsi_verbs_stops_their_motion(live):
+    """ABORT of POINTING.TRACK=1 (before it completed: the tracking), =4 (focus), =3 (filter wheel, a
+    profile-position move in the drive), of USE_PORT (M3) and of an OpenTCI FILTER TARGETPOS:
+    each motion stops short of its goal with the normal deceleration, the command ends
+    ABORTEDBY, nothing moves on (issue 22 item 3); the wheel's STOP stops it too."""
+    c, o = await tsi(live), await tci(live)
+    try:
+        await ready(c)
+        for ax, pos in (("AZ", 0.0), ("AZ", -60.0), ("ZD", 40.0)):
+            assert complete(await o.set(f"{ax}.TARGETPOS={pos}"))
+        ra, dec = star_near(live, 90.0, 60.0, ahead=10.0)   # 150 deg away in azimuth
+        await pyobs_set(c, "OBJECT.EQUATORIAL.RA", ra)
+        await pyobs_set(c, "OBJECT.EQUATORIAL.DEC", dec)
+        # TRACK=1 completes once tracking runs on the new path (the slew goes on after it):
+        # an ABORT right behind the SET ends the tracking it started, no slew follows
+        cmd = await c.start("POINTING.TRACK=1")
+        await abort(c, cmd)
+        await c.wait("POINTING.TRACK", lambda v: v == 0)
+        stopped = await stands(live, "AZ")
+        assert abs(stopped - 90.0) > 5.0, stopped
+        await asyncio.sleep(0.5)
+        assert abs(drive_sim(live, "AZ").position - stopped) < 1e-3, "it went on tracking"
+
+        focus = drive_sim(live, "FOCUS").position
+        goal = 45.0 if focus < 25.0 else 5.0
+        await pyobs_set(c, "POINTING.SETUP.FOCUS.POSITION", goal)
+        await _aborted_short(live, c, "POINTING.TRACK=4", "FOCUS", goal, 2.0)
+
+        assert complete(await pyobs_set(c, "POINTING.SETUP.USE_PORT", 2))
+        for index in (0, 3):
+            await pyobs_set(c, "POINTING.SETUP.FILTER.INDEX", index)
+            if index == 0:
+                assert complete(await pyobs_set(c, "POINTING.TRACK", 3))
+        await _aborted_short(live, c, "POINTING.TRACK=3", "FILTER", 135.0, 10.0)
+        await _aborted_short(live, o, "FILTER[2].TARGETPOS=3", "FILTER", 135.0, 10.0)
+        await _aborted_short(live, c, "POINTING.SETUP.USE_PORT=3", "MIRROR", 180.0, 10.0)
+        # axis STOP of a wheel moving in the drive (PP) stops it too; the TARGETPOS fails with 10
+        cmd = await o.start("FILTER[2].TARGETPOS=0")
+        await moved(live, "FILTER", 10.0)
+        assert complete(await o.set("FILTER[2].STOP=1"))
+        assert any(line.endswith("DATA ERROR FILTER[2].TARGETPOS FAILED 10") for line in await o.until(cmd))
+        stopped = await stands(live, "FILTER")
+        assert stopped > 10.0, stopped
+        # after a halted move a new one goes where it is asked
+        assert complete(await pyobs_set(c, "POINTING.SETUP.USE_PORT", 2))
+        assert abs(drive_sim(live, "MIRROR").position) < 0.01
+        assert complete(await pyobs_set(c, "POINTING.TRACK", 3))
+        assert abs(drive_sim(live, "FILTER").position - 135.0) < 0.01
+    finally:
+        await c.close()
+        await o.close()
+
+
+async def test_abort_of_ready_stops_the_park_move_and_the_referencing(live):
+    """READY=0 aborted during the move to the park position: the axes stop there, the power
+    stays on. CABINET.REINIT returns at once (OpenTCI): CABINET.STOP ends its homing run on the
+    drive. READY=1 aborted while it references: the homing run stops, nothing is powered off."""
+    c, o = await tsi(live), await tci(live)
+    try:
+        await ready(c)
+        for pos in (0.0, -100.0):
+            assert complete(await o.set(f"AZ.TARGETPOS={pos}"))
+        await _aborted_short(live, c, "TELESCOPE.READY=0", "AZ", 30.0, 2.0)
+        assert await o.num("CABINET.POWER_STATE") == 1.0
+        assert await o.num("AZ.POWER_STATE") == 1.0
+        # homing (method 19: to the home switch at 0) from 10 deg away
+        assert complete(await o.set("AZ.TARGETPOS=10"))
+        assert complete(await o.set("CABINET.REINIT=1"))
+        await moved(live, "AZ", 0.3)
+        assert complete(await o.set("CABINET.STOP=1"))
+        here = await stands(live, "AZ")
+        assert abs(here) > 0.3, here
+        await asyncio.sleep(0.3)
+        assert abs(drive_sim(live, "AZ").position - here) < 1e-3, "homing went on after STOP"
+        await o.wait("AZ.REFERENCED", lambda v: v < 1.0)
+        await _aborted_short(live, c, "TELESCOPE.READY=1", "AZ", 0.0, 0.3)
+        assert await o.num("AZ.REFERENCED") < 1.0
+        assert await o.num("AZ.POWER_STATE") == 1.0
+        assert complete(await pyobs_set(c, "TELESCOPE.READY", 1))   # referenced again
+        assert await c.num("TELESCOPE.READY_STATE") == 1.0
+    finally:
+        await c.close()
+        await o.close()
+
+
+async def test_a_lost_dome_plc_reads_as_failed_not_the_last_position(live):
+    """The dome PLC switched off: POSITION.INSTRUMENTAL.DOME[0].REALPOS (and POWER_STATE,
+    MOTION_STATE) answer FAILED 4 instead of the last value polled; readable again once it is
+    back (issue 22 item 8)."""
+    c = await tsi(live)
+    plc = live.telescope.peripherals.sims.plcs["dome"]
+    dome = "POSITION.INSTRUMENTAL.DOME[0]"
+    try:
+        float(await c.value(f"{dome}.REALPOS"))
+        await live.call(plc.power_off)
+        deadline = time.monotonic() + WAIT
+        while await c.value(f"{dome}.REALPOS") != "FAILED 4":
+            assert time.monotonic() < deadline, "REALPOS kept a value"
+            await asyncio.sleep(0.05)
+        for var in ("POWER_STATE", "MOTION_STATE", "CURRPOS"):
+            assert await c.value(f"{dome}.{var}") == "FAILED 4", var
+    finally:
+        await live.call(plc.power_on)
+    deadline = time.monotonic() + WAIT
+    while (await c.value(f"{dome}.REALPOS")).startswith("FAILED"):
+        assert time.monotonic() < deadline, "REALPOS did not come back"
+        await asyncio.sleep(0.05)
+    await c.close()
+
+
 # ------------------------------------------------------------------------------ other clients
 
 async def test_chimera_slew_and_park(live):

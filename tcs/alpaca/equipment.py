@@ -21,6 +21,10 @@ What maps to what
 * **CoverCalibrator** (ICoverCalibratorV2), one per cover: the cover's axis (closed 0, open at
   its max); no calibrator (``CalibratorState`` NotPresent).
 
+Status without a fresh readback (a drive offline, the PLC of a dome part or cover unreachable)
+is an error (the axis's ``stale`` error: a driver error, 0x500), never the last value: positions,
+``IsMoving``/``Slewing``/``CoverMoving``; ``ShutterStatus``/``CoverState`` read Error.
+
 PLC modules (dome parts, covers) need their POWER on to move: an Alpaca move switches it on
 first (it fails, as InvalidOperation, while CABINET.POWER is off). The weather interlock refuses
 opening in bad weather (InvalidOperation, with the interlock's reason).
@@ -66,6 +70,7 @@ class FocuserDevice(Device):
         return True
 
     def get_ismoving(self, r) -> bool:
+        _fresh(self.axis)
         return bool(self.axis.motion_state & MOVING)
 
     def get_maxstep(self, r) -> int:
@@ -75,6 +80,7 @@ class FocuserDevice(Device):
         return self.get_maxstep(r)
 
     def get_position(self, r) -> int:
+        _fresh(self.axis)
         return int(round(self.axis.current_position * self.STEP))
 
     def get_stepsize(self, r) -> float:
@@ -131,6 +137,7 @@ class FilterWheelDevice(Device):
 
     def get_position(self, r) -> int:
         axis = self.axis
+        _fresh(axis)
         if axis.motion_state & MOVING or axis.referenced < 1.0:
             return -1
         here = axis.real_position   # a discrete axis reads the key of the position it is at
@@ -179,9 +186,11 @@ class RotatorDevice(Device):
             raise not_implemented("Reverse (CanReverse is False)")
 
     def get_ismoving(self, r) -> bool:
+        _fresh(self.axis)
         return bool(self.axis.motion_state & MOVING)
 
     def get_mechanicalposition(self, r) -> float:
+        _fresh(self.axis)
         return float(self.axis.real_position % 360.0)
 
     def get_position(self, r) -> float:
@@ -237,6 +246,14 @@ def _at_min(module) -> bool:
 
 def _at_max(module) -> bool:
     return module.real_position >= module.section.max - max(module.section.tolerance, 1e-6)
+
+
+def _fresh(part) -> None:
+    """Raise the part's ``stale`` error (its PLC unreachable: no fresh readback) — answered as
+    an Alpaca error, never the last value polled."""
+    stale = getattr(part, "stale", None)
+    if stale is not None:
+        raise stale
 
 
 def _opening_state(parts: list) -> int:
@@ -319,6 +336,7 @@ class DomeDevice(Device):
     def get_azimuth(self, r) -> float:
         if self.rotation is None:
             raise not_implemented("Azimuth (this enclosure does not rotate)")
+        _fresh(self.rotation)
         return float(self.rotation.current_position % 360.0)
 
     def get_shutterstatus(self, r) -> int:
@@ -327,6 +345,8 @@ class DomeDevice(Device):
         return _opening_state(self.shutters)
 
     def get_slewing(self, r) -> bool:
+        for part in self._parts():
+            _fresh(part)
         return any(p.motion_state & MOVING for p in self._parts())
 
     def put_abortslew(self, r) -> None:
@@ -397,6 +417,7 @@ class CoverCalibratorDevice(Device):
         return False
 
     def get_covermoving(self, r) -> bool:
+        _fresh(self.cover)
         return bool(self.cover.motion_state & MOVING)
 
     def get_coverstate(self, r) -> int:

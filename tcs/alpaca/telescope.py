@@ -26,8 +26,10 @@ What maps to what
 * ``MoveAxis``: axis 0/1 = the main axes, 2 = the derotator at the active port; a rate moves the
   axis at |rate| deg/s in its direction until the limit (tracking ends first), 0 stops it. On an
   alt-az mount axis 1 is altitude: positive raises the tube to the zenith, negative lowers it to
-  the horizon limit (``[pointing] min_altitude``). Never folded modulo 360° (``Axis.move_toward``),
-  and CURRSPEED is left as the operator set it.
+  the horizon limit (``[pointing] min_altitude``). On an equatorial mount the HA and Dec moves
+  stop where the telescope would reach that limit too (the bound is computed from the axis
+  positions when the move starts: it does not drift with time). Never folded modulo 360°
+  (``Axis.move_toward``), and CURRSPEED is left as the operator set it.
 * ``SideOfPier``: pierEast (0) in the normal orientation, pierWest (1) in the reverse one.
 * ``RightAscensionRate``/``DeclinationRate``: POINTING.TARGET.RA_V/DEC_V (a differential
   rate, from the next slew or tracking start on).
@@ -43,6 +45,7 @@ import asyncio
 import math
 
 import erfa
+import numpy as np
 
 from tcs.alpaca.device import Device, axis_ready, need, utc_iso
 from tcs.alpaca.protocol import AlpacaRequest, AscomError, Code, not_implemented
@@ -554,7 +557,69 @@ class TelescopeDevice(Device):
                 return (-1, axis.offset, None) if side > 0 else (1, None, axis.offset)
             limit = p.zd_limit  # down: |ZD| increases, to the horizon limit
             return (1, None, axis.offset + limit) if side > 0 else (-1, axis.offset - limit, None)
-        return (1 if rate > 0 else -1), None, None
+        direction = 1 if rate > 0 else -1
+        if n < 2 and p is not None and p.mount == "RA-DEC" and axis in (p.axis1, p.axis2):
+            bound = self._horizon_bound(axis, direction)
+            return (direction, None, bound) if direction > 0 else (direction, bound, None)
+        return direction, None, None
+
+    #: sampling step (degrees) of the path a MoveAxis of an equatorial axis would take
+    HORIZON_STEP = 0.1
+
+    def _horizon_bound(self, axis, direction: int) -> float | None:
+        """Equatorial mount: the axis position (REALPOS frame) where ``MoveAxis`` of ``axis`` in
+        ``direction``, the other axis standing, takes the telescope down to the horizon limit
+        (``[pointing] min_altitude``), or None when it stays above it up to the software limit.
+
+        The altitude of HA/Dec axis positions does not change with time, so the bound found
+        now holds for the whole move: the axis plans its stop to end there (the normal
+        deceleration, no overshoot), as the ZD of an alt-az mount stops at ``zd_limit``. The
+        path is sampled every :attr:`HORIZON_STEP` through the pointing model (model removed,
+        as ``Altitude`` reads) and the crossing refined by bisection. Already below the limit,
+        only a direction that raises the telescope is allowed (until it would sink again)."""
+        p = self.p
+        floor = float(p.config.min_altitude)
+        other = p.axis2 if axis is p.axis1 else p.axis1
+        here = float(axis.real_position)
+        end = float(axis.section.max if direction > 0 else axis.section.min)
+        if (end - here) * direction <= 0:
+            return None   # (move_toward refuses: at the limit already)
+        fixed = float(other.real_position)
+
+        def altitude(positions):
+            pos = np.asarray(positions, float)
+            still = np.full_like(pos, fixed)
+            r1, r2 = (pos, still) if axis is p.axis1 else (still, pos)
+            i1, i2 = p.pipeline().model.invert(r1, r2)
+            n1, n2, _rev = to_normal(i1, i2, "RA-DEC")
+            _az, alt = erfa.hd2ae(np.radians(n1), np.radians(n2), math.radians(p.latitude))
+            return np.degrees(alt)
+
+        count = int(abs(end - here) / self.HORIZON_STEP) + 2
+        path = np.linspace(here, end, count)
+        alt = altitude(path)
+        below = alt < floor
+        start = 0
+        if below[0]:
+            if alt[1] <= alt[0]:
+                raise AscomError(Code.INVALID_VALUE, f"MoveAxis: the telescope is below the horizon "
+                                                     f"limit {floor:g}° and this direction lowers it")
+            up = np.nonzero(~below)[0]
+            if not up.size:
+                return None
+            start = int(up[0])
+        sinking = np.nonzero(below[start:])[0]
+        if not sinking.size:
+            return None
+        i = start + int(sinking[0])
+        above, under = float(path[i - 1]), float(path[i])
+        for _ in range(30):   # to ~1e-10 degrees
+            mid = 0.5 * (above + under)
+            if altitude([mid])[0] >= floor:
+                above = mid
+            else:
+                under = mid
+        return above
 
     def _end_moves(self) -> None:
         for axis in list(self._moving_axes):

@@ -259,6 +259,8 @@ class Axis(ModuleHealth):
         self._ack_future = None
         self._drive_reboots = 0
         self._discrete_target: int | None = None
+        self._discrete_sent = False
+        self._after_homing = False  # a homing run ended early: wait for CSP and standstill
         self._pending: dict[str, tuple[asyncio.Future, Any]] = {}
         self._joined: dict[str, list[asyncio.Future]] = {}  # later requests ending with _pending's
         self._completions: list[tuple[asyncio.Future, TcsError | None]] = []
@@ -612,6 +614,7 @@ class Axis(ModuleHealth):
                 self._discrete_target = int(round(value))
                 self.target_position = float(self._discrete_target)
                 self.drive.move_to(self.positions[self._discrete_target])
+                self._discrete_sent = True  # this cycle's status is the previous move's
             else:
                 if self._running:  # direct positioning cancels the trajectory (spec §5.1)
                     self.follower.abort()
@@ -643,6 +646,12 @@ class Axis(ModuleHealth):
                 self._stop_motion(TcsError(f"{self.module_name}: aborted", ErrorNumber.TARGETCHANGE),
                                   quick=False)
                 self.emit(INFO, ErrorNumber.MOTIONCHANGE, "aborted: stopping", value)
+            if (self._homing and value is not None and "reference" in self._pending
+                    and self._pending["reference"][1] == value):
+                # the referencing this command started (READY=1): the drive ends the homing
+                # run with its normal deceleration; the REFERENCE request fails (halted)
+                self.drive.halt()
+                self.emit(INFO, ErrorNumber.MOTIONCHANGE, "aborted: referencing stops", value)
         elif kind == "jog":
             goal, speed, direction = value
             if (goal - self._sp.position) * direction <= 0:  # never the other way
@@ -661,6 +670,8 @@ class Axis(ModuleHealth):
             self.emit(INFO, ErrorNumber.MOTIONCHANGE, f"moving towards {goal:g} at {speed:g}/s", cause)
         elif kind == "stop":
             self._stop_motion(TcsError(f"{self.module_name}: stopped", ErrorNumber.TARGETCHANGE))
+            if self._homing:  # STOP ends referencing too (CABINET.STOP during a REINIT)
+                self.drive.halt()
         elif kind == "give up":
             self._stop_motion(value)
             if self._powered or self._want_power:
@@ -740,6 +751,11 @@ class Axis(ModuleHealth):
             self.follower.abort(quick=quick)
         else:
             self.planner.stop(quick=quick)
+        if self.discrete and self._powered:
+            # a profile-position move (filter wheel, M3) runs in the drive: its halt bit
+            # brakes it with the profile deceleration; the planner has nothing to stop
+            self.drive.halt()
+            self._discrete_target = None
         self._fail_motion(error)
         self._resolve("run")
         self.queue.clear()
@@ -782,6 +798,7 @@ class Axis(ModuleHealth):
                     st.mode != Mode.IP or st.statusword & 0x1000)):  # IP: "IP active" shown
             self._powered = True
             self._want_power = None
+            self._after_homing = False
             self._sp = Setpoint(st.position)
             self.planner.take_over(self._sp)
             if self.referenced < 1.0 and st.homed:
@@ -847,6 +864,7 @@ class Axis(ModuleHealth):
                     self._referenced_now()
             elif st.homing is Progress.FAILED:
                 self._homing = False
+                self._after_homing = True
                 self.referenced = 0.0
                 error = st.request_error or TcsError(f"{self.module_name}: homing failed", ErrorNumber.TIMEOUT)
                 self._resolve("reference", error)
@@ -889,7 +907,11 @@ class Axis(ModuleHealth):
         self.drive.disable()
 
     def _motion(self, st: DriveStatus, t: float) -> Setpoint | None:
-        if not self._powered or self._homing or self.discrete or not st.enabled:
+        if self._after_homing and st.mode == self.cyclic_mode and abs(st.velocity) <= self._standstill:
+            self._after_homing = False
+        if not self._powered or self._homing or self.discrete or not st.enabled or self._after_homing:
+            # (after a homing run that ended early the drive brakes in HM while the mode
+            # switches back: the setpoint follows where it stands, never a stale one)
             if not self._homing:
                 self._sp = Setpoint(st.position)
                 if self.planner.moving:  # power lost mid-move: the demand is where it stands
@@ -929,6 +951,9 @@ class Axis(ModuleHealth):
         trajectory TARGETPOS is the path at that time and TARGETDISTANCE the following error
         (the path where the setpoint is heading would add velocity × 2 cycles to it)."""
         prev_motion, prev_limit = self.motion_state, self.limit_state
+        # a move sent this cycle: ``st`` (read before it) still shows the previous move's end
+        # (a halted one: FAILED), which is not this move's; the next cycle's status is
+        fresh, self._discrete_sent = self._discrete_sent, False
         self.measured_ut1 = t
         sp = self._sp
         if st.state is DriveState.OFFLINE:
@@ -983,7 +1008,7 @@ class Axis(ModuleHealth):
             if self.follower.limited:
                 motion |= LIMITED
         elif self.discrete:
-            if self._discrete_target is not None and st.move is not Progress.RUNNING and \
+            if self._discrete_target is not None and st.move is not Progress.RUNNING and not fresh and \
                     abs(st.position - self.positions[self._discrete_target]) <= max(self.section.tolerance, 1e-9):
                 motion |= ON_TARGET
         elif self._powered and self.planner.at_target and error <= self.section.tolerance:
@@ -1014,7 +1039,7 @@ class Axis(ModuleHealth):
             self._resolve("offset")
         elif motion & ON_TARGET and self._running and error <= self.section.tolerance:
             self._resolve("offset")  # an OFFSET while tracking: back on the path
-        if self.discrete and st.move is Progress.FAILED and "target" in self._pending:
+        if self.discrete and st.move is Progress.FAILED and "target" in self._pending and not fresh:
             self._resolve("target", st.request_error or TcsError(f"{self.module_name}: move failed",
                                                                 ErrorNumber.TIMEOUT))
         # events

@@ -169,6 +169,7 @@ class Cia402Drive:
         self._mode_wanted: Mode | None = None
         self._homing_requested = False
         self._move_request: tuple[int, float | None] | None = None
+        self._halt_requested = False
         # control-loop side
         self._setpoint: int | None = None
         self._velocity_ff = 0
@@ -194,6 +195,7 @@ class Cia402Drive:
         self._homing_mode_before: Mode | None = None
         self._homed = False
         self._move: ProfileMove | None = None
+        self._halted = False  # halt (controlword bit 8) held in PP until the next move's set-point
         self._profile_velocity = round(abs(section.max_velocity * section.velocity_scale))
         self.rpdos_sent = 0
         self.steps = 0
@@ -239,6 +241,8 @@ class Cia402Drive:
             self._mode_wanted = None
             self._homing_requested = False
             self._move_request = None
+            self._halt_requested = False
+        self._halted = False
         self._raw = {0x6041: result.statusword, 0x6064: result.position, **self._raw}
         self._raw_time = self._clock()
         self._hold = self._raw.get(0x6064, result.position)
@@ -366,6 +370,15 @@ class Cia402Drive:
     def quick_stop(self) -> None:
         with self._lock:
             self._want, self._want_since = Want.QUICK_STOP, self._clock()
+            self._homing_requested = False
+            self._move_request = None
+
+    def halt(self) -> None:
+        """End a homing run or a profile move with the drive's normal deceleration: homing by
+        clearing its start bit (the drive stops, "interrupted"), a PP move by the halt bit
+        (profile deceleration 0x6084), held until the next move's set-point. Any thread."""
+        with self._lock:
+            self._halt_requested = True
             self._homing_requested = False
             self._move_request = None
 
@@ -546,6 +559,12 @@ class Cia402Drive:
             mode_wanted = self._mode_wanted
             homing_req, self._homing_requested = self._homing_requested, False
             move_req, self._move_request = self._move_request, None
+            halt_req, self._halt_requested = self._halt_requested, False
+        if halt_req:
+            stopped = TcsError(f"{self.device}: halted", ErrorNumber.TARGETCHANGE)
+            self._end_homing(stopped)
+            self._end_move(stopped)
+            self._halted = True
         self._reached_enabled = (want is Want.ENABLED and
                                  (self._reached_enabled or state is DriveState.OPERATION_ENABLED))
 
@@ -621,10 +640,15 @@ class Cia402Drive:
             if homing.progress is not Progress.RUNNING:
                 self._homing_ended(homing)
         if move is not None and move.progress is Progress.RUNNING and ready and mode == Mode.PP:
-            cw |= move.step(now, sw, actual)
+            bits = move.step(now, sw, actual)
+            if bits & sm.CW_NEW_SETPOINT:
+                self._halted = False  # released with the new set-point: no resuming the old one
+            cw |= bits
             target = move.target
             if move.progress is not Progress.RUNNING:
                 self._move_ended(move)
+        if self._halted and mode == Mode.PP:
+            cw |= sm.CW_HALT
         self._send(cw, target)
 
     def note_cycle(self, now: float) -> None:
@@ -799,6 +823,7 @@ class Cia402Drive:
         self._end_move(TcsError(f"{self.device}: move superseded by homing", ErrorNumber.TARGETCHANGE))
         home = self.section.homing
         previous = self._homing
+        self._halted = False
         self._homing = HomingRun(self.device, home.method, home.timeout, now)
         self._request_error = None
         if self.section.absolute:  # referenced by configuration: nothing runs on the drive

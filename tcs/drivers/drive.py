@@ -129,6 +129,9 @@ class Drive(Protocol):
     def quick_stop(self) -> None:
         """Request a quick stop with the drive's quick-stop deceleration."""
 
+    def halt(self) -> None:
+        """End a homing run or a profile-position move with the drive's normal deceleration."""
+
     def fault_reset(self) -> None:
         """Request one fault reset; the drive ends in Switch on disabled, never re-enabled."""
 

@@ -220,23 +220,61 @@ class Operations(ModuleHealth):
     async def _ready_on(self) -> None:
         cab = self.cabinet
         if cab.power_state != 1.0 or any(a.power_state != 1.0 for a in self.telescope.axes):
-            await cab.set_power(1)
+            await cab.set_power(1)   # (ended: the power sequence stops; what is on stays on)
         for _order, axes in cab.reference_plan(False):
-            await gather_all(*(a.reference(False) for a in axes))
+            try:
+                await gather_all(*(a.reference(False) for a in axes))
+            except asyncio.CancelledError:
+                # ended (ABORT of its SET, TELESCOPE.STOP, a newer READY): the homing runs it
+                # started stop with the drives' normal deceleration; nothing is powered off
+                self._stop_started(axes)
+                raise
 
     async def _park_off(self) -> None:
         p = self.pointing
         if p is not None and p.track:
             p.set_track(0)
             await self._until(lambda: not p.track)
-        moves = []
+        moves, moved = [], []
         for axis, park in self.park_positions():
             if axis.power_state == 1.0 and axis.referenced >= 1.0:
                 moves.append(axis.set_target(park - axis.offset))
+                moved.append(axis)
         if moves:
-            await gather_all(*moves)
+            try:
+                await gather_all(*moves)
+            except asyncio.CancelledError:
+                # ended before the park position: the moves stop (normal deceleration) and
+                # the power stays on (no power-off of a telescope that is not parked)
+                self._stop_started(moved)
+                raise
         self._parked = True
-        await self.cabinet.set_power(0)
+        # the power-off, once begun, runs to its end (every component off in order): an
+        # ABORT or a newer READY ends only the wait for it
+        await asyncio.shield(self.cabinet.set_power(0))
+
+    def _stop_started(self, axes, cause=None) -> None:
+        """Stop the motion (moves, homing runs) the command ``cause`` (default: the one this
+        job runs for) started on ``axes``."""
+        cause = current_cause.get() if cause is None else cause
+        for axis in axes:
+            try:
+                axis.abort_request(cause)
+            except TcsError as exc:  # a PLC part unreachable: reported by the part itself
+                log.warning("%s: stop of an ended command: %s", axis.module_name, exc)
+
+    def abort_request(self, cause, awaitable=None) -> None:
+        """TPL2 ABORT of a verb's SET ``cause`` (OpenTSI POINTING.TRACK, USE_PORT, READY):
+        what that command started stops with the normal controlled stop — the tracking of
+        TRACK=1 ends, the filter wheel, focus or M3 move of TRACK=3/4 or USE_PORT halts. The
+        READY/park/goto jobs end by the cancellation of their SET's wait (:meth:`_start`),
+        which stops their moves and homing runs (:meth:`_stop_started`)."""
+        p = self.pointing
+        if p is not None:
+            p.abort_request(cause, awaitable)
+        wheels = [w for w in self.telescope.axis_array("FILTER") if w is not None]
+        others = [self.telescope.axis(n) for n in ("FOCUS", "MIRROR")]
+        self._stop_started([a for a in (*wheels, *others) if a is not None], cause)
 
     # -- POINTING.TRACK verbs --------------------------------------------------------------------
     def stop_tracking(self) -> None:

@@ -29,6 +29,10 @@ Semantics, where a PLC axis differs from a drive:
     ``POWER=1`` (or ``CABINET.POWER=1``, which switches every module) needs main power and a
     connected, unfaulted PLC; ``POWER=0`` stops the axis and refuses moves (5 invmode). Both
     complete at once. A PLC that comes back restores ``POWER_STATE`` by itself.
+Status while the PLC is unreachable
+    ``REALPOS``, ``CURRPOS``, ``POWER``/``POWER_STATE``, ``MOTION_STATE``, ``LIMIT_STATE``,
+    ``CURRSPEED`` and ``TARGETDISTANCE`` answer ``FAILED 4`` (``3`` when the PLC hangs), the
+    link's number (:attr:`PlcAxisModule.stale`), never the last value polled.
 ``REFERENCED``
     Always 1.0: PLC axes measure absolute positions (end switches, absolute encoders).
     ``REINIT`` only confirms that with ``EVENT INFO <module>:19``.
@@ -192,6 +196,19 @@ class PlcAxisModule(PlcModule):
         self._cancel_timer()
 
     # ================================================================ readbacks
+
+    @property
+    def stale(self) -> CommunicationError | None:
+        """The error for readbacks while no fresh PLC poll exists (the PLC unreachable, or
+        not polled yet): REALPOS, POWER_STATE, MOTION_STATE … answer it (OpenTCI ``FAILED 4``
+        or ``3``, the link's number; OpenTSI the same; Alpaca an error) instead of the last
+        value polled, as a drive axis does while its drive is offline."""
+        link = self.link_error()
+        if link is not None:
+            return CommunicationError(self.group.device, f"no fresh data ({link.message})", link.number)
+        if not self.group.driver.snapshot.valid:
+            return CommunicationError(self.group.device, "no fresh data (not polled yet)", ErrorNumber.NOCON)
+        return None
 
     @property
     def cyclic(self) -> float:

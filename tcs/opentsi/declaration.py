@@ -44,6 +44,11 @@ class TsiRoot:
         self.position = views.Position(self.telescope)
         self.environment = views.Environment(self.telescope)
 
+    def abort_request(self, cause, awaitable=None) -> None:
+        """TPL2 ABORT of a long SET of this tree (POINTING.TRACK, TELESCOPE.READY/POWER):
+        the motion it started stops (:meth:`Operations.abort_request`)."""
+        self.ops.abort_request(cause, awaitable)
+
 
 def _zero(_obj) -> int:
     return 0
@@ -218,6 +223,10 @@ class _SetupView:
 
     def __getattr__(self, name):
         return getattr(self.owner.setup, name)
+
+    def abort_request(self, cause, awaitable=None) -> None:
+        """ABORT of USE_PORT: the M3 move halts (:meth:`Operations.abort_request`)."""
+        self.owner.abort_request(cause, awaitable)
 
 
 def _setup(root):

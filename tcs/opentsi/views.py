@@ -244,6 +244,9 @@ class Fraction:
 
     @property
     def realpos(self) -> float:
+        stale = getattr(self.axis, "stale", None)
+        if stale is not None:  # the PLC is lost: an error, not the last position
+            raise stale
         s = self.axis.section
         span = (s.max - s.min) or 1.0
         return min(1.0, max(0.0, (self.axis.real_position - s.min) / span))
