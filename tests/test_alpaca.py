@@ -284,6 +284,7 @@ def test_every_device_connects_and_answers_its_state(live):
     for d in devices:
         device = classes[d["DeviceType"]](address(live), d["DeviceNumber"])
         device.Connect()
+        until(lambda: not device.Connecting, f"{d['DeviceType']} connected")
         assert device.Connected and device.Name == d["DeviceName"]
         assert isinstance(device.DeviceState, list)
         assert device.InterfaceVersion >= 2
@@ -382,8 +383,9 @@ def test_opentsi_ready_0_parks_for_alpaca_too(live):
     assert t.AtPark and not t.Tracking
     with pytest.raises(ParkedException):
         t.SlewToAltAzAsync(100.0, 45.0)
-    t.Unpark()
-    assert not t.AtPark and live.telescope.operations.ready_state == 1.0
+    t.Unpark()   # asynchronous: AtPark until the telescope is ready again
+    until(lambda: not t.AtPark, "unparked")
+    assert live.telescope.operations.ready_state == 1.0
     t.Disconnect()
 
 

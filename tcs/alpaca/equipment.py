@@ -24,22 +24,27 @@ What maps to what
 PLC modules (dome parts, covers) need their POWER on to move: an Alpaca move switches it on
 first (it fails, as InvalidOperation, while CABINET.POWER is off). The weather interlock refuses
 opening in bad weather (InvalidOperation, with the interlock's reason).
+
+Life cycle: connecting a Focuser, FilterWheel or Rotator powers on and references its own axis
+(:func:`~tcs.alpaca.device.ready_axis`; ``Connecting`` True meanwhile) — nothing else moves.
+Every move is an asynchronous initiator whose completion state is set before the reply
+(:meth:`~tcs.alpaca.device.Device.start_operation`): right after ``Move``/``MoveAbsolute``/
+``MoveMechanical``/``Position=n``/``SlewToAzimuth``/``OpenShutter``/``CloseShutter``/
+``OpenCover``/``CloseCover`` the completion read says moving (``IsMoving`` True, ``Position``
+-1, ``Slewing`` True, ``ShutterStatus`` opening/closing, ``CoverMoving`` True / ``CoverState``
+Moving) until the move ended. ``Halt``/``AbortSlew`` stop the move (the axis decelerates; its
+motion bit says moving until it stands); ``HaltCover`` is synchronous: it returns once the
+cover stands (``CoverMoving`` False).
 """
 
 from __future__ import annotations
 
 import asyncio
 
-from tcs.alpaca.device import Device, axis_ready, need
+from tcs.alpaca.device import Device, axis_ready, need, ready_axis
 from tcs.alpaca.protocol import AlpacaRequest, AscomError, Code, not_implemented
 
 MOVING = 1
-
-
-def _quiet(fut) -> None:
-    """Run a long SET in the background; its outcome shows in the device's state."""
-    if fut is not None:
-        asyncio.ensure_future(fut).add_done_callback(lambda f: f.cancelled() or f.exception())
 
 
 # ------------------------------------------------------------------------------------ Focuser
@@ -62,11 +67,18 @@ class FocuserDevice(Device):
         super().__init__(number, name, description, telescope, **kw)
         self.axis = axis
 
+    async def prepare(self) -> None:
+        await ready_axis(self.telescope, self.axis)
+
+    def needs_preparing(self) -> bool:
+        return self.axis.power_state != 1.0 or self.axis.referenced < 1.0
+
     def get_absolute(self, r) -> bool:
         return True
 
     def get_ismoving(self, r) -> bool:
-        return bool(self.axis.motion_state & MOVING)
+        self.report_failure()
+        return self.running("move") or bool(self.axis.motion_state & MOVING)
 
     def get_maxstep(self, r) -> int:
         return int(round(self.axis.section.max * self.STEP))
@@ -91,6 +103,7 @@ class FocuserDevice(Device):
         return False
 
     def put_halt(self, r) -> None:
+        self.drop_operation("move")
         self.axis.stop()
 
     def put_move(self, r) -> None:
@@ -99,7 +112,7 @@ class FocuserDevice(Device):
         lo, hi = int(round(section.min * self.STEP)), int(round(section.max * self.STEP))
         need(lo <= steps <= hi, Code.INVALID_VALUE, f"Position {steps} is outside {lo}…{hi}")
         axis_ready(self.axis, "Move")
-        _quiet(self.axis.set_target(steps / self.STEP))
+        self.start_operation("move", self.axis.set_target(steps / self.STEP), "Move")
 
 
 # -------------------------------------------------------------------------------- FilterWheel
@@ -119,6 +132,12 @@ class FilterWheelDevice(Device):
         super().__init__(number, name, description, telescope, **kw)
         self.axis = axis
 
+    async def prepare(self) -> None:
+        await ready_axis(self.telescope, self.axis)
+
+    def needs_preparing(self) -> bool:
+        return self.axis.power_state != 1.0 or self.axis.referenced < 1.0
+
     def _keys(self) -> list:
         return sorted(self.axis.positions)
 
@@ -130,8 +149,9 @@ class FilterWheelDevice(Device):
         return [0 for _ in self._keys()]
 
     def get_position(self, r) -> int:
+        self.report_failure()
         axis = self.axis
-        if axis.motion_state & MOVING or axis.referenced < 1.0:
+        if self.running("move") or axis.motion_state & MOVING or axis.referenced < 1.0:
             return -1
         here = axis.real_position   # a discrete axis reads the key of the position it is at
         for i, key in enumerate(self._keys()):
@@ -144,7 +164,7 @@ class FilterWheelDevice(Device):
         keys = self._keys()
         need(0 <= slot < len(keys), Code.INVALID_VALUE, f"Position {slot} is outside 0…{len(keys) - 1}")
         axis_ready(self.axis, "Position")
-        _quiet(self.axis.set_target(keys[slot]))
+        self.start_operation("move", self.axis.set_target(keys[slot]), f"Position={slot}")
 
 
 # ------------------------------------------------------------------------------------ Rotator
@@ -168,6 +188,12 @@ class RotatorDevice(Device):
         super().__init__(number, name, description, telescope, **kw)
         self.axis = axis
 
+    async def prepare(self) -> None:
+        await ready_axis(self.telescope, self.axis)
+
+    def needs_preparing(self) -> bool:
+        return self.axis.power_state != 1.0 or self.axis.referenced < 1.0
+
     def get_canreverse(self, r) -> bool:
         return False
 
@@ -179,7 +205,8 @@ class RotatorDevice(Device):
             raise not_implemented("Reverse (CanReverse is False)")
 
     def get_ismoving(self, r) -> bool:
-        return bool(self.axis.motion_state & MOVING)
+        self.report_failure()
+        return self.running("move") or bool(self.axis.motion_state & MOVING)
 
     def get_mechanicalposition(self, r) -> float:
         return float(self.axis.real_position % 360.0)
@@ -191,6 +218,7 @@ class RotatorDevice(Device):
         return float((self.axis.target_position + self.axis.offset) % 360.0)
 
     def put_halt(self, r) -> None:
+        self.drop_operation("move")
         self.axis.stop()
 
     def _go(self, angle: float) -> None:
@@ -201,7 +229,7 @@ class RotatorDevice(Device):
         turns = sorted((base + k * 360.0 for k in range(-2, 3)), key=lambda t: abs(t - here))
         for goal in turns:
             if axis.limits.contains(goal):
-                _quiet(axis.set_target(goal - axis.offset))
+                self.start_operation("move", axis.set_target(goal - axis.offset), "the move")
                 return
         raise AscomError(Code.INVALID_VALUE, f"{angle}° cannot be reached inside the limits")
 
@@ -239,10 +267,15 @@ def _at_max(module) -> bool:
     return module.real_position >= module.section.max - max(module.section.tolerance, 1e-6)
 
 
-def _opening_state(parts: list) -> int:
-    """ShutterState / CoverStatus-like summary of PLC parts: open, closed, opening, closing, error."""
+def _opening_state(parts: list, going: dict | None = None) -> int:
+    """ShutterState / CoverStatus-like summary of PLC parts: open, closed, opening, closing, error.
+    ``going``: part -> goal of the moves an Alpaca client started that have not ended (moving
+    from the reply on, before the part's own motion bit says so)."""
     if any(p.motion_state & 4 for p in parts) or any(p.link_error() is not None for p in parts):
         return SHUTTER_ERROR
+    going = going or {}
+    if going:
+        return SHUTTER_OPENING if any(goal >= p.section.max for p, goal in going.items()) else SHUTTER_CLOSING
     moving = [p for p in parts if p.motion_state & MOVING]
     if moving:
         return SHUTTER_OPENING if any(p.target_position > p.current_position for p in moving) else SHUTTER_CLOSING
@@ -275,6 +308,7 @@ class DomeDevice(Device):
         super().__init__(number, name, description, telescope, **kw)
         self.rotation = rotation
         self.shutters = shutters
+        self._goals: dict[int, float] = {}
 
     def _parts(self) -> list:
         return ([self.rotation] if self.rotation is not None else []) + list(self.shutters)
@@ -321,15 +355,24 @@ class DomeDevice(Device):
             raise not_implemented("Azimuth (this enclosure does not rotate)")
         return float(self.rotation.current_position % 360.0)
 
+    def _going(self) -> dict:
+        return {p: self._goals[i] for i, p in enumerate(self.shutters) if self.running(f"shutter{i}")}
+
     def get_shutterstatus(self, r) -> int:
         if not self.shutters:
             raise not_implemented("ShutterStatus (no shutter)")
-        return _opening_state(self.shutters)
+        self.report_failure()
+        return _opening_state(self.shutters, self._going())
 
     def get_slewing(self, r) -> bool:
-        return any(p.motion_state & MOVING for p in self._parts())
+        self.report_failure()
+        return (self.running("rotation") or bool(self._going())
+                or any(p.motion_state & MOVING for p in self._parts()))
 
     def put_abortslew(self, r) -> None:
+        self.drop_operation("rotation")
+        for i, _part in enumerate(self.shutters):
+            self.drop_operation(f"shutter{i}")
         for part in self._parts():
             part.stop()
 
@@ -338,9 +381,13 @@ class DomeDevice(Device):
             raise not_implemented("OpenShutter/CloseShutter (no shutter)")
         for part in self.shutters:
             _power_up(part, "shutter")
+        moves = []
         for part in self.shutters:   # the interlock refuses before anything moves
             goal = part.section.max if open_ else part.section.min
-            _quiet(part.set_target(goal))
+            moves.append((goal, part.set_target(goal)))
+        for i, (goal, move) in enumerate(moves):
+            self._goals[i] = goal
+            self.start_operation(f"shutter{i}", move, "OpenShutter" if open_ else "CloseShutter")
 
     def put_openshutter(self, r) -> None:
         self._shutter(True)
@@ -354,7 +401,7 @@ class DomeDevice(Device):
         if self.rotation is None:
             raise not_implemented("SlewToAzimuth (this enclosure does not rotate)")
         _power_up(self.rotation, "rotation")
-        _quiet(self.rotation.set_target(az))
+        self.start_operation("rotation", self.rotation.set_target(az), "SlewToAzimuth")
 
     def put_slewtoaltitude(self, r) -> None:
         alt = r.float("Altitude")
@@ -389,6 +436,7 @@ class CoverCalibratorDevice(Device):
     def __init__(self, number, name, description, telescope, cover, **kw):
         super().__init__(number, name, description, telescope, **kw)
         self.cover = cover
+        self._goal = 0.0
 
     def get_calibratorstate(self, r) -> int:
         return 0   # NotPresent
@@ -397,17 +445,22 @@ class CoverCalibratorDevice(Device):
         return False
 
     def get_covermoving(self, r) -> bool:
-        return bool(self.cover.motion_state & MOVING)
+        self.report_failure()
+        return self.running("move") or bool(self.cover.motion_state & MOVING)
 
     def get_coverstate(self, r) -> int:
-        state = _opening_state([self.cover])
+        self.report_failure()
+        state = _opening_state([self.cover], {self.cover: self._goal} if self.running("move") else None)
         return {SHUTTER_OPEN: COVER_OPEN, SHUTTER_CLOSED: COVER_CLOSED, SHUTTER_OPENING: COVER_MOVING,
                 SHUTTER_CLOSING: COVER_MOVING}.get(state, COVER_ERROR if self.cover.motion_state & 4
                                                    or self.cover.link_error() is not None else COVER_UNKNOWN)
 
     def _move(self, open_: bool) -> None:
         _power_up(self.cover, "cover")
-        _quiet(self.cover.set_target(self.cover.section.max if open_ else self.cover.section.min))
+        goal = self.cover.section.max if open_ else self.cover.section.min
+        move = self.cover.set_target(goal)
+        self._goal = goal
+        self.start_operation("move", move, "OpenCover" if open_ else "CloseCover")
 
     def put_opencover(self, r) -> None:
         self._move(True)
@@ -415,8 +468,16 @@ class CoverCalibratorDevice(Device):
     def put_closecover(self, r) -> None:
         self._move(False)
 
-    def put_haltcover(self, r) -> None:
+    async def put_haltcover(self, r) -> None:
+        """Synchronous: stop, and reply once the cover stands (CoverMoving False)."""
+        self.drop_operation("move")
         self.cover.stop()
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + 20.0
+        while self.cover.motion_state & MOVING or getattr(self.cover, "command_pending", False):
+            if loop.time() > deadline:
+                raise AscomError(Code.DRIVER_ERROR, "HaltCover: the cover did not stop within 20 s")
+            await asyncio.sleep(0.02)
 
     def put_calibratoron(self, r) -> None:
         r.int("Brightness")
