@@ -1,0 +1,227 @@
+"""The Alpaca race suite: every asynchronous initiator of every device, followed at once by its
+completion read on the same connection and on a second one (issue 26).
+
+ConformU's checks wait between a call and its first read; real clients do not. Here each
+initiator's reply is followed immediately by the completion read — on the initiator's own
+keep-alive HTTP connection and on a second one — and the pair must be consistent: "still
+moving" (``Slewing``/``IsMoving``/``CoverMoving`` True, filter ``Position`` −1, shutter
+opening/closing, cover Moving) or "done, at the new goal". Reading "at rest, at the old place"
+is a violation. Moves short and long alternate; a new initiator supersedes the running move,
+so the suite does not wait for the moves to end (it waits at the end of each device's run,
+and checks the device arrived at the last goal). ``HaltCover`` is synchronous: ``CoverMoving``
+is False on the read right after it.
+
+Iterations per initiator: ``ALPACA_RACE_ITERATIONS`` (default 25: a few seconds for the whole
+suite; set thousands for a night's soak). One service (module scope), made ready once.
+"""
+
+from __future__ import annotations
+
+import http.client
+import json
+import os
+import time
+from pathlib import Path
+from urllib.parse import urlencode
+
+import pytest
+
+from support.live import live_service
+
+HW = Path(__file__).with_name("hw_alpaca.toml")
+WAIT = 90.0
+N = int(os.environ.get("ALPACA_RACE_ITERATIONS", "25"))
+
+live = live_service(HW)
+
+
+@pytest.fixture(autouse=True)
+def _no_leaked_threads():  # the module's service thread is expected; LiveService.stop checks
+    yield
+
+
+class Conn:
+    """One keep-alive HTTP connection to the Alpaca server (a client application's session)."""
+
+    def __init__(self, port: int):
+        self.c = http.client.HTTPConnection("127.0.0.1", port, timeout=40.0)
+        self.tid = 0
+
+    def _do(self, method: str, path: str, params: dict) -> object:
+        self.tid += 1
+        params = {**params, "ClientID": 7, "ClientTransactionID": self.tid}
+        if method == "GET":
+            self.c.request("GET", f"/api/v1/{path}?{urlencode(params)}")
+        else:
+            self.c.request("PUT", f"/api/v1/{path}", body=urlencode(params),
+                           headers={"Content-Type": "application/x-www-form-urlencoded"})
+        resp = self.c.getresponse()
+        body = resp.read().decode()
+        assert resp.status == 200, (method, path, params, resp.status, body)
+        reply = json.loads(body)
+        assert reply["ErrorNumber"] == 0, (method, path, params, reply)
+        return reply.get("Value")
+
+    def get(self, path: str, **params):
+        return self._do("GET", path, params)
+
+    def put(self, path: str, **params):
+        return self._do("PUT", path, params)
+
+    def close(self) -> None:
+        self.c.close()
+
+
+def until(condition, what: str, timeout: float = WAIT):
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.05)
+
+
+@pytest.fixture(scope="module")
+def conns(live):
+    """Two connections to a ready telescope with every device connected."""
+    a, b = Conn(live.service.alpaca_port), Conn(live.service.alpaca_port)
+    for device in ("telescope/0", "focuser/0", "filterwheel/0", "rotator/0", "rotator/1", "dome/0",
+                   "covercalibrator/0"):
+        a.put(f"{device}/connect")
+        until(lambda d=device: not a.get(f"{d}/connecting"), f"{device} connected")
+        assert a.get(f"{device}/connected")
+    a.put("telescope/0/unpark")
+    until(lambda: not a.get("telescope/0/atpark"), "the telescope ready")
+    yield a, b
+    for device in ("telescope/0", "focuser/0", "filterwheel/0", "rotator/0", "rotator/1", "dome/0",
+                   "covercalibrator/0"):
+        a.put(f"{device}/disconnect")
+    a.close()
+    b.close()
+
+
+def race(conns, initiate, reads, consistent, goals, what: str) -> int:
+    """Run ``initiate(conn, goal)`` for each goal and check ``consistent(goal, value)`` of the
+    completion read ``reads`` (path) right after it on both connections; the violations."""
+    a, b = conns
+    bad = []
+    for i, goal in enumerate(goals):
+        initiate(a, goal)
+        first = a.get(reads)
+        second = b.get(reads)
+        for who, value in (("same", first), ("second", second)):
+            if not consistent(goal, value):
+                bad.append((i, goal, who, value))
+    assert not bad, f"{what}: {len(bad)} of {len(goals)} completion reads said 'done' too early: {bad[:5]}"
+    return len(goals)
+
+
+def short_and_long(n: int, a: float, b: float, step: float) -> list[float]:
+    """Goals alternating between far (a, b) and near (a + step, b - step) moves."""
+    out = []
+    for i in range(n):
+        out.append([a, b, b - step, a + step][i % 4])
+    return out
+
+
+def test_focuser_move_then_ismoving(live, conns):
+    a, _ = conns
+    goals = [int(g) for g in short_and_long(N, 2000, 30000, 7)]
+
+    def consistent(goal, moving):
+        return moving or a.get("focuser/0/position") == goal
+    race(conns, lambda c, g: c.put("focuser/0/move", Position=g), "focuser/0/ismoving", consistent, goals,
+         "Focuser Move")
+    until(lambda: not a.get("focuser/0/ismoving"), "the focuser at rest")
+    assert a.get("focuser/0/position") == goals[-1]
+
+
+def test_rotator_moves_then_ismoving(live, conns):
+    a, _ = conns
+    goals = short_and_long(N, 10.0, 200.0, 0.5)
+
+    def consistent(goal, moving):
+        return moving or abs((a.get("rotator/0/position") - goal + 180.0) % 360.0 - 180.0) < 0.01
+    race(conns, lambda c, g: c.put("rotator/0/moveabsolute", Position=g), "rotator/0/ismoving", consistent,
+         goals, "Rotator MoveAbsolute")
+    race(conns, lambda c, g: c.put("rotator/0/movemechanical", Position=g), "rotator/0/ismoving",
+         consistent, list(reversed(goals)), "Rotator MoveMechanical")
+    until(lambda: not a.get("rotator/0/ismoving"), "the rotator at rest")
+    assert abs((a.get("rotator/0/position") - goals[0] + 180.0) % 360.0 - 180.0) < 0.01
+    here = a.get("rotator/0/position")
+    a.put("rotator/0/move", Position=3.0)          # relative
+    assert a.get("rotator/0/ismoving") or abs(a.get("rotator/0/position") - (here + 3.0) % 360.0) < 0.01
+
+
+def test_filterwheel_position_then_position(live, conns):
+    a, _ = conns
+    slots = [[3, 0, 1, 2][i % 4] for i in range(N)]
+    race(conns, lambda c, s: c.put("filterwheel/0/position", Position=s), "filterwheel/0/position",
+         lambda s, value: value in (-1, s), slots, "FilterWheel Position")
+    until(lambda: a.get("filterwheel/0/position") == slots[-1], "the wheel at the last slot")
+
+
+def test_dome_slew_and_shutter_then_their_state(live, conns):
+    a, _ = conns
+    goals = short_and_long(N, 100.0, 250.0, 1.0)
+
+    def at(goal):
+        return abs((a.get("dome/0/azimuth") - goal + 180.0) % 360.0 - 180.0) < 0.5
+    race(conns, lambda c, g: c.put("dome/0/slewtoazimuth", Azimuth=g), "dome/0/slewing",
+         lambda g, slewing: slewing or at(g), goals, "Dome SlewToAzimuth")
+    until(lambda: not a.get("dome/0/slewing"), "the dome at rest")
+    assert at(goals[-1])
+
+    opens = [i % 2 == 0 for i in range(N)]   # open, close, open… each reverses the last
+    race(conns, lambda c, o: c.put("dome/0/openshutter" if o else "dome/0/closeshutter"),
+         "dome/0/shutterstatus", lambda o, s: s in ((0, 2) if o else (1, 3)), opens, "Dome shutter")
+    a.put("dome/0/closeshutter")
+    assert a.get("dome/0/shutterstatus") in (1, 3)
+    until(lambda: a.get("dome/0/shutterstatus") == 1, "the shutter closed")
+
+
+def test_cover_open_close_then_state_and_halt(live, conns):
+    a, b = conns
+    opens = [i % 2 == 0 for i in range(N)]
+    race(conns, lambda c, o: c.put("covercalibrator/0/opencover" if o else "covercalibrator/0/closecover"),
+         "covercalibrator/0/coverstate", lambda o, s: s in ((2, 3) if o else (1, 2)), opens, "Cover state")
+    race(conns, lambda c, o: c.put("covercalibrator/0/opencover" if o else "covercalibrator/0/closecover"),
+         "covercalibrator/0/covermoving",
+         lambda o, m: m or a.get("covercalibrator/0/coverstate") == (3 if o else 1), opens, "CoverMoving")
+    # HaltCover is synchronous: right after it, the cover stands (halted at once and mid-way)
+    for i in range(max(4, N // 5)):
+        a.put("covercalibrator/0/opencover" if i % 2 == 0 else "covercalibrator/0/closecover")
+        if i % 2:
+            time.sleep(0.1)   # under way, not only just commanded
+        a.put("covercalibrator/0/haltcover")
+        assert not a.get("covercalibrator/0/covermoving"), i
+        assert not b.get("covercalibrator/0/covermoving"), i
+    a.put("covercalibrator/0/closecover")
+    until(lambda: a.get("covercalibrator/0/coverstate") == 1, "the cover closed")
+
+
+def test_telescope_slews_park_and_home_then_slewing(live, conns):
+    a, _ = conns
+    lst = a.get("telescope/0/siderealtime")
+    a.put("telescope/0/tracking", Tracking=True)
+    places = [((lst + h) % 24.0, d) for h, d in ((1.5, 10.0), (-2.0, 30.0), (1.49, 10.01), (-1.99, 30.02))]
+    goals = [places[i % 4] for i in range(N)]
+    race(conns, lambda c, g: c.put("telescope/0/slewtocoordinatesasync", RightAscension=g[0], Declination=g[1]),
+         "telescope/0/slewing", lambda g, s: s, goals, "Telescope SlewToCoordinatesAsync")
+    until(lambda: not a.get("telescope/0/slewing"), "on target")
+    a.put("telescope/0/tracking", Tracking=False)
+    until(lambda: not a.get("telescope/0/slewing"), "at rest")
+
+    altaz = [[(120.0, 50.0), (200.0, 40.0), (200.5, 40.5), (120.5, 50.5)][i % 4] for i in range(max(4, N // 2))]
+    race(conns, lambda c, g: c.put("telescope/0/slewtoaltazasync", Azimuth=g[0], Altitude=g[1]),
+         "telescope/0/slewing", lambda g, s: s, altaz, "Telescope SlewToAltAzAsync")
+    until(lambda: not a.get("telescope/0/slewing"), "at rest after the alt-az slews")
+
+    for _ in range(max(2, N // 10)):
+        a.put("telescope/0/park")
+        # Slewing first: once it reads False the park has ended, and AtPark must say so
+        assert a.get("telescope/0/slewing") or a.get("telescope/0/atpark")
+        until(lambda: a.get("telescope/0/atpark"), "parked")
+        a.put("telescope/0/unpark")   # a parked, ready telescope: unparked at once
+        assert not a.get("telescope/0/atpark")
+    a.put("telescope/0/findhome")
+    assert a.get("telescope/0/slewing") or a.get("telescope/0/athome")
+    until(lambda: a.get("telescope/0/athome"), "at home")
