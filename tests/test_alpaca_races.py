@@ -159,7 +159,7 @@ def test_filterwheel_position_then_position(live, conns):
     until(lambda: a.get("filterwheel/0/position") == slots[-1], "the wheel at the last slot")
 
 
-def test_dome_slew_and_shutter_then_their_state(live, conns):
+def test_dome_slew_then_slewing(live, conns):
     a, _ = conns
     goals = short_and_long(N, 100.0, 250.0, 1.0)
 
@@ -170,6 +170,9 @@ def test_dome_slew_and_shutter_then_their_state(live, conns):
     until(lambda: not a.get("dome/0/slewing"), "the dome at rest")
     assert at(goals[-1])
 
+
+def test_dome_shutter_then_shutterstatus(live, conns):
+    a, _ = conns
     opens = [i % 2 == 0 for i in range(N)]   # open, close, open… each reverses the last
     race(conns, lambda c, o: c.put("dome/0/openshutter" if o else "dome/0/closeshutter"),
          "dome/0/shutterstatus", lambda o, s: s in ((0, 2) if o else (1, 3)), opens, "Dome shutter")
@@ -178,7 +181,7 @@ def test_dome_slew_and_shutter_then_their_state(live, conns):
     until(lambda: a.get("dome/0/shutterstatus") == 1, "the shutter closed")
 
 
-def test_cover_open_close_then_state_and_halt(live, conns):
+def test_cover_open_close_then_coverstate_and_covermoving(live, conns):
     a, b = conns
     opens = [i % 2 == 0 for i in range(N)]
     race(conns, lambda c, o: c.put("covercalibrator/0/opencover" if o else "covercalibrator/0/closecover"),
@@ -186,6 +189,12 @@ def test_cover_open_close_then_state_and_halt(live, conns):
     race(conns, lambda c, o: c.put("covercalibrator/0/opencover" if o else "covercalibrator/0/closecover"),
          "covercalibrator/0/covermoving",
          lambda o, m: m or a.get("covercalibrator/0/coverstate") == (3 if o else 1), opens, "CoverMoving")
+    a.put("covercalibrator/0/closecover")
+    until(lambda: a.get("covercalibrator/0/coverstate") == 1, "the cover closed")
+
+
+def test_haltcover_returns_with_the_cover_standing(live, conns):
+    a, b = conns
     # HaltCover is synchronous: right after it, the cover stands (halted at once and mid-way)
     for i in range(max(4, N // 5)):
         a.put("covercalibrator/0/opencover" if i % 2 == 0 else "covercalibrator/0/closecover")
