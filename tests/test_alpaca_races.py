@@ -196,10 +196,12 @@ def test_cover_open_close_then_coverstate_and_covermoving(live, conns):
 def test_haltcover_returns_with_the_cover_standing(live, conns):
     a, b = conns
     # HaltCover is synchronous: right after it, the cover stands (halted at once and mid-way)
-    for i in range(max(4, N // 5)):
-        a.put("covercalibrator/0/opencover" if i % 2 == 0 else "covercalibrator/0/closecover")
-        if i % 2:
-            time.sleep(0.1)   # under way, not only just commanded
+    for i in range(max(4, N // 10)):
+        a.put("covercalibrator/0/closecover")
+        until(lambda: a.get("covercalibrator/0/coverstate") == 1, "the cover closed")
+        a.put("covercalibrator/0/opencover")
+        if i % 2:   # under way, not only just commanded
+            until(lambda: live.telescope.peripherals.covers[0].motion_state & 1, "the cover moving")
         a.put("covercalibrator/0/haltcover")
         assert not a.get("covercalibrator/0/covermoving"), i
         assert not b.get("covercalibrator/0/covermoving"), i
