@@ -9,10 +9,13 @@ What maps to what
 * **FilterWheel** (IFilterWheelV3), one per ``FILTER[]`` wheel: slot i = the i-th position of
   the hardware file's ``positions`` (sorted as OpenTSI sorts them), ``Names`` from ``names``;
   ``Position`` is -1 while the wheel moves. Focus offsets are all 0 (none configured).
-* **Rotator** (IRotatorV4), one per ``DEROTATOR[]``: ``MechanicalPosition`` = REALPOS folded
-  into 0…360; ``Position`` is the same (no rotator sync state: ``Sync`` is not implemented);
-  a move goes to the turn of the cyclic axis nearest to where it stands, inside the limits.
-  ``CanReverse`` False.
+* **Rotator** (IRotatorV4), one per ``DEROTATOR[]``, the Platform 7 model:
+  ``MechanicalPosition`` = REALPOS folded into 0…360; the sky ``Position`` = (±mechanical +
+  sync offset) mod 360, − while ``Reverse`` is True. ``Sync(p)`` sets the offset so that
+  ``Position`` reads p without moving; writing ``Reverse`` keeps ``Position`` where it is (the
+  offset follows). Offset and Reverse are kept per derotator in the state file (they survive a
+  restart). ``MoveAbsolute``/``Move`` are in sky degrees, ``MoveMechanical`` in mechanical
+  ones; a move goes to the turn of the cyclic axis nearest to where it stands, inside the limits.
 * **Dome** (IDomeV3) for ``DOME[]``: ``Azimuth``/``SlewToAzimuth``/``SyncToAzimuth``… on the
   rotation (DOME[0]) when there is one; the shutter is every opening part (slit, flap, roof,
   fold, shells): open when all are at their open end, closed when all are closed. No park or
@@ -182,6 +185,7 @@ class RotatorDevice(Device):
         "put_move": (("Position", "float"),),
         "put_moveabsolute": (("Position", "float"),),
         "put_movemechanical": (("Position", "float"),),
+        "put_sync": (("Position", "float"),),
     }
 
     def __init__(self, number, name, description, telescope, axis, **kw):
@@ -194,15 +198,47 @@ class RotatorDevice(Device):
     def needs_preparing(self) -> bool:
         return self.axis.power_state != 1.0 or self.axis.referenced < 1.0
 
+    # -- the sync model: sky = (sign × mechanical + offset) mod 360, sign −1 while Reverse --------
+    STORE = "alpaca_rotators"
+
+    def _model(self) -> tuple[float, bool]:
+        saved = (self.telescope.store.get(self.STORE, {}) or {}).get(self.axis.module_name) or {}
+        return float(saved.get("offset", 0.0)), bool(saved.get("reverse", False))
+
+    def _save(self, offset: float, reverse: bool) -> None:
+        saved = dict(self.telescope.store.get(self.STORE, {}) or {})
+        saved[self.axis.module_name] = {"offset": round(offset % 360.0, 9), "reverse": reverse}
+        self.telescope.store.update(**{self.STORE: saved})
+
+    def _sky(self, mechanical: float) -> float:
+        offset, reverse = self._model()
+        return ((-mechanical if reverse else mechanical) + offset) % 360.0
+
+    def _mechanical(self, sky: float) -> float:
+        offset, reverse = self._model()
+        return ((-(sky - offset)) if reverse else (sky - offset)) % 360.0
+
     def get_canreverse(self, r) -> bool:
-        return False
+        return True
 
     def get_reverse(self, r) -> bool:
-        return False
+        return self._model()[1]
 
     def put_reverse(self, r) -> None:
-        if r.bool("Reverse"):
-            raise not_implemented("Reverse (CanReverse is False)")
+        reverse = r.bool("Reverse")
+        offset, was = self._model()
+        if reverse == was:
+            return
+        mech = self.get_mechanicalposition(r)
+        sky = self._sky(mech)
+        self._save(sky - (-mech if reverse else mech), reverse)   # Position stays where it is
+
+    def put_sync(self, r) -> None:
+        sky = r.float("Position")
+        need(0.0 <= sky < 360.0, Code.INVALID_VALUE, f"Position {sky} is outside 0…360")
+        _offset, reverse = self._model()
+        mech = self.get_mechanicalposition(r)
+        self._save(sky - (-mech if reverse else mech), reverse)
 
     def get_ismoving(self, r) -> bool:
         self.report_failure()
@@ -212,10 +248,10 @@ class RotatorDevice(Device):
         return float(self.axis.real_position % 360.0)
 
     def get_position(self, r) -> float:
-        return self.get_mechanicalposition(r)
+        return self._sky(self.get_mechanicalposition(r))
 
     def get_targetposition(self, r) -> float:
-        return float((self.axis.target_position + self.axis.offset) % 360.0)
+        return self._sky(float((self.axis.target_position + self.axis.offset) % 360.0))
 
     def put_halt(self, r) -> None:
         self.drop_operation("move")
@@ -236,12 +272,12 @@ class RotatorDevice(Device):
     def put_move(self, r) -> None:
         delta = r.float("Position")
         need(abs(delta) <= 3600.0, Code.INVALID_VALUE, f"relative move {delta}° is beyond ±3600")
-        self._go((self.get_mechanicalposition(r) + delta) % 360.0)
+        self._go(self._mechanical((self.get_position(r) + delta) % 360.0))
 
     def put_moveabsolute(self, r) -> None:
         angle = r.float("Position")
         need(0.0 <= angle < 360.0, Code.INVALID_VALUE, f"Position {angle} is outside 0…360")
-        self._go(angle)
+        self._go(self._mechanical(angle))
 
     def put_movemechanical(self, r) -> None:
         angle = r.float("Position")
