@@ -51,7 +51,7 @@ class Conn:
         self.tid += 1
         params = {**params, "ClientID": 7, "ClientTransactionID": self.tid}
         if method == "GET":
-            self.c.request("GET", f"/api/v1/{path}?{urlencode(params)}")
+            self.c.request("GET", f"/api/v1/{path}{'&' if '?' in path else '?'}{urlencode(params)}")
         else:
             self.c.request("PUT", f"/api/v1/{path}", body=urlencode(params),
                            headers={"Content-Type": "application/x-www-form-urlencoded"})
@@ -236,3 +236,25 @@ def test_telescope_slews_park_and_home_then_slewing(live, conns):
     a.put("telescope/0/findhome")
     assert a.get("telescope/0/slewing") or a.get("telescope/0/athome")
     until(lambda: a.get("telescope/0/athome"), "at home")
+
+
+def test_switch_set_then_get(live, conns):
+    """ISwitchV3 SetSwitch is synchronous: GetSwitch right after reads the new state."""
+    a, _ = conns
+    a.put("switch/0/connect")
+    states = [i % 2 == 0 for i in range(max(6, N // 2))]
+    race(conns, lambda c, on: c.put("switch/0/setswitch", Id=0, State=on), "switch/0/getswitch?Id=0",
+         lambda on, value: value == on, states, "Switch SetSwitch")
+    a.put("switch/0/setswitch", Id=0, State=False)
+    a.put("switch/0/disconnect")
+
+
+def test_every_put_member_has_its_rule(live):
+    """The docs rule of every Alpaca member: each PUT says synchronous or asynchronous and what
+    a client reads right after (shown in the generated Alpaca reference)."""
+    missing = []
+    for d in live.service.alpaca_server.devices:
+        for name in dir(d):
+            if name.startswith("put_") and d.knows(name[4:]) and not d.rule(name[4:]):
+                missing.append(f"{d.NAME}.{name[4:]}")
+    assert not missing, missing

@@ -63,6 +63,17 @@ COMMON_PARAMETERS: dict[str, tuple[tuple[str, str], ...]] = {
     **{f"put_{m}": (("Command", "text"), ("Raw", "bool?"))
        for m in ("commandblind", "commandbool", "commandstring")},
 }
+#: What a client reads right after each common PUT (the rule of every member: ``RULES``).
+COMMON_RULES: dict[str, str] = {
+    "connect": "asynchronous: Connecting True until the device is prepared, then Connected True "
+               "(at once when there is nothing to prepare)",
+    "connected": "synchronous: True returns once prepared (Connected True right after); False at once",
+    "disconnect": "synchronous: Connected False right after (nothing is powered off)",
+    "action": "synchronous: done when the reply comes",
+    "commandblind": "synchronous: the TPL2 SET has completed at the reply (STARTED after 25 s: poll its state)",
+    "commandbool": "synchronous: as CommandBlind",
+    "commandstring": "synchronous: as CommandBlind",
+}
 #: Members answered while not connected (everything else: NotConnected 0x407).
 UNCONNECTED = {"connected", "connecting", "connect", "disconnect", "description", "driverinfo",
                "driverversion", "interfaceversion", "name", "supportedactions"}
@@ -87,6 +98,15 @@ class Device:
     #: interface's own list): checked before anything else, so a missing or malformed one is
     #: HTTP 400 whatever the connection state.
     PARAMETERS: dict[str, tuple[tuple[str, str], ...]] = {}
+    #: Every PUT member of this interface: synchronous or asynchronous, and what a client reads
+    #: right after the reply (the race suite checks the asynchronous ones). Every GET member is
+    #: a state read computed at the request (within a control cycle; never a cached value).
+    RULES: dict[str, str] = {}
+
+    def rule(self, member: str) -> str:
+        if getattr(self, f"put_{member}", None) is None:
+            return "state read" if getattr(self, f"get_{member}", None) is not None else ""
+        return self.RULES.get(member) or COMMON_RULES.get(member, "")
 
     def __init__(self, number: int, name: str, description: str, telescope, *, commands=None,
                  unique_seed: str = ""):

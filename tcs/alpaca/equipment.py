@@ -60,6 +60,11 @@ class FocuserDevice(Device):
                "tempcompavailable", "temperature", "halt", "move")
     STATE = ("ismoving", "position", "temperature")
     STATE_NAMES = {"ismoving": "IsMoving", "position": "Position", "temperature": "Temperature"}
+    RULES = {
+        "move": "asynchronous: IsMoving True right after until at Position (a failure: the next IsMoving read, 0x500)",
+        "halt": "synchronous: the move is ended at the reply; IsMoving True while the axis brakes",
+        "tempcomp": "synchronous (True: NotImplemented)",
+    }
     PARAMETERS = {
         "put_tempcomp": (("TempComp", "bool"),),
         "put_move": (("Position", "int"),),
@@ -125,6 +130,9 @@ class FilterWheelDevice(Device):
     NAME = "FilterWheel"
     INTERFACE_VERSION = 3
     MEMBERS = ("focusoffsets", "names", "position")
+    RULES = {
+        "position": "asynchronous: Position −1 right after until at the slot (a failure: the next Position read, 0x500)",
+    }
     PARAMETERS = {
         "put_position": (("Position", "int"),),
     }
@@ -180,6 +188,14 @@ class RotatorDevice(Device):
                "targetposition", "halt", "move", "moveabsolute", "movemechanical", "sync")
     STATE = ("ismoving", "mechanicalposition", "position")
     STATE_NAMES = {"ismoving": "IsMoving", "mechanicalposition": "MechanicalPosition", "position": "Position"}
+    RULES = {
+        "move": "asynchronous: IsMoving True right after until there (a failure: the next IsMoving read, 0x500)",
+        "moveabsolute": "asynchronous: as Move",
+        "movemechanical": "asynchronous: as Move",
+        "halt": "synchronous: the move is ended at the reply; IsMoving True while the axis brakes",
+        "sync": "synchronous: Position reads the synced angle right after (nothing moves)",
+        "reverse": "synchronous: Reverse reads the new value right after; Position unchanged",
+    }
     PARAMETERS = {
         "put_reverse": (("Reverse", "bool"),),
         "put_move": (("Position", "float"),),
@@ -330,6 +346,14 @@ class DomeDevice(Device):
                "cansetazimuth", "cansetpark", "cansetshutter", "canslave", "cansyncazimuth",
                "shutterstatus", "slaved", "slewing", "abortslew", "closeshutter", "findhome",
                "openshutter", "park", "setpark", "slewtoaltitude", "slewtoazimuth", "synctoazimuth")
+    RULES = {
+        "slewtoazimuth": "asynchronous: Slewing True right after until there (a failure: the next Slewing read, 0x500)",
+        "openshutter": "asynchronous: ShutterStatus opening (2) right after until open (0); Slewing True meanwhile",
+        "closeshutter": "asynchronous: ShutterStatus closing (3) right after until closed (1); Slewing True meanwhile",
+        "abortslew": "synchronous: every part is told to stop at the reply; Slewing True while they brake",
+        "slaved": "synchronous (True: NotImplemented)",
+        "slewtoaltitude": "NotImplemented", "synctoazimuth": "NotImplemented",
+    }
     PARAMETERS = {
         "put_slaved": (("Slaved", "bool"),),
         "put_slewtoazimuth": (("Azimuth", "float"),),
@@ -461,6 +485,12 @@ class CoverCalibratorDevice(Device):
     INTERFACE_VERSION = 2
     MEMBERS = ("brightness", "calibratorchanging", "calibratorstate", "covermoving", "coverstate",
                "maxbrightness", "calibratoroff", "calibratoron", "closecover", "haltcover", "opencover")
+    RULES = {
+        "opencover": "asynchronous: CoverMoving True, CoverState Moving (2) right after until open (3)",
+        "closecover": "asynchronous: CoverMoving True, CoverState Moving (2) right after until closed (1)",
+        "haltcover": "synchronous: returns once the cover stands (CoverMoving False right after)",
+        "calibratoron": "NotImplemented", "calibratoroff": "NotImplemented",
+    }
     PARAMETERS = {
         "put_calibratoron": (("Brightness", "int"),),
     }
