@@ -16,7 +16,7 @@ the Alpaca connection flag (``Connected``, shared by all clients as the interfac
 and the asynchronous operations its clients started:
 
 * **Connect** (Platform 7, asynchronous): ``Connecting`` is True while :meth:`Device.prepare`
-  runs (equipment: power on and reference its own axis, :func:`ready_axis`), then
+  runs (equipment: power on its own axis, :func:`power_axis`; a fraction of a second), then
   ``Connected`` is True — also when preparing failed (moves then say why they are refused).
   ``Connected=True`` (the older, synchronous way) waits for the same preparation.
   ``Disconnect`` never powers anything off.
@@ -229,6 +229,7 @@ class Device:
             if f.cancelled():
                 return
             exc = f.exception()
+            log.debug("%s %s: %s ended: %r", self.NAME, self.number, what, exc)
             if exc is None or f in self._dropped:
                 return
             if isinstance(exc, TcsError) and exc.number == ErrorNumber.TARGETCHANGE:
@@ -243,10 +244,13 @@ class Device:
         return task is not None and not task.done()
 
     def drop_operation(self, key: str) -> None:
-        """The client halted operation ``key``: it is no longer running, and its end is no failure."""
+        """The client halted operation ``key``: it is no longer running, and its end is no failure
+        (a sequence of steps of ours — power, reference, move — is cancelled: no later step runs)."""
         task = self._operations.pop(key, None)
         if task is not None:
             self._dropped.add(task)
+            if isinstance(task, asyncio.Task):
+                task.cancel()
 
     def report_failure(self) -> None:
         """Raise (once) the failure of the last operation that failed: a completion read calls it."""
@@ -366,11 +370,11 @@ def axis_ready(axis, what: str) -> None:
         raise AscomError(Code.INVALID_OPERATION, f"{what}: {axis.module_name} is not powered and referenced")
 
 
-async def ready_axis(telescope, axis, timeout: float = 300.0) -> None:
-    """Power on and reference ``axis`` alone (what connecting a focuser, filter wheel or rotator
-    does): main power first when it is off (``CABINET.POWER=1``: every component is switched
-    on, nothing else moves), then the axis's power, then its referencing. A READY or POWER
-    sequence already running is waited for, not superseded. Nothing happens to a ready axis."""
+async def power_axis(telescope, axis, main: bool = True, timeout: float = 60.0) -> None:
+    """Power on ``axis`` alone (what connecting a focuser, filter wheel or rotator does): main
+    power first when it is off and ``main`` allows it (``CABINET.POWER=1``: every component is
+    switched on, nothing moves or is referenced), then the axis's power. A READY or POWER
+    sequence already running is waited for, not superseded. Nothing happens to a powered axis."""
     loop = asyncio.get_running_loop()
     deadline = loop.time() + timeout
     cab = telescope.cabinet
@@ -378,11 +382,28 @@ async def ready_axis(telescope, axis, timeout: float = 300.0) -> None:
         if loop.time() > deadline:
             raise TcsError("the READY sequence did not end", ErrorNumber.TIMEOUT)
         await asyncio.sleep(0.05)
-    if axis.power_state == 1.0 and axis.referenced >= 1.0:
+    if axis.power_state == 1.0:
         return
     if not cab.main_power:
-        await cab.set_power(1)
+        if not main:
+            raise TcsError(f"{axis.module_name}: main power (CABINET.POWER) is off", ErrorNumber.INVMODE)
+        await asyncio.shield(cab.set_power(1))
     if axis.power_state != 1.0:
-        await axis.power(True)
-    if axis.referenced < 1.0:
-        await axis.reference(False)
+        await asyncio.shield(axis.power(True))
+
+
+def make_ready_then(telescope, axis, move):
+    """The awaitable of a move of an equipment axis: ``move()`` (the axis's long SET) at once
+    when the axis is powered and referenced — so that its refusals are the request's — else a
+    coroutine that powers the axis (not main power), references it, then starts ``move()``."""
+    if axis.power_state == 1.0 and axis.referenced >= 1.0:
+        return move()
+    if not telescope.cabinet.main_power:
+        raise AscomError(Code.INVALID_OPERATION, f"{axis.module_name}: main power (CABINET.POWER) is off")
+
+    async def run():
+        await power_axis(telescope, axis, main=False)
+        if axis.referenced < 1.0:
+            await asyncio.shield(axis.reference(False))
+        await asyncio.shield(move())
+    return run()

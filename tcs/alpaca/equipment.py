@@ -28,8 +28,12 @@ PLC modules (dome parts, covers) need their POWER on to move: an Alpaca move swi
 first (it fails, as InvalidOperation, while CABINET.POWER is off). The weather interlock refuses
 opening in bad weather (InvalidOperation, with the interlock's reason).
 
-Life cycle: connecting a Focuser, FilterWheel or Rotator powers on and references its own axis
-(:func:`~tcs.alpaca.device.ready_axis`; ``Connecting`` True meanwhile) — nothing else moves.
+Life cycle: connecting a Focuser, FilterWheel or Rotator powers on its own axis
+(:func:`~tcs.alpaca.device.power_axis`, main power first when it is off; ``Connecting`` True
+meanwhile, a fraction of a second) — nothing moves. A filter wheel then references at once (its
+slot is unknown until it has: ``Position`` −1 meanwhile, as while moving); a focuser or rotator
+references on its first move (:func:`~tcs.alpaca.device.make_ready_then`: ``IsMoving`` True
+from the reply through referencing and the move), so that it stands still after Connect.
 Every move is an asynchronous initiator whose completion state is set before the reply
 (:meth:`~tcs.alpaca.device.Device.start_operation`): right after ``Move``/``MoveAbsolute``/
 ``MoveMechanical``/``Position=n``/``SlewToAzimuth``/``OpenShutter``/``CloseShutter``/
@@ -44,7 +48,7 @@ from __future__ import annotations
 
 import asyncio
 
-from tcs.alpaca.device import Device, axis_ready, need, ready_axis
+from tcs.alpaca.device import Device, make_ready_then, need, power_axis
 from tcs.alpaca.protocol import AlpacaRequest, AscomError, Code, not_implemented
 
 MOVING = 1
@@ -76,10 +80,10 @@ class FocuserDevice(Device):
         self.axis = axis
 
     async def prepare(self) -> None:
-        await ready_axis(self.telescope, self.axis)
+        await power_axis(self.telescope, self.axis)
 
     def needs_preparing(self) -> bool:
-        return self.axis.power_state != 1.0 or self.axis.referenced < 1.0
+        return self.axis.power_state != 1.0
 
     def get_absolute(self, r) -> bool:
         return True
@@ -119,8 +123,9 @@ class FocuserDevice(Device):
         section = self.axis.section
         lo, hi = int(round(section.min * self.STEP)), int(round(section.max * self.STEP))
         need(lo <= steps <= hi, Code.INVALID_VALUE, f"Position {steps} is outside {lo}…{hi}")
-        axis_ready(self.axis, "Move")
-        self.start_operation("move", self.axis.set_target(steps / self.STEP), "Move")
+        axis = self.axis
+        self.start_operation("move", make_ready_then(self.telescope, axis, lambda: axis.set_target(steps / self.STEP)),
+                             "Move")
 
 
 # -------------------------------------------------------------------------------- FilterWheel
@@ -144,10 +149,21 @@ class FilterWheelDevice(Device):
         self.axis = axis
 
     async def prepare(self) -> None:
-        await ready_axis(self.telescope, self.axis)
+        await power_axis(self.telescope, self.axis)
 
     def needs_preparing(self) -> bool:
-        return self.axis.power_state != 1.0 or self.axis.referenced < 1.0
+        return self.axis.power_state != 1.0
+
+    def _start_connect(self):
+        done = super()._start_connect()
+
+        def then(f) -> None:   # connected: reference (its slot is unknown until then)
+            axis = self.axis
+            if (self.connected and axis.power_state == 1.0 and axis.referenced < 1.0
+                    and not self.running("move") and not axis.motion_state & MOVING):
+                self.start_operation("move", asyncio.shield(axis.reference(False)), "referencing")
+        done.add_done_callback(then)
+        return done
 
     def _keys(self) -> list:
         return sorted(self.axis.positions)
@@ -174,8 +190,9 @@ class FilterWheelDevice(Device):
         slot = r.int("Position")
         keys = self._keys()
         need(0 <= slot < len(keys), Code.INVALID_VALUE, f"Position {slot} is outside 0…{len(keys) - 1}")
-        axis_ready(self.axis, "Position")
-        self.start_operation("move", self.axis.set_target(keys[slot]), f"Position={slot}")
+        axis = self.axis
+        self.start_operation("move", make_ready_then(self.telescope, axis, lambda: axis.set_target(keys[slot])),
+                             f"Position={slot}")
 
 
 # ------------------------------------------------------------------------------------ Rotator
@@ -209,10 +226,10 @@ class RotatorDevice(Device):
         self.axis = axis
 
     async def prepare(self) -> None:
-        await ready_axis(self.telescope, self.axis)
+        await power_axis(self.telescope, self.axis)
 
     def needs_preparing(self) -> bool:
-        return self.axis.power_state != 1.0 or self.axis.referenced < 1.0
+        return self.axis.power_state != 1.0
 
     # -- the sync model: sky = (sign × mechanical + offset) mod 360, sign −1 while Reverse --------
     STORE = "alpaca_rotators"
@@ -252,6 +269,8 @@ class RotatorDevice(Device):
     def put_sync(self, r) -> None:
         sky = r.float("Position")
         need(0.0 <= sky < 360.0, Code.INVALID_VALUE, f"Position {sky} is outside 0…360")
+        need(self.axis.referenced >= 1.0, Code.INVALID_OPERATION,
+             f"Sync: {self.axis.module_name} is not referenced (it references on its first move)")
         _offset, reverse = self._model()
         mech = self.get_mechanicalposition(r)
         self._save(sky - (-mech if reverse else mech), reverse)
@@ -273,22 +292,35 @@ class RotatorDevice(Device):
         self.drop_operation("move")
         self.axis.stop()
 
-    def _go(self, angle: float) -> None:
+    def _go(self, angle) -> None:
+        """Move to mechanical ``angle`` (a number, or a function giving it once the axis is
+        referenced) on the turn nearest to where the axis stands, inside the limits."""
         axis = self.axis
-        axis_ready(axis, "Move")
+
+        def move():
+            goal = self._turn(angle() if callable(angle) else angle)
+            return axis.set_target(goal - axis.offset)
+        if axis.power_state == 1.0 and axis.referenced >= 1.0:
+            self._turn(angle() if callable(angle) else angle)   # refused now, not in the background
+        self.start_operation("move", make_ready_then(self.telescope, axis, move), "the move")
+
+    def _turn(self, angle: float) -> float:
+        axis = self.axis
         here = axis.real_position
         base = here + ((angle - here) % 360.0 + 180.0) % 360.0 - 180.0   # nearest turn
         turns = sorted((base + k * 360.0 for k in range(-2, 3)), key=lambda t: abs(t - here))
         for goal in turns:
             if axis.limits.contains(goal):
-                self.start_operation("move", axis.set_target(goal - axis.offset), "the move")
-                return
+                return goal
         raise AscomError(Code.INVALID_VALUE, f"{angle}° cannot be reached inside the limits")
 
     def put_move(self, r) -> None:
         delta = r.float("Position")
         need(abs(delta) <= 3600.0, Code.INVALID_VALUE, f"relative move {delta}° is beyond ±3600")
-        self._go(self._mechanical((self.get_position(r) + delta) % 360.0))
+        if self.axis.referenced < 1.0:   # relative to where it stands once referenced
+            self._go(lambda: self._mechanical((self.get_position(r) + delta) % 360.0))
+        else:
+            self._go(self._mechanical((self.get_position(r) + delta) % 360.0))
 
     def put_moveabsolute(self, r) -> None:
         angle = r.float("Position")

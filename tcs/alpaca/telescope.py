@@ -20,7 +20,8 @@ What maps to what
   (a main axis unpowered or unreferenced — a fresh service), or while an ``Unpark`` runs.
   ``Unpark`` is the operator's "make ready" and an asynchronous initiator: it acknowledges
   recoverable faults (not an emergency off), powers on and references what is not (READY=1)
-  in the background and returns at once; ``AtPark`` goes False when the telescope is ready.
+  in the background and returns at once; ``Slewing`` is True meanwhile (ITelescopeV4's
+  completion property), ``AtPark`` too; both go False when the telescope is ready.
   Connecting the telescope moves and powers nothing.
 * A slew, park, home or unpark that fails (a drive fault, a limit) is answered once, as a
   DriverError (0x500) with its reason, by the next read of its completion property
@@ -123,7 +124,8 @@ class TelescopeDevice(Device):
         "slewtoaltaz": "synchronous: returns on target (Slewing False right after)",
         "abortslew": "synchronous: the motion is stopped at the reply; Slewing True while the axes brake",
         "park": "asynchronous: Slewing True, AtPark False right after until parked (then AtPark True)",
-        "unpark": "asynchronous: AtPark True right after until ready (at once False when it was only parked)",
+        "unpark": "asynchronous: Slewing True and AtPark True right after until ready, then both False "
+                  "(at once when it was only parked)",
         "findhome": "asynchronous: Slewing True, AtHome False right after until at home",
         "moveaxis": "asynchronous: Slewing True right after (a rate) until stopped; 0 stops (Slewing True while braking)",
         "pulseguide": "asynchronous: IsPulseGuiding True right after for Duration",
@@ -446,8 +448,10 @@ class TelescopeDevice(Device):
         return bool(self.ops.pulse_guiding)
 
     def get_slewing(self, r) -> bool:
-        self.ops.check_fresh()
         self.report_failure()
+        if self.running("unpark"):   # ITelescopeV4: Unpark completes when Slewing is False
+            return True
+        self.ops.check_fresh()
         p = self.telescope.pointing
         ops = self.ops
         if p is not None and p.track:
