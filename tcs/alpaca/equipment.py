@@ -65,7 +65,8 @@ class FocuserDevice(Device):
     STATE = ("ismoving", "position", "temperature")
     STATE_NAMES = {"ismoving": "IsMoving", "position": "Position", "temperature": "Temperature"}
     RULES = {
-        "move": "asynchronous: IsMoving True right after until at Position (a failure: the next IsMoving read, 0x500)",
+        "move": "asynchronous: IsMoving True right after until at Position — through the referencing of a first "
+                "move (a failure: the next IsMoving read, 0x500)",
         "halt": "synchronous: the move is ended at the reply; IsMoving True while the axis brakes",
         "tempcomp": "synchronous (True: NotImplemented)",
     }
@@ -136,7 +137,8 @@ class FilterWheelDevice(Device):
     INTERFACE_VERSION = 3
     MEMBERS = ("focusoffsets", "names", "position")
     RULES = {
-        "position": "asynchronous: Position −1 right after until at the slot (a failure: the next Position read, 0x500)",
+        "position": "asynchronous: Position −1 right after until at the slot (a failure: the next Position read, "
+                    "0x500); −1 also while it references after Connect",
     }
     PARAMETERS = {
         "put_position": (("Position", "int"),),
@@ -206,11 +208,13 @@ class RotatorDevice(Device):
     STATE = ("ismoving", "mechanicalposition", "position")
     STATE_NAMES = {"ismoving": "IsMoving", "mechanicalposition": "MechanicalPosition", "position": "Position"}
     RULES = {
-        "move": "asynchronous: IsMoving True right after until there (a failure: the next IsMoving read, 0x500)",
+        "move": "asynchronous: IsMoving True right after until there — through the referencing of a first move "
+                "(a failure: the next IsMoving read, 0x500)",
         "moveabsolute": "asynchronous: as Move",
         "movemechanical": "asynchronous: as Move",
         "halt": "synchronous: the move is ended at the reply; IsMoving True while the axis brakes",
-        "sync": "synchronous: Position reads the synced angle right after (nothing moves)",
+        "sync": "synchronous: Position reads the synced angle right after (nothing moves; refused before the "
+                "first move has referenced the axis)",
         "reverse": "synchronous: Reverse reads the new value right after; Position unchanged",
     }
     PARAMETERS = {
