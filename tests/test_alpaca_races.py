@@ -146,9 +146,11 @@ def test_rotator_moves_then_ismoving(live, conns):
          consistent, list(reversed(goals)), "Rotator MoveMechanical")
     until(lambda: not a.get("rotator/0/ismoving"), "the rotator at rest")
     assert abs((a.get("rotator/0/position") - goals[0] + 180.0) % 360.0 - 180.0) < 0.01
-    here = a.get("rotator/0/position")
-    a.put("rotator/0/move", Position=3.0)          # relative
-    assert a.get("rotator/0/ismoving") or abs(a.get("rotator/0/position") - (here + 3.0) % 360.0) < 0.01
+    deltas = [[40.0, -40.0, 0.5, -0.5][i % 4] for i in range(N)]   # relative: sky degrees
+    race(conns, lambda c, d: c.put("rotator/0/move", Position=d), "rotator/0/ismoving",
+         lambda d, moving: moving or abs(a.get("rotator/0/targetposition") - a.get("rotator/0/position")) < 0.01,
+         deltas, "Rotator Move")
+    until(lambda: not a.get("rotator/0/ismoving"), "the rotator at rest")
 
 
 def test_filterwheel_position_then_position(live, conns):
@@ -218,6 +220,18 @@ def test_telescope_slews_park_and_home_then_slewing(live, conns):
     race(conns, lambda c, g: c.put("telescope/0/slewtocoordinatesasync", RightAscension=g[0], Declination=g[1]),
          "telescope/0/slewing", lambda g, s: s, goals, "Telescope SlewToCoordinatesAsync")
     until(lambda: not a.get("telescope/0/slewing"), "on target")
+
+    def to_target(c, g):
+        c.put("telescope/0/targetrightascension", TargetRightAscension=g[0])
+        c.put("telescope/0/targetdeclination", TargetDeclination=g[1])
+        c.put("telescope/0/slewtotargetasync")
+    race(conns, to_target, "telescope/0/slewing", lambda g, s: s, goals[: max(4, N // 2)],
+         "Telescope SlewToTargetAsync")
+    until(lambda: not a.get("telescope/0/slewing"), "on target")
+    race(conns, lambda c, d: c.put("telescope/0/pulseguide", Direction=d, Duration=2000),
+         "telescope/0/ispulseguiding", lambda d, g: g, [i % 4 for i in range(max(4, N // 2))],
+         "Telescope PulseGuide")
+    until(lambda: not a.get("telescope/0/ispulseguiding"), "the pulses over", timeout=WAIT)
     a.put("telescope/0/tracking", Tracking=False)
     until(lambda: not a.get("telescope/0/slewing"), "at rest")
 
@@ -225,6 +239,11 @@ def test_telescope_slews_park_and_home_then_slewing(live, conns):
     race(conns, lambda c, g: c.put("telescope/0/slewtoaltazasync", Azimuth=g[0], Altitude=g[1]),
          "telescope/0/slewing", lambda g, s: s, altaz, "Telescope SlewToAltAzAsync")
     until(lambda: not a.get("telescope/0/slewing"), "at rest after the alt-az slews")
+    rates = [[2.0, -2.0, 0.5, -0.5][i % 4] for i in range(max(4, N // 2))]
+    race(conns, lambda c, rate: c.put("telescope/0/moveaxis", Axis=0, Rate=rate), "telescope/0/slewing",
+         lambda rate, s: s, rates, "Telescope MoveAxis")
+    a.put("telescope/0/moveaxis", Axis=0, Rate=0.0)
+    until(lambda: not a.get("telescope/0/slewing"), "the azimuth stopped")
 
     for _ in range(max(2, N // 10)):
         a.put("telescope/0/park")
