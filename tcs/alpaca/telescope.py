@@ -461,6 +461,8 @@ class TelescopeDevice(Device):
             return not (ops.motion_state & ON_TARGET) or p.targetdistance > window
         if ops.running in ("goto", "alpaca-park", "park", "home"):
             return True
+        if self._moving_axes:   # a MoveAxis at a rate: slewing from the reply on
+            return True
         if any(a.motion_state & 1 for a in self._move_axes()):
             return True
         return False
