@@ -65,6 +65,8 @@ GUIDE_RATE = 0.5 * SIDEREAL_DEG_S
 SOLAR_TO_SIDEREAL = 1.00273790935
 TRACK_INSIDE_LIMITS = 2               # POINTING.TRACK mode: the orientation that stays inside
 ON_TARGET = 8
+SLEW_RULE = ("asynchronous: Slewing True right after until on target (a failure: the next Slewing read "
+             "answers it, 0x500)")
 
 
 class TelescopeDevice(Device):
@@ -116,9 +118,9 @@ class TelescopeDevice(Device):
         "put_slewtoaltazasync": (("Azimuth", "float"), ("Altitude", "float")),
     }
     RULES = {
-        "slewtocoordinatesasync": "asynchronous: Slewing True right after until on target (a failure: the next Slewing read answers it, 0x500)",
-        "slewtotargetasync": "asynchronous: Slewing True right after until on target (a failure: the next Slewing read answers it, 0x500)",
-        "slewtoaltazasync": "asynchronous: Slewing True right after until on target (a failure: the next Slewing read answers it, 0x500)",
+        "slewtocoordinatesasync": SLEW_RULE,
+        "slewtotargetasync": SLEW_RULE,
+        "slewtoaltazasync": SLEW_RULE,
         "slewtocoordinates": "synchronous: returns on target (Slewing False right after)",
         "slewtotarget": "synchronous: returns on target (Slewing False right after)",
         "slewtoaltaz": "synchronous: returns on target (Slewing False right after)",
@@ -127,7 +129,8 @@ class TelescopeDevice(Device):
         "unpark": "asynchronous: Slewing True and AtPark True right after until ready, then both False "
                   "(at once when it was only parked)",
         "findhome": "asynchronous: Slewing True, AtHome False right after until at home",
-        "moveaxis": "asynchronous: Slewing True right after (a rate) until stopped; 0 stops (Slewing True while braking)",
+        "moveaxis": "asynchronous: Slewing True right after (a rate) until stopped; 0 stops (Slewing True "
+                    "while braking)",
         "pulseguide": "asynchronous: IsPulseGuiding True right after for Duration",
         "tracking": "synchronous: Tracking reads the new value right after (Slewing True while it reaches the place)",
         "synctocoordinates": "synchronous: RightAscension/Declination read the place right after",
