@@ -94,6 +94,7 @@ def test_cold_start_life_cycle(live):
     assert not focuser.IsMoving and not rotator.IsMoving   # standing still after Connect
 
     focuser.Move(4321)                   # halted while it references: it does not go on to move
+    # (the referencing runs to its end, IsMoving True until then; then it stands still)
     assert focuser.IsMoving
     focuser.Halt()
     until(lambda: not focuser.IsMoving, "the focuser halted")

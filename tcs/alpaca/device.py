@@ -122,6 +122,7 @@ class Device:
         self._dropped: weakref.WeakSet = weakref.WeakSet()
         self._failure: str | None = None
         self._quiet_failures = False   # DeviceState reads do not take a failure away
+        self.referencing: asyncio.Future | None = None   # an axis referencing a first move started
         self.unique_id = str(uuid.uuid5(uuid.NAMESPACE_URL, f"tcs-alpaca:{unique_seed}:{self.TYPE}:{number}"))
 
     # -- dispatch -------------------------------------------------------------------------------
@@ -251,6 +252,15 @@ class Device:
             self._dropped.add(task)
             if isinstance(task, asyncio.Task):
                 task.cancel()
+
+    def halt_operation(self, key: str) -> None:
+        """A Halt: operation ``key`` ends here (no later step runs). A referencing it started
+        runs to its end — the drive's homing is not interrupted by the axis's stop — and stays
+        the running operation ``key`` meanwhile (the completion read says moving until then)."""
+        self.drop_operation(key)
+        ref = self.referencing
+        if ref is not None and not ref.done():
+            self.start_operation(key, shielded(ref), "referencing")
 
     def report_failure(self) -> None:
         """Raise (once) the failure of the last operation that failed: a completion read calls it."""
@@ -387,15 +397,17 @@ async def power_axis(telescope, axis, main: bool = True, timeout: float = 60.0) 
     if not cab.main_power:
         if not main:
             raise TcsError(f"{axis.module_name}: main power (CABINET.POWER) is off", ErrorNumber.INVMODE)
-        await asyncio.shield(cab.set_power(1))
+        await shielded(cab.set_power(1))
     if axis.power_state != 1.0:
-        await asyncio.shield(axis.power(True))
+        await shielded(axis.power(True))
 
 
-def make_ready_then(telescope, axis, move):
+def make_ready_then(device, axis, move):
     """The awaitable of a move of an equipment axis: ``move()`` (the axis's long SET) at once
     when the axis is powered and referenced — so that its refusals are the request's — else a
-    coroutine that powers the axis (not main power), references it, then starts ``move()``."""
+    coroutine that powers the axis (not main power), references it, then starts ``move()``.
+    The referencing is kept as ``device.referencing`` (see :meth:`Device.halt_operation`)."""
+    telescope = device.telescope
     if axis.power_state == 1.0 and axis.referenced >= 1.0:
         return move()
     if not telescope.cabinet.main_power:
@@ -404,6 +416,15 @@ def make_ready_then(telescope, axis, move):
     async def run():
         await power_axis(telescope, axis, main=False)
         if axis.referenced < 1.0:
-            await asyncio.shield(axis.reference(False))
-        await asyncio.shield(move())
+            device.referencing = asyncio.ensure_future(axis.reference(False))
+            await shielded(device.referencing)
+        await shielded(move())
     return run()
+
+
+def shielded(awaitable):
+    """``asyncio.shield`` of the model's long SET, whose outcome is retrieved even when the one
+    awaiting it was cancelled (a Halt): no "exception never retrieved" noise."""
+    fut = asyncio.ensure_future(awaitable)
+    fut.add_done_callback(lambda f: f.cancelled() or f.exception())
+    return asyncio.shield(fut)

@@ -33,7 +33,8 @@ Life cycle: connecting a Focuser, FilterWheel or Rotator powers on its own axis
 meanwhile, a fraction of a second) — nothing moves. A filter wheel then references at once (its
 slot is unknown until it has: ``Position`` −1 meanwhile, as while moving); a focuser or rotator
 references on its first move (:func:`~tcs.alpaca.device.make_ready_then`: ``IsMoving`` True
-from the reply through referencing and the move), so that it stands still after Connect.
+from the reply through referencing and the move), so that it stands still after Connect. A
+``Halt`` then ends the move; the referencing runs to its end (``IsMoving`` True until then).
 Every move is an asynchronous initiator whose completion state is set before the reply
 (:meth:`~tcs.alpaca.device.Device.start_operation`): right after ``Move``/``MoveAbsolute``/
 ``MoveMechanical``/``Position=n``/``SlewToAzimuth``/``OpenShutter``/``CloseShutter``/
@@ -47,11 +48,14 @@ cover stands (``CoverMoving`` False).
 from __future__ import annotations
 
 import asyncio
+import logging
 
-from tcs.alpaca.device import Device, make_ready_then, need, power_axis
+from tcs.alpaca.device import Device, make_ready_then, need, power_axis, shielded
 from tcs.alpaca.protocol import AlpacaRequest, AscomError, Code, not_implemented
+from tcs.errors import TcsError
 
 MOVING = 1
+log = logging.getLogger(__name__)
 
 
 # ------------------------------------------------------------------------------------ Focuser
@@ -67,7 +71,8 @@ class FocuserDevice(Device):
     RULES = {
         "move": "asynchronous: IsMoving True right after until at Position — through the referencing of a first "
                 "move (a failure: the next IsMoving read, 0x500)",
-        "halt": "synchronous: the move is ended at the reply; IsMoving True while the axis brakes",
+        "halt": "synchronous: the move is ended at the reply; IsMoving True while the axis brakes, or while "
+                "a referencing its first move started runs to its end (the drive's homing is not interrupted)",
         "tempcomp": "synchronous (True: NotImplemented)",
     }
     PARAMETERS = {
@@ -116,7 +121,7 @@ class FocuserDevice(Device):
         return False
 
     def put_halt(self, r) -> None:
-        self.drop_operation("move")
+        self.halt_operation("move")
         self.axis.stop()
 
     def put_move(self, r) -> None:
@@ -125,7 +130,7 @@ class FocuserDevice(Device):
         lo, hi = int(round(section.min * self.STEP)), int(round(section.max * self.STEP))
         need(lo <= steps <= hi, Code.INVALID_VALUE, f"Position {steps} is outside {lo}…{hi}")
         axis = self.axis
-        self.start_operation("move", make_ready_then(self.telescope, axis, lambda: axis.set_target(steps / self.STEP)),
+        self.start_operation("move", make_ready_then(self, axis, lambda: axis.set_target(steps / self.STEP)),
                              "Move")
 
 
@@ -163,7 +168,10 @@ class FilterWheelDevice(Device):
             axis = self.axis
             if (self.connected and axis.power_state == 1.0 and axis.referenced < 1.0
                     and not self.running("move") and not axis.motion_state & MOVING):
-                self.start_operation("move", asyncio.shield(axis.reference(False)), "referencing")
+                try:
+                    self.start_operation("move", shielded(axis.reference(False)), "referencing")
+                except TcsError as exc:   # a fault: its moves say why they are refused
+                    log.warning("%s: referencing after connect refused: %s", axis.module_name, exc.message)
         done.add_done_callback(then)
         return done
 
@@ -193,7 +201,7 @@ class FilterWheelDevice(Device):
         keys = self._keys()
         need(0 <= slot < len(keys), Code.INVALID_VALUE, f"Position {slot} is outside 0…{len(keys) - 1}")
         axis = self.axis
-        self.start_operation("move", make_ready_then(self.telescope, axis, lambda: axis.set_target(keys[slot])),
+        self.start_operation("move", make_ready_then(self, axis, lambda: axis.set_target(keys[slot])),
                              f"Position={slot}")
 
 
@@ -212,7 +220,8 @@ class RotatorDevice(Device):
                 "(a failure: the next IsMoving read, 0x500)",
         "moveabsolute": "asynchronous: as Move",
         "movemechanical": "asynchronous: as Move",
-        "halt": "synchronous: the move is ended at the reply; IsMoving True while the axis brakes",
+        "halt": "synchronous: the move is ended at the reply; IsMoving True while the axis brakes, or while "
+                "a referencing its first move started runs to its end (the drive's homing is not interrupted)",
         "sync": "synchronous: Position reads the synced angle right after (nothing moves; refused before the "
                 "first move has referenced the axis)",
         "reverse": "synchronous: Reverse reads the new value right after; Position unchanged",
@@ -293,7 +302,7 @@ class RotatorDevice(Device):
         return self._sky(float((self.axis.target_position + self.axis.offset) % 360.0))
 
     def put_halt(self, r) -> None:
-        self.drop_operation("move")
+        self.halt_operation("move")
         self.axis.stop()
 
     def _go(self, angle) -> None:
@@ -306,7 +315,7 @@ class RotatorDevice(Device):
             return axis.set_target(goal - axis.offset)
         if axis.power_state == 1.0 and axis.referenced >= 1.0:
             self._turn(angle() if callable(angle) else angle)   # refused now, not in the background
-        self.start_operation("move", make_ready_then(self.telescope, axis, move), "the move")
+        self.start_operation("move", make_ready_then(self, axis, move), "the move")
 
     def _turn(self, angle: float) -> float:
         axis = self.axis
