@@ -284,6 +284,7 @@ def test_every_device_connects_and_answers_its_state(live):
     for d in devices:
         device = classes[d["DeviceType"]](address(live), d["DeviceNumber"])
         device.Connect()
+        until(lambda: not device.Connecting, f"{d['DeviceType']} connected")
         assert device.Connected and device.Name == d["DeviceName"]
         assert isinstance(device.DeviceState, list)
         assert device.InterfaceVersion >= 2
@@ -382,8 +383,9 @@ def test_opentsi_ready_0_parks_for_alpaca_too(live):
     assert t.AtPark and not t.Tracking
     with pytest.raises(ParkedException):
         t.SlewToAltAzAsync(100.0, 45.0)
-    t.Unpark()
-    assert not t.AtPark and live.telescope.operations.ready_state == 1.0
+    t.Unpark()   # asynchronous: AtPark until the telescope is ready again
+    until(lambda: not t.AtPark, "unparked")
+    assert live.telescope.operations.ready_state == 1.0
     t.Disconnect()
 
 
@@ -710,3 +712,44 @@ def test_tcs_server_alpaca_port_option_and_the_hardware_file_switch(tmp_path):
             proc.kill()
             proc.wait()
         proc.stderr.close()
+
+
+def test_rotator_sync_and_reverse_platform7_model(live):
+    """IRotatorV4: Sync sets the sky Position without moving (sky = ±mechanical + offset);
+    Reverse turns the sky direction and keeps Position; MoveAbsolute is in sky degrees,
+    MoveMechanical in mechanical ones; both survive in the state file."""
+    from alpaca.rotator import Rotator
+
+    t = connected_telescope(live)
+    ready(live, t)
+    rot = Rotator(address(live), 1)
+    rot.Connect()
+    until(lambda: not rot.Connecting, "the rotator connected")
+    assert rot.CanReverse and rot.InterfaceVersion == 4
+    try:
+        rot.Reverse = False
+        rot.MoveMechanical(90.0)
+        until(lambda: not rot.IsMoving, "at mechanical 90°")
+        for sky in (120.0, 60.0, 0.0, 330.0):
+            rot.Sync(sky)
+            assert abs(rot.Position - sky) < 0.001 and abs(rot.MechanicalPosition - 90.0) < 0.01
+        rot.Sync(100.0)                              # offset +10°
+        rot.MoveAbsolute(200.0)                      # sky 200° = mechanical 190°
+        until(lambda: not rot.IsMoving, "at sky 200°")
+        assert abs(rot.Position - 200.0) < 0.01 and abs(rot.MechanicalPosition - 190.0) < 0.01
+        assert abs(rot.TargetPosition - 200.0) < 0.01
+
+        rot.Reverse = True                           # the sky angle stays, its direction turns
+        assert rot.Reverse and abs(rot.Position - 200.0) < 0.01
+        rot.Move(10.0)                               # sky +10° = mechanical −10°
+        until(lambda: not rot.IsMoving, "at sky 210°")
+        assert abs(rot.Position - 210.0) < 0.01 and abs(rot.MechanicalPosition - 180.0) < 0.01
+        saved = live.telescope.store.get("alpaca_rotators")
+        assert saved[live.telescope.axis_array("DEROTATOR")[-1].module_name]["reverse"] is True
+        with pytest.raises(InvalidValueException):
+            rot.Sync(360.0)
+    finally:
+        rot.Reverse = False
+        rot.Sync(rot.MechanicalPosition)             # back to sky = mechanical for the other tests
+        rot.Disconnect()
+        t.Disconnect()

@@ -46,7 +46,8 @@ def test_equatorial_slew_altaz_sync_and_guiding(live):
     t = Telescope(f"127.0.0.1:{live.service.alpaca_port}", 0)
     t.Connect()
     assert t.AlignmentMode.value == 1   # algPolar
-    t.Unpark()
+    t.Unpark()   # asynchronous: AtPark until ready
+    until(lambda: not t.AtPark, "unparked")
     t.Tracking = True
     until(lambda: not t.Slewing, "tracking where it points")
     ra, dec = (t.SiderealTime + 1.5) % 24.0, 20.0

@@ -11,22 +11,45 @@ NotImplemented (0x400); a name outside the interface is a malformed request (HTT
 ``STATE`` names the members whose values make up ``DeviceState``.
 
 A device holds no telescope state (``docs/architecture.md`` rule 0): it wraps parts of the
-model and computes on every read; its setters call the model's own methods. Its only state is
-the Alpaca connection flag (``Connected``, shared by all clients as the interface defines it).
+model and computes on every read; its setters call the model's own methods. Its own state is
+the Alpaca connection flag (``Connected``, shared by all clients as the interface defines it)
+and the asynchronous operations its clients started:
+
+* **Connect** (Platform 7, asynchronous): ``Connecting`` is True while :meth:`Device.prepare`
+  runs (equipment: power on its own axis, :func:`power_axis`; a fraction of a second), then
+  ``Connected`` is True — also when preparing failed (moves then say why they are refused).
+  ``Connected=True`` (the older, synchronous way) waits for the same preparation.
+  ``Disconnect`` never powers anything off.
+* **Operations** (:meth:`Device.start_operation`): an initiator (Move, SlewToAzimuth, Park…)
+  registers the awaitable of the model's long SET *before it replies*, so that the completion
+  property read right after it (on any connection) already says "moving" — the axes' own
+  motion bits follow a control cycle later. An operation that fails (anything but being
+  superseded by a newer command or halted by the client) leaves its message for the next read
+  of the completion property, which answers it once as a DriverError (0x500): a polling
+  client learns that the operation failed instead of seeing it end silently.
+
+Every handler returns within a control cycle or two (ConformU's targets: 0.1 s for state reads,
+1 s for writes and initiators), except the synchronous members the interface defines as such
+(``Connected=True``, the telescope's ``SlewTo…`` without Async, ``HaltCover``).
 
 What may touch it: the event loop (through :class:`tcs.alpaca.server.AlpacaServer`).
 """
 
 from __future__ import annotations
 
+import asyncio
 import datetime as _dt
 import inspect
+import logging
 import uuid
+import weakref
 from typing import Any
 
 from tcs import __version__ as TCS_VERSION
 from tcs.alpaca.protocol import AlpacaRequest, AscomError, BadRequest, Code, from_tcs_error, not_implemented
-from tcs.errors import TcsError
+from tcs.errors import ErrorNumber, TcsError
+
+log = logging.getLogger(__name__)
 
 COMMON_GET = ("connected", "connecting", "description", "driverinfo", "driverversion",
               "interfaceversion", "name", "supportedactions", "devicestate")
@@ -39,6 +62,17 @@ COMMON_PARAMETERS: dict[str, tuple[tuple[str, str], ...]] = {
     "put_action": (("Action", "text"), ("Parameters", "text")),
     **{f"put_{m}": (("Command", "text"), ("Raw", "bool?"))
        for m in ("commandblind", "commandbool", "commandstring")},
+}
+#: What a client reads right after each common PUT (the rule of every member: ``RULES``).
+COMMON_RULES: dict[str, str] = {
+    "connect": "asynchronous: Connecting True until the device is prepared, then Connected True "
+               "(at once when there is nothing to prepare)",
+    "connected": "synchronous: True returns once prepared (Connected True right after); False at once",
+    "disconnect": "synchronous: Connected False right after (nothing is powered off)",
+    "action": "synchronous: done when the reply comes",
+    "commandblind": "synchronous: the TPL2 SET has completed at the reply (STARTED after 25 s: poll its state)",
+    "commandbool": "synchronous: as CommandBlind",
+    "commandstring": "synchronous: as CommandBlind",
 }
 #: Members answered while not connected (everything else: NotConnected 0x407).
 UNCONNECTED = {"connected", "connecting", "connect", "disconnect", "description", "driverinfo",
@@ -64,6 +98,15 @@ class Device:
     #: interface's own list): checked before anything else, so a missing or malformed one is
     #: HTTP 400 whatever the connection state.
     PARAMETERS: dict[str, tuple[tuple[str, str], ...]] = {}
+    #: Every PUT member of this interface: synchronous or asynchronous, and what a client reads
+    #: right after the reply (the race suite checks the asynchronous ones). Every GET member is
+    #: a state read computed at the request (within a control cycle; never a cached value).
+    RULES: dict[str, str] = {}
+
+    def rule(self, member: str) -> str:
+        if getattr(self, f"put_{member}", None) is None:
+            return "state read" if getattr(self, f"get_{member}", None) is not None else ""
+        return self.RULES.get(member) or COMMON_RULES.get(member, "")
 
     def __init__(self, number: int, name: str, description: str, telescope, *, commands=None,
                  unique_seed: str = ""):
@@ -73,6 +116,13 @@ class Device:
         self.telescope = telescope
         self.commands = commands    # tcs.alpaca.commands.CommandBridge or None
         self.connected = False
+        self._want_connected = False
+        self._connecting: asyncio.Future | None = None
+        self._operations: dict[str, asyncio.Future] = {}
+        self._dropped: weakref.WeakSet = weakref.WeakSet()
+        self._failure: str | None = None
+        self._quiet_failures = False   # DeviceState reads do not take a failure away
+        self.referencing: asyncio.Future | None = None   # an axis referencing a first move started
         self.unique_id = str(uuid.uuid5(uuid.NAMESPACE_URL, f"tcs-alpaca:{unique_seed}:{self.TYPE}:{number}"))
 
     # -- dispatch -------------------------------------------------------------------------------
@@ -114,17 +164,109 @@ class Device:
     def get_connected(self, r: AlpacaRequest) -> bool:
         return self.connected
 
-    def put_connected(self, r: AlpacaRequest) -> None:
-        self.connected = r.bool("Connected")
+    async def put_connected(self, r: AlpacaRequest) -> None:
+        if not r.bool("Connected"):
+            self._disconnect()
+            return
+        if not self.connected:
+            await asyncio.shield(self._start_connect())
 
     def get_connecting(self, r: AlpacaRequest) -> bool:
-        return False    # Connect completes at once: the model is always there
+        return self._connecting is not None and not self._connecting.done()
 
     def put_connect(self, r: AlpacaRequest) -> None:
-        self.connected = True
+        if not self.connected:
+            self._start_connect()
 
     def put_disconnect(self, r: AlpacaRequest) -> None:
+        self._disconnect()
+
+    def _disconnect(self) -> None:
+        self._want_connected = False
         self.connected = False
+
+    def _start_connect(self) -> asyncio.Future:
+        self._want_connected = True
+        if self._connecting is not None and not self._connecting.done():
+            return self._connecting
+        if not self.needs_preparing():   # connected before the reply: nothing to wait for
+            self.connected = True
+            done = asyncio.get_running_loop().create_future()
+            done.set_result(None)
+            return done
+
+        async def run() -> None:
+            try:
+                await self.prepare()
+            except Exception as exc:   # connected all the same: its moves say why they are refused
+                log.warning("%s %s: preparing on connect failed: %s", self.NAME, self.number,
+                            getattr(exc, "message", exc))
+            finally:
+                self.connected = self._want_connected
+
+        self._connecting = asyncio.ensure_future(run())
+        return self._connecting
+
+    async def prepare(self) -> None:
+        """What Connect does besides setting the flag: nothing here (see the equipment)."""
+
+    def needs_preparing(self) -> bool:
+        """True when :meth:`prepare` has something to do (Connect is then asynchronous)."""
+        return False
+
+    # -- asynchronous operations ------------------------------------------------------------------
+    def start_operation(self, key: str, awaitable, what: str) -> None:
+        """Run the model's long SET ``awaitable`` in the background as operation ``key``:
+        :meth:`running` is True from now on until it ends (see the module docstring)."""
+        if awaitable is None:
+            return
+        old = self._operations.get(key)
+        if old is not None and not old.done():
+            self._dropped.add(old)   # superseded by this one: its end is no failure
+        task = asyncio.ensure_future(awaitable)
+        self._operations[key] = task
+
+        def done(f: asyncio.Future) -> None:
+            if f.cancelled():
+                return
+            exc = f.exception()
+            log.debug("%s %s: %s ended: %r", self.NAME, self.number, what, exc)
+            if exc is None or f in self._dropped:
+                return
+            if isinstance(exc, TcsError) and exc.number == ErrorNumber.TARGETCHANGE:
+                return   # superseded by a newer command
+            self._failure = f"{what} failed: {getattr(exc, 'message', exc)}"
+            log.warning("%s %s: %s", self.NAME, self.number, self._failure)
+
+        task.add_done_callback(done)
+
+    def running(self, key: str) -> bool:
+        task = self._operations.get(key)
+        return task is not None and not task.done()
+
+    def drop_operation(self, key: str) -> None:
+        """The client halted operation ``key``: it is no longer running, and its end is no failure
+        (a sequence of steps of ours — power, reference, move — is cancelled: no later step runs)."""
+        task = self._operations.pop(key, None)
+        if task is not None:
+            self._dropped.add(task)
+            if isinstance(task, asyncio.Task):
+                task.cancel()
+
+    def halt_operation(self, key: str) -> None:
+        """A Halt: operation ``key`` ends here (no later step runs). A referencing it started
+        runs to its end — the drive's homing is not interrupted by the axis's stop — and stays
+        the running operation ``key`` meanwhile (the completion read says moving until then)."""
+        self.drop_operation(key)
+        ref = self.referencing
+        if ref is not None and not ref.done():
+            self.start_operation(key, shielded(ref), "referencing")
+
+    def report_failure(self) -> None:
+        """Raise (once) the failure of the last operation that failed: a completion read calls it."""
+        if self._failure is not None and not self._quiet_failures:
+            message, self._failure = self._failure, None
+            raise AscomError(Code.DRIVER_ERROR, message)
 
     def get_description(self, r: AlpacaRequest) -> str:
         return self.description
@@ -182,7 +324,11 @@ class Device:
             if getter is None:
                 continue   # not implemented here: left out
             try:
-                value = getter(r)
+                self._quiet_failures = True
+                try:
+                    value = getter(r)
+                finally:
+                    self._quiet_failures = False
                 if inspect.isawaitable(value):
                     value = await value
             except (AscomError, TcsError, BadRequest):
@@ -205,7 +351,11 @@ class Device:
             if getter is None:
                 continue
             try:
-                value = getter(AlpacaRequest("GET", {}))
+                self._quiet_failures = True
+                try:
+                    value = getter(AlpacaRequest("GET", {}))
+                finally:
+                    self._quiet_failures = False
                 if inspect.isawaitable(value):
                     value.close()
                     continue
@@ -228,3 +378,53 @@ def axis_ready(axis, what: str) -> None:
     """InvalidOperation unless ``axis`` is powered and referenced."""
     if axis.power_state != 1.0 or axis.referenced < 1.0:
         raise AscomError(Code.INVALID_OPERATION, f"{what}: {axis.module_name} is not powered and referenced")
+
+
+async def power_axis(telescope, axis, main: bool = True, timeout: float = 60.0) -> None:
+    """Power on ``axis`` alone (what connecting a focuser, filter wheel or rotator does): main
+    power first when it is off and ``main`` allows it (``CABINET.POWER=1``: every component is
+    switched on, nothing moves or is referenced), then the axis's power. A READY or POWER
+    sequence already running is waited for, not superseded. Nothing happens to a powered axis."""
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    cab = telescope.cabinet
+    while telescope.operations.running == "ready" or cab.job_running("POWER"):
+        if loop.time() > deadline:
+            raise TcsError("the READY sequence did not end", ErrorNumber.TIMEOUT)
+        await asyncio.sleep(0.05)
+    if axis.power_state == 1.0:
+        return
+    if not cab.main_power:
+        if not main:
+            raise TcsError(f"{axis.module_name}: main power (CABINET.POWER) is off", ErrorNumber.INVMODE)
+        await shielded(cab.set_power(1))
+    if axis.power_state != 1.0:
+        await shielded(axis.power(True))
+
+
+def make_ready_then(device, axis, move):
+    """The awaitable of a move of an equipment axis: ``move()`` (the axis's long SET) at once
+    when the axis is powered and referenced — so that its refusals are the request's — else a
+    coroutine that powers the axis (not main power), references it, then starts ``move()``.
+    The referencing is kept as ``device.referencing`` (see :meth:`Device.halt_operation`)."""
+    telescope = device.telescope
+    if axis.power_state == 1.0 and axis.referenced >= 1.0:
+        return move()
+    if not telescope.cabinet.main_power:
+        raise AscomError(Code.INVALID_OPERATION, f"{axis.module_name}: main power (CABINET.POWER) is off")
+
+    async def run():
+        await power_axis(telescope, axis, main=False)
+        if axis.referenced < 1.0:
+            device.referencing = asyncio.ensure_future(axis.reference(False))
+            await shielded(device.referencing)
+        await shielded(move())
+    return run()
+
+
+def shielded(awaitable):
+    """``asyncio.shield`` of the model's long SET, whose outcome is retrieved even when the one
+    awaiting it was cancelled (a Halt): no "exception never retrieved" noise."""
+    fut = asyncio.ensure_future(awaitable)
+    fut.add_done_callback(lambda f: f.cancelled() or f.exception())
+    return asyncio.shield(fut)

@@ -59,6 +59,12 @@ class SwitchDevice(Device):
                "getswitchvalue", "minswitchvalue", "maxswitchvalue", "setswitch", "setswitchname",
                "setswitchvalue", "switchstep", "canasync", "setasync", "setasyncvalue",
                "statechangecomplete", "cancelasync")
+    RULES = {
+        "setswitch": "synchronous: returns once the feedback reads it (GetSwitch reads the new state right after)",
+        "setswitchvalue": "synchronous: as SetSwitch (GetSwitchValue reads the new value right after)",
+        "setswitchname": "NotImplemented", "setasync": "NotImplemented", "setasyncvalue": "NotImplemented",
+        "cancelasync": "NotImplemented",
+    }
     PARAMETERS = {
         "get_canwrite": (("Id", "int"),),
         "get_canasync": (("Id", "int"),),
@@ -124,14 +130,27 @@ class SwitchDevice(Device):
     async def put_setswitch(self, r) -> None:
         s = self._switch(r)
         state = r.bool("State")
-        await s.set_value(s.max if state else s.min)
+        await self._set(s, s.max if state else s.min)
 
     async def put_setswitchvalue(self, r) -> None:
         s = self._switch(r)
         value = r.float("Value")
         need(s.min <= value <= s.max, Code.INVALID_VALUE, f"Value {value} is outside {s.min}…{s.max}")
         need(value == int(value), Code.INVALID_VALUE, f"Value {value} is not a whole step")
-        await s.set_value(int(value))
+        await self._set(s, int(value))
+
+    @staticmethod
+    async def _set(s, value: int, timeout: float = 10.0) -> None:
+        """Synchronous (ISwitchV3): write, then reply once the feedback reads the new value, so
+        that GetSwitch/GetSwitchValue right after the reply read it."""
+        await s.set_value(value)
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        while s.value != value:
+            if loop.time() > deadline:
+                raise AscomError(Code.DRIVER_ERROR, f"{s.module_name}: the feedback reads {s.value}, "
+                                                    f"not {value}, {timeout:g} s after the write")
+            await asyncio.sleep(0.02)
 
     def put_setswitchname(self, r) -> None:
         self._switch(r)
@@ -184,6 +203,10 @@ class ObservingConditionsDevice(Device):
     NAME = "ObservingConditions"
     INTERFACE_VERSION = 2
     MEMBERS = ("averageperiod", "refresh", "sensordescription", "timesincelastupdate", *CONDITIONS)
+    RULES = {
+        "averageperiod": "synchronous (only 0)",
+        "refresh": "synchronous: nothing to do (the PLCs are polled continuously)",
+    }
     PARAMETERS = {
         "put_averageperiod": (("AveragePeriod", "float"),),
         "get_sensordescription": (("SensorName", "text"),),

@@ -16,7 +16,18 @@ What maps to what
   OBJECT.HORIZONTAL) and the operations' goto; needs ``Tracking`` False.
 * ``Park``/``Unpark``/``AtPark``/``SetPark``: the operations' park (the park positions of the
   hardware file, or the ones SetPark saved — shared with OpenTSI's READY=0). Park keeps the
-  power on; Unpark powers on and references (READY=1) when the telescope is not operational.
+  power on. **Life cycle:** ``AtPark`` is True while the telescope cannot move: parked, or cold
+  (a main axis unpowered or unreferenced — a fresh service), or while an ``Unpark`` runs.
+  ``Unpark`` is the operator's "make ready" and an asynchronous initiator: it acknowledges
+  recoverable faults (not an emergency off), powers on and references what is not (READY=1)
+  in the background and returns at once; ``Slewing`` is True meanwhile (ITelescopeV4's
+  completion property), ``AtPark`` too; both go False when the telescope is ready.
+  Connecting the telescope moves and powers nothing.
+* A slew, park, home or unpark that fails (a drive fault, a limit) is answered once, as a
+  DriverError (0x500) with its reason, by the next read of its completion property
+  (``Slewing``, ``AtPark``, ``AtHome``). ``Action("AcknowledgeFaults")`` (in
+  ``SupportedActions``) acknowledges the latched faults (CABINET.ERROR_STATE=0) without
+  powering anything.
 * ``FindHome``: the main axes referenced again on their home switches; ``AtHome`` until they move.
 * ``PulseGuide``: moves the tracked target by GuideRate × Duration (re-planned at once);
   ``IsPulseGuiding`` for Duration. Guide rates are fixed at half the sidereal rate.
@@ -57,6 +68,8 @@ GUIDE_RATE = 0.5 * SIDEREAL_DEG_S
 SOLAR_TO_SIDEREAL = 1.00273790935
 TRACK_INSIDE_LIMITS = 2               # POINTING.TRACK mode: the orientation that stays inside
 ON_TARGET = 8
+SLEW_RULE = ("asynchronous: Slewing True right after until on target (a failure: the next Slewing read "
+             "answers it, 0x500)")
 
 
 class TelescopeDevice(Device):
@@ -107,6 +120,33 @@ class TelescopeDevice(Device):
         "put_slewtoaltaz": (("Azimuth", "float"), ("Altitude", "float")),
         "put_slewtoaltazasync": (("Azimuth", "float"), ("Altitude", "float")),
     }
+    RULES = {
+        "slewtocoordinatesasync": SLEW_RULE,
+        "slewtotargetasync": SLEW_RULE,
+        "slewtoaltazasync": SLEW_RULE,
+        "slewtocoordinates": "synchronous: returns on target (Slewing False right after)",
+        "slewtotarget": "synchronous: returns on target (Slewing False right after)",
+        "slewtoaltaz": "synchronous: returns on target (Slewing False right after)",
+        "abortslew": "synchronous: the motion is stopped at the reply; Slewing True while the axes brake",
+        "park": "asynchronous: Slewing True, AtPark False right after until parked (then AtPark True)",
+        "unpark": "asynchronous: Slewing True and AtPark True right after until ready, then both False "
+                  "(at once when it was only parked)",
+        "findhome": "asynchronous: Slewing True, AtHome False right after until at home",
+        "moveaxis": "asynchronous: Slewing True right after (a rate) until stopped; 0 stops (Slewing True "
+                    "while braking)",
+        "pulseguide": "asynchronous: IsPulseGuiding True right after for Duration",
+        "tracking": "synchronous: Tracking reads the new value right after (Slewing True while it reaches the place)",
+        "synctocoordinates": "synchronous: RightAscension/Declination read the place right after",
+        "synctotarget": "synchronous: as SyncToCoordinates",
+        "setpark": "synchronous: the park position is saved at the reply",
+        "targetrightascension": "synchronous", "targetdeclination": "synchronous",
+        "rightascensionrate": "synchronous", "declinationrate": "synchronous",
+        "doesrefraction": "synchronous", "trackingrate": "synchronous",
+        "sideofpier": "NotImplemented", "sitelatitude": "NotImplemented", "sitelongitude": "NotImplemented",
+        "siteelevation": "NotImplemented", "utcdate": "NotImplemented",
+        "guideraterightascension": "NotImplemented", "guideratedeclination": "NotImplemented",
+        "slewsettletime": "NotImplemented",
+    }
     STATE_NAMES = {"altitude": "Altitude", "athome": "AtHome", "atpark": "AtPark", "azimuth": "Azimuth",
                    "declination": "Declination", "ispulseguiding": "IsPulseGuiding",
                    "rightascension": "RightAscension", "sideofpier": "SideOfPier",
@@ -129,9 +169,34 @@ class TelescopeDevice(Device):
             raise AscomError(Code.INVALID_OPERATION, "this telescope has no POINTING module")
         return p
 
+    def _parked(self) -> bool:
+        """AtPark: parked, cold (a main axis unpowered or unreferenced) or being unparked."""
+        if self.ops.at_park or self.running("unpark"):
+            return True
+        return any(a.power_state != 1.0 or a.referenced < 1.0 for a in self.ops.main_axes())
+
     def _not_parked(self, what: str) -> None:
-        if self.ops.at_park:
-            raise AscomError(Code.INVALID_WHILE_PARKED, f"{what}: the telescope is parked (Unpark first)")
+        if self._parked():
+            raise AscomError(Code.INVALID_WHILE_PARKED, f"{what}: the telescope is parked or not ready "
+                                                        "(Unpark makes it ready)")
+
+    # -- actions ----------------------------------------------------------------------------------
+    ACTIONS = ("AcknowledgeFaults",)
+
+    def get_supportedactions(self, r) -> list[str]:
+        return list(self.ACTIONS)
+
+    async def put_action(self, r) -> str:
+        name = r.text("Action")
+        r.text("Parameters")
+        if name.lower() != "acknowledgefaults":
+            raise AscomError(Code.ACTION_NOT_IMPLEMENTED, f"action {name!r} is not supported "
+                                                          f"(SupportedActions: {', '.join(self.ACTIONS)})")
+        self._failure = None
+        result = self.telescope.cabinet.acknowledge_errors(0)
+        if result is not None:   # drive fault resets: wait for them (a few cycles)
+            await asyncio.wait_for(asyncio.shield(asyncio.ensure_future(result)), 10.0)
+        return "acknowledged"
 
     # -- capabilities ----------------------------------------------------------------------------
     def get_alignmentmode(self, r) -> int:
@@ -378,15 +443,20 @@ class TelescopeDevice(Device):
 
     # -- state ------------------------------------------------------------------------------------
     def get_atpark(self, r) -> bool:
-        return bool(self.ops.at_park)
+        self.report_failure()
+        return self._parked()
 
     def get_athome(self, r) -> bool:
+        self.report_failure()
         return bool(self.ops.at_home)
 
     def get_ispulseguiding(self, r) -> bool:
         return bool(self.ops.pulse_guiding)
 
     def get_slewing(self, r) -> bool:
+        self.report_failure()
+        if self.running("unpark"):   # ITelescopeV4: Unpark completes when Slewing is False
+            return True
         self.ops.check_fresh()
         p = self.telescope.pointing
         ops = self.ops
@@ -396,6 +466,8 @@ class TelescopeDevice(Device):
             window = max(p.axis1.section.tolerance, p.axis2.section.tolerance)
             return not (ops.motion_state & ON_TARGET) or p.targetdistance > window
         if ops.running in ("goto", "alpaca-park", "park", "home"):
+            return True
+        if self._moving_axes:   # a MoveAxis at a rate: slewing from the reply on
             return True
         if any(a.motion_state & 1 for a in self._move_axes()):
             return True
@@ -444,8 +516,7 @@ class TelescopeDevice(Device):
                 target.set_ra(old[0])
                 target.set_dec(old[1])
             raise
-        if result is not None:
-            result.add_done_callback(lambda f: f.cancelled() or f.exception())
+        self.start_operation("slew", result, "the slew")
 
     def _slew_checks(self, what: str) -> None:
         self._not_parked(what)
@@ -483,8 +554,7 @@ class TelescopeDevice(Device):
         obj = self.ops.object
         obj.set_az(az)
         obj.set_alt(alt)
-        job = self.ops.goto_horizontal()
-        asyncio.ensure_future(job).add_done_callback(lambda f: f.cancelled() or f.exception())
+        self.start_operation("slew", self.ops.goto_horizontal(), "the slew")
 
     async def put_slewtoaltaz(self, r) -> None:
         self.put_slewtoaltazasync(r)
@@ -500,8 +570,14 @@ class TelescopeDevice(Device):
             await asyncio.sleep(0.05)
 
     def put_abortslew(self, r) -> None:
-        self._not_parked("AbortSlew")
         ops = self.ops
+        if self.running("unpark"):   # aborting the make-ready: it stops where it is
+            self.drop_operation("unpark")
+            ops.halt()
+            return
+        self._not_parked("AbortSlew")
+        for key in ("slew", "park", "home"):
+            self.drop_operation(key)
         p = self.telescope.pointing
         self._end_moves()
         if p is not None and p.track:
@@ -628,18 +704,32 @@ class TelescopeDevice(Device):
 
     # -- park, home -------------------------------------------------------------------------------
     def put_park(self, r) -> None:
-        if self.ops.at_park:
+        if self._parked():
             return
         self._end_moves()
-        job = self.ops.park()
-        asyncio.ensure_future(job).add_done_callback(lambda f: f.cancelled() or f.exception())
+        self.start_operation("park", self.ops.park(), "Park")
 
-    async def put_unpark(self, r) -> None:
-        job = self.ops.unpark()
-        if job is not None:   # shielded: a request time-out does not end the power-up
-            task = asyncio.ensure_future(job)
-            task.add_done_callback(lambda f: f.cancelled() or f.exception())
-            await asyncio.shield(task)
+    def put_unpark(self, r) -> None:
+        """Make ready (asynchronous): acknowledge recoverable faults, then READY=1 when the
+        telescope is not operational; AtPark stays True until it is."""
+        if self.running("unpark"):
+            return
+        ops, cab = self.ops, self.telescope.cabinet
+        if cab.power_state == -1.0:
+            raise AscomError(Code.INVALID_OPERATION, "Unpark: emergency off is active")
+        self._failure = None
+        ack = cab.acknowledge_errors(0) if cab.error_state & 0x3 else None   # PANIC, ERROR
+        if ack is None:
+            job = ops.unpark()       # raises at once when it cannot start
+            self.start_operation("unpark", job, "Unpark")
+            return
+
+        async def make_ready() -> None:
+            await ack                # the drives' fault resets, then READY=1
+            job = ops.unpark()
+            if job is not None:
+                await job
+        self.start_operation("unpark", make_ready(), "Unpark")
 
     def put_setpark(self, r) -> None:
         self.ops.set_park_here()
@@ -647,8 +737,7 @@ class TelescopeDevice(Device):
     def put_findhome(self, r) -> None:
         self._not_parked("FindHome")
         self._end_moves()
-        job = self.ops.find_home()
-        asyncio.ensure_future(job).add_done_callback(lambda f: f.cancelled() or f.exception())
+        self.start_operation("home", self.ops.find_home(), "FindHome")
 
     # -- guiding, sync ----------------------------------------------------------------------------
     def put_pulseguide(self, r) -> None:

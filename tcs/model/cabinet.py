@@ -495,6 +495,10 @@ class Cabinet(ModuleHealth):
     def _running(self, kind: str) -> bool:
         return any(j.kind == kind and not j.task.done() for j in self._jobs)
 
+    def job_running(self, kind: str) -> bool:
+        """A ``POWER`` or ``REINIT`` sequence is running (front ends wait for it, not supersede it)."""
+        return self._running(kind)
+
     def _start_job(self, kind: str, factory: Callable[[], Awaitable[None]], result: bool) -> _Job:
         loop = asyncio.get_running_loop()
         job = _Job(kind, None, loop.create_future() if result else None)  # type: ignore[arg-type]

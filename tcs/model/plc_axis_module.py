@@ -277,6 +277,11 @@ class PlcAxisModule(PlcModule):
         self._update_power()
         return None
 
+    @property
+    def command_pending(self) -> bool:
+        """A command (move, STOP) was written that no poll of the PLC has reflected yet."""
+        return self._unsettled
+
     def set_target(self, value: float):
         """``TARGETPOS`` (long): completes at the end position (see the module docstring)."""
         self._require("move")

@@ -101,7 +101,10 @@ def _alpaca_page(devices: list, config: Path) -> str:
         "`sim.toml`, off unless configured: Alpaca has no authentication). A member of the ASCOM "
         "interface without a handler here answers NotImplemented (0x400). Every member except those "
         "marked *always* answers NotConnected (0x407) until the client sets `Connected` true. "
-        "Parameter names are case-insensitive in a GET, spelled as shown in a PUT.",
+        "Parameter names are case-insensitive in a GET, spelled as shown in a PUT. "
+        "Every GET is a state read computed at the request; the notes of every PUT say whether it "
+        "is synchronous (done at the reply) or asynchronous, and what a client reads right after "
+        "the reply (tests/test_alpaca_races.py checks it at once on two connections).",
         "",
         "## Devices",
         "",
@@ -136,6 +139,9 @@ def _alpaca_page(devices: list, config: Path) -> str:
                 notes.append("always")
             if m in d.STATE:
                 notes.append("in DeviceState")
+            rule = d.rule(m)
+            if rule and rule != "state read" and rule != "NotImplemented":
+                notes.append(rule)
             lines.append(f"| `{m}` | {'yes' if get else ''} | {'yes' if put else ''} | "
                          f"{', '.join(params)} | {', '.join(notes)} |")
         lines.append("")
