@@ -14,7 +14,8 @@ journal_count() { journalctl -u tcs-server --no-pager -o cat | grep -c -- "$1"; 
 # journal_more TEXT N: TEXT is in the journal more than N times (a new occurrence)
 journal_more() { [ "$(journal_count "$1")" -gt "$2" ]; }
 wait_active() { wait_for "$1" sh -c '[ "$(systemctl show -P ActiveState tcs-server)" = active ]'; }
-referenced() { [ "$(value CABINET.REFERENCED)" = 1.0 ]; }
+# (numerically: the server prints a fully referenced cabinet as "1", a part as "0.857143")
+referenced() { awk -v r="$(value CABINET.REFERENCED)" 'BEGIN { exit !(r != "" && r + 0 == 1) }'; }
 moving() { awk -v v="$(value AZ.CURRSPEED)" 'BEGIN { exit !(v > 1.0 || v < -1.0) }'; }
 ready_axes() {  # power on and reference every axis (the simulated drives start unreferenced)
   client set CABINET.POWER=1 >/dev/null && client set CABINET.REINIT=1 >/dev/null && wait_for 300 referenced
