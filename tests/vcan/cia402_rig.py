@@ -7,10 +7,11 @@ them. ``Rig.wait`` polls a condition with a generous deadline: tests wait for st
 for durations.
 
 ``TCS_TEST_SLOWDOWN`` (a whole number, default 1) stretches every protocol time of the rig —
-SYNC period, heartbeats and their consumer times, SDO and boot time-outs, following-error and
-homing time-outs — and every wait, for a host several times slower than real hardware: the
-QEMU guest of ``tools/ci/vm`` under software emulation runs with 5. The exchanges and states
-the tests check stay the same; only the clock runs slower.
+SYNC period, heartbeats and their consumer times, SDO and boot time-outs, following-error,
+homing, enable, fault-reset and mode-switch time-outs — and every wait, for a host several
+times slower than real hardware: the QEMU guest of ``tools/ci/vm`` under software emulation
+runs with 5. The exchanges and states the tests check stay the same; only the clock runs
+slower.
 """
 
 from __future__ import annotations
@@ -44,6 +45,10 @@ def drive_section(node_id: int, **overrides) -> DriveSection:
         max_velocity=4.0, max_acceleration=4.0, heartbeat_period=0.2 * SLOWDOWN,
         heartbeat_consumer_timeout=1.0 * SLOWDOWN,
         master_loss_timeout=0.5 * SLOWDOWN,  # (generous: shared machine)
+        # the driver's state-machine time-outs too (an enable takes several cycles: under
+        # emulation 2 s ran out before Operation enabled, issue 23)
+        enable_timeout=2.0 * SLOWDOWN, fault_reset_timeout=1.0 * SLOWDOWN,
+        mode_switch_timeout=1.0 * SLOWDOWN,
         homing=HomingSection(method=37, speed_switch=2.0, speed_zero=0.5, acceleration=20.0,
                              timeout=20.0 * SLOWDOWN))
     return replace(base, **overrides)

@@ -13,7 +13,7 @@ import time
 
 import can
 import pytest
-from cia402_rig import AxisSpec, Rig
+from cia402_rig import SLOWDOWN, AxisSpec, Rig
 
 from tcs.drivers.canbus import CAN_ERR_BUSOFF, CAN_ERR_RESTARTED
 from tcs.drivers.drive import DriveState
@@ -173,7 +173,10 @@ def test_stalled_loop_makes_every_drive_quick_stop_by_itself(can_channel):
             def stall(cycle):
                 if not stalled.is_set():
                     stalled.set()
-                    time.sleep(1.5)  # > the drives' consumer time (1 s)
+                    # > the drives' consumer time (1 s, stretched like every protocol time of
+                    # the rig on a slow host: a 1.5 s stall under TCS_TEST_SLOWDOWN=5 was no
+                    # heartbeat loss for a 5 s consumer)
+                    time.sleep(1.5 * SLOWDOWN)
 
             rig.cycle_hooks.append(stall)
             rig.wait(lambda: all(0x8130 in s.emcy_sent for s in rig.sims.values()),
@@ -190,7 +193,7 @@ def test_stalled_loop_makes_every_drive_quick_stop_by_itself(can_channel):
         emcy = {(cob - 0x80, data[0] | data[1] << 8) for _, cob, data in frames if 0x81 <= cob <= 0x82}
         assert {(1, 0x8250), (2, 0x8250), (1, 0x8130), (2, 0x8130)} <= emcy, emcy
         beats = [t for t, cob, _ in frames if cob == 0x700 + rig.can.node_id]
-        assert max(b - a for a, b in zip(beats, beats[1:])) >= 1.0  # silent while stalled
+        assert max(b - a for a, b in zip(beats, beats[1:])) >= 1.0 * SLOWDOWN  # silent while stalled
 
 
 def _without(eds: str, *indices: str) -> str:

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The VM stage of CI: real kernel CAN and real systemd, in a QEMU guest (as root, from the clone):
 #   tools/ci/vm/stage.sh [vcan] [stack] [systemd]      (default: all three)
-#   vcan     tests/vcan on kernel vcan interfaces (socketcan), one interface per pytest worker
+#   vcan     tests/vcan on kernel vcan interfaces (socketcan), one pytest worker and interface per guest CPU
 #   stack    tools/ci/vm/checks/stack.sh: tcs-sim drives and tcs-server on vcan0, slew and track
 #   systemd  tools/ci/vm/checks/systemd.sh: install.sh, notify, watchdog, stop, kill -9, tcs-can@
 # Builds (or reuses) the image in $TCS_VM_CACHE (/var/cache/tcs-vm), boots a fresh guest per
@@ -35,7 +35,9 @@ summary=()
 rc=0
 for part in "${parts[@]}"; do
   case "$part" in
-    vcan) cmd='tools/ci/vcan-up.sh vcan0 vcan1 vcan2 >/dev/null && TCS_TEST_SLOWDOWN=$TCS_VM_SLOWDOWN TCS_CAN_INTERFACE=socketcan TCS_CAN_CHANNEL=vcan0 python -m pytest tests/vcan -p no:cacheprovider -q' ;;
+    # one pytest worker per guest CPU, each on its own vcan (the project's default of 4 workers
+    # would put gw3 on a vcan3 nobody made); the per-test time-out stretched like the rest
+    vcan) cmd='n=$(nproc); tools/ci/vcan-up.sh $(seq -f "vcan%g" 0 $((n - 1))) >/dev/null && TCS_TEST_SLOWDOWN=$TCS_VM_SLOWDOWN TCS_CAN_INTERFACE=socketcan TCS_CAN_CHANNEL=vcan0 python -m pytest tests/vcan -p no:cacheprovider -q -n "$n" --timeout $((120 * TCS_VM_SLOWDOWN)) -rfE --durations=10' ;;
     stack) cmd='bash tools/ci/vm/checks/stack.sh vcan0' ;;
     systemd) cmd='bash tools/ci/vm/checks/systemd.sh' ;;
     *) echo "vm stage: unknown part $part (vcan, stack, systemd)" >&2; exit 2 ;;

@@ -2,10 +2,11 @@
     python hwfile.py SOURCE.toml [--channel vcan0] [--slowdown N]
 ``--channel``: the bus becomes socketcan on that kernel interface (tcs-sim puts the drives
 there, tcs-server is the master). ``--slowdown N`` (a whole number; the stage passes 5 under
-software emulation): the cycle, the heartbeats and their consumer times, SDO, boot and
-following-error time-outs are N times longer, as on a host N times slower — the exchanges are
-the same, the clock runs slower. ``[server] allow_system_control`` is switched on (the checks
-ask for a reboot to see what the hardened unit does with it)."""
+software emulation): the cycle, the heartbeats and their consumer times, SDO, boot,
+following-error, enable, fault-reset, mode-switch, master-loss (the drives' RPDO deadline) and
+homing time-outs are N times longer, as on a host N times slower — the exchanges are the same,
+the clock runs slower. ``[server] allow_system_control`` is switched on (the checks ask for a
+reboot to see what the hardened unit does with it)."""
 
 import argparse
 
@@ -26,7 +27,12 @@ can["boot_timeout"] = round(float(can.get("boot_timeout", 5.0)) * n, 3)
 can["sdo_timeout"] = min(10.0, round(float(can.get("sdo_timeout", 0.5)) * n, 3))
 for drive in doc.get("drives", {}).values():
     for key, default in (("heartbeat_period", 0.1), ("heartbeat_consumer_timeout", 0.5),
-                         ("following_error_timeout", 0.05)):
+                         ("following_error_timeout", 0.05), ("enable_timeout", 2.0),
+                         ("fault_reset_timeout", 1.0), ("mode_switch_timeout", 1.0)):
         drive[key] = round(float(drive.get(key, default)) * n, 3)
+    if "master_loss_timeout" in drive:  # (absent: 3 SYNC periods, stretched with the period)
+        drive["master_loss_timeout"] = round(float(drive["master_loss_timeout"]) * n, 3)
+    if "timeout" in drive.get("homing", {}):
+        drive["homing"]["timeout"] = round(float(drive["homing"]["timeout"]) * n, 3)
 doc["server"]["allow_system_control"] = True
 print(tomlkit.dumps(doc), end="")

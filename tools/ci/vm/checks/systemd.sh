@@ -14,7 +14,8 @@ journal_count() { journalctl -u tcs-server --no-pager -o cat | grep -c -- "$1"; 
 # journal_more TEXT N: TEXT is in the journal more than N times (a new occurrence)
 journal_more() { [ "$(journal_count "$1")" -gt "$2" ]; }
 wait_active() { wait_for "$1" sh -c '[ "$(systemctl show -P ActiveState tcs-server)" = active ]'; }
-referenced() { [ "$(value CABINET.REFERENCED)" = 1.0 ]; }
+# (numerically: the server prints a fully referenced cabinet as "1", a part as "0.857143")
+referenced() { awk -v r="$(value CABINET.REFERENCED)" 'BEGIN { exit !(r != "" && r + 0 == 1) }'; }
 moving() { awk -v v="$(value AZ.CURRSPEED)" 'BEGIN { exit !(v > 1.0 || v < -1.0) }'; }
 ready_axes() {  # power on and reference every axis (the simulated drives start unreferenced)
   client set CABINET.POWER=1 >/dev/null && client set CABINET.REINIT=1 >/dev/null && wait_for 300 referenced
@@ -27,12 +28,29 @@ tools/systemd/install.sh --template hwconfig/sim.toml > /tmp/install.log 2>&1; r
 tail -5 /tmp/install.log
 check install.sh "$rc" "$(since "$t") s"
 
+# The unit's start time-out (systemd's default, 90 s) and watchdog (10 s) stretched like the
+# hardware file's times, as on a host SLOWDOWN times slower. Under emulation (slowdown 5) the
+# start - Python importing astropy and ruckig, booting seven drives - took over 90 s and systemd
+# stopped it; with 3 busy loops above it the service was restarted within the 60 s (issue 23).
+# Only the VM gets this drop-in; the checks below read the limits from systemd.
+WATCHDOG_SEC=10
+if [ "$SLOWDOWN" -gt 1 ]; then
+  WATCHDOG_SEC=$(( 10 * SLOWDOWN ))
+  mkdir -p /etc/systemd/system/tcs-server.service.d
+  printf '[Service]\nTimeoutStartSec=%s\nWatchdogSec=%s\n' $(( 90 * SLOWDOWN )) "$WATCHDOG_SEC" \
+    > /etc/systemd/system/tcs-server.service.d/vm-slowdown.conf
+  systemctl daemon-reload
+fi
+# why the service last ended or restarted (for a failed check)
+why() { journalctl -u tcs-server --no-pager -o short-monotonic | grep -E 'Watchdog timeout|withholding|Main process exited|Failed with|Killing|timed out|Traceback|ERROR' | tail -${1:-6}; }
+
 step "systemctl start: Type=notify, returns once READY=1 was sent"
 t=$(date +%s.%N)
 systemctl start tcs-server; rc=$?
 status=$(prop tcs-server StatusText)
 [ "$rc" = 0 ] && [ "$(prop tcs-server ActiveState)" = active ] && [ "${status#serving}" != "$status" ]
-check start-ready $? "$(since "$t") s; StatusText=$status; WatchdogUSec=$(prop tcs-server WatchdogUSec)"
+check start-ready $? "$(since "$t") s; StatusText=$status; WatchdogUSec=$(prop tcs-server WatchdogUSec); TimeoutStartUSec=$(prop tcs-server TimeoutStartUSec)"
+[ "$rc" = 0 ] || journalctl -u tcs-server --no-pager -o short-monotonic | grep -v -E '^\s*$' | tail -25
 client get LOCAL.UT1 CABINET.POWER >/dev/null; check tpl2 $? "$(prop tcs-server ActiveState), NRestarts $(prop tcs-server NRestarts)"
 
 step "journal"
@@ -63,9 +81,10 @@ wait "${hogs[@]}"
 w1=$(prop tcs-server WatchdogTimestampMonotonic)
 [ "$(main_pid)" = "$pid" ] && [ "$(prop tcs-server NRestarts)" = "$n0" ] && [ "$w1" != "$w0" ] && ! journal_more "Watchdog timeout" "$wd"
 check watchdog-fed-when-busy $? "MainPID $pid -> $(main_pid), NRestarts $n0 -> $(prop tcs-server NRestarts), last ping $w0 -> $w1 us"
+[ "$(prop tcs-server NRestarts)" = "$n0" ] || why
 
 step "kill -9 of the main PID during a slew: the orphaned control process stops the axes, systemd restarts"
-ready_axes; check ready-1 $? "REFERENCED=$(value CABINET.REFERENCED)"
+wait_active 300; ready_axes; check ready-1 $? "REFERENCED=$(value CABINET.REFERENCED)"
 client set --no-wait AZ.TARGETPOS=150 >/dev/null; wait_for 120 moving
 pid=$(main_pid); n0=$(prop tcs-server NRestarts); seen=$(journal_count "axes stopped and powered off")
 kill -9 "$pid"
@@ -82,8 +101,8 @@ wait_active 300; wait_for 120 sh -c '[ -n "$(pgrep -u tcs -f tcs.axes.control_co
 pid=$(main_pid); n0=$(prop tcs-server NRestarts); cp=$(control_pid); wd=$(journal_count "Watchdog timeout")
 t=$(date +%s.%N)
 kill -STOP "$cp"
-wait_for 60 journal_more "Watchdog timeout" "$wd"; rc=$?
-check watchdog-dead-loop-detected "$rc" "after $(since "$t") s (WatchdogSec=10)"
+wait_for $(( 6 * WATCHDOG_SEC )) journal_more "Watchdog timeout" "$wd"; rc=$?
+check watchdog-dead-loop-detected "$rc" "after $(since "$t") s (WatchdogSec=$WATCHDOG_SEC)"
 journalctl -u tcs-server --no-pager -o short-monotonic | grep -E 'withholding|Watchdog timeout' | tail -3
 kill -CONT "$cp" 2>/dev/null   # (it then finds its service gone and stops the axes itself)
 sleep 6; wait_active 180
@@ -91,7 +110,7 @@ sleep 6; wait_active 180
 check watchdog-restarted $? "MainPID $pid -> $(main_pid), NRestarts $n0 -> $(prop tcs-server NRestarts)"
 
 step "systemctl stop during a slew: a controlled stop within TimeoutStopSec"
-ready_axes; check ready-2 $? "REFERENCED=$(value CABINET.REFERENCED)"
+wait_active 300; ready_axes; check ready-2 $? "REFERENCED=$(value CABINET.REFERENCED)"
 client set --no-wait AZ.TARGETPOS=-150 >/dev/null; wait_for 120 moving
 t=$(date +%s.%N)
 systemctl stop tcs-server; rc=$?
