@@ -354,6 +354,22 @@ def test_a_new_goal_ahead_never_reverses_a_braking_axis(way):
     check_dynamics(stream, AZ, start=sp, unwind_at={0})
 
 
+def test_a_goal_from_the_last_phase_of_a_stop_is_planned():
+    """The last phase of a jerk-limited stop (v = a²/2j exactly) is a start ruckig cannot
+    synchronise to whole cycles ("error in step 2 … t sync"): a repeated OFFSET written there
+    raised inside the control cycle (hypothesis found it). The planner moves there anyway."""
+    planner = MotionPlanner(AZ, SoftLimits(0.0, 170.0), DT)
+    planner.take_over(Setpoint(85.0, 2.0, -1.5))
+    stream = []
+    for x, steps in [(1.0, 137), (0.703125, 108), (0.703125, 137), (0.703125, 1)]:
+        planner.set_offset((x - 0.5) * 170.0 / 4)
+        stream += [planner.step() for _ in range(steps)]
+    stream += run(planner)
+    assert stream[-1].position == planner.demanded_target and planner.at_target
+    check_dynamics(stream, AZ, amax=AZ.stop_acceleration, jmax=AZ.stop_jerk,
+                   start=Setpoint(85.0, 2.0, -1.5), unwind_at={0, 137, 245, 382})
+
+
 # -- property: never outside the limits, never beyond the dynamics ------------------------------
 
 commands = st.lists(

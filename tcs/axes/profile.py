@@ -26,6 +26,7 @@ thread-safe: it reuses its input object).
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -42,6 +43,7 @@ from ruckig import (
     Trajectory,
 )
 
+log = logging.getLogger(__name__)
 
 class Setpoint(NamedTuple):
     """One cycle's demand: position (axis units), velocity (/s), acceleration (/s²), jerk (/s³)."""
@@ -212,7 +214,14 @@ class ProfileSolver:
         try:
             result = self._ruckig.calculate(inp, trajectory)
         except RuckigError as exc:
-            raise ValueError(f"ruckig refused the motion: {str(exc).strip()}") from None
+            if not discrete:
+                raise ValueError(f"ruckig refused the motion: {str(exc).strip()}") from None
+            # ruckig's time synchronisation to whole cycles fails on a few degenerate starts:
+            # the last phase of every jerk-limited stop (v = a²/2j exactly), from which a
+            # repeated OFFSET was refused ("error in step 2 … t sync"). The continuous profile
+            # is the same motion; the planner ends it exactly on its last cycle.
+            log.debug("ruckig: no whole-cycle profile (%s); continuous duration", str(exc).strip())
+            return self._calculate(start, vmax, amax, jmax, discrete=False)
         if result not in (Result.Working, Result.Finished):
             raise ValueError(f"ruckig could not calculate the motion ({result})")
         return trajectory
