@@ -73,7 +73,8 @@ async def pyobs_set(c: Client, key: str, value) -> list[str]:
 
 
 async def ready(c: Client) -> None:
-    """Operational, errors acknowledged, not tracking, no offsets."""
+    """Operational, errors acknowledged, not tracking, no offsets, the derotator not following
+    (a test that sets SETUP.DEROTATOR.SYNCMODE for itself leaves it set)."""
     level = int(await c.num("TELESCOPE.STATUS.GLOBAL"))
     if level:
         await pyobs_set(c, "TELESCOPE.STATUS.CLEAR", level)
@@ -85,6 +86,8 @@ async def ready(c: Client) -> None:
     for ax in ("AZ", "ZD"):
         if await c.num(f"POSITION.INSTRUMENTAL.{ax}.OFFSET") != 0.0:
             await pyobs_set(c, f"POSITION.INSTRUMENTAL.{ax}.OFFSET", 0)
+    await pyobs_set(c, "POINTING.SETUP.DEROTATOR.SYNCMODE", 0)
+    await pyobs_set(c, "POINTING.SETUP.DEROTATOR.OFFSET", 0.0)
 
 
 def star_near(live, az: float, alt: float, ahead: float = 3.0) -> tuple[float, float]:
@@ -532,7 +535,9 @@ async def test_chimera_slew_and_park(live):
         assert complete(await c.until(cmd, WAIT))
         assert int(await c.num("TELESCOPE.MOTION_STATE")) & 1
         await c.wait("TELESCOPE.MOTION_STATE", lambda v: v == 11)
-        assert await c.num("POINTING.SLEWTIME") < 1.0
+        slewtime = await c.num("POINTING.SLEWTIME")
+        axes = live.telescope.pointing._controlled()
+        assert slewtime < 1.0, (slewtime, [(a.module_name, a.motion_state, a.target_distance) for a in axes])
         await c.set("POINTING.TRACK=0")
         await c.wait("TELESCOPE.MOTION_STATE", lambda v: v == 0)
         assert complete(await c.set("TELESCOPE.READY=0"))
