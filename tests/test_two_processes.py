@@ -318,10 +318,12 @@ def test_killed_control_process_drives_stop_at_the_stop_deceleration(tmp_path):
             at_kill = [abs(v) for t, v, _, _ in samples[axis] if t <= killed]
             assert at_kill and at_kill[-1] >= 0.8 * section.max_velocity, (axis, at_kill[-3:])
             rest = next(t for t, v, d, _ in samples[axis] if t > killed and v == 0.0 and d == 0.0)
-            # the stop as a whole: from its fastest after the kill to rest no harder than the
-            # stop deceleration (old: the drive held its last setpoint and the motor braked
-            # at its own limit)
-            t_top, v_top = max(((t, abs(v)) for t, v, _, _ in samples[axis] if t >= killed),
+            # the stop as a whole: the drive's demand from its fastest after the kill to rest
+            # no harder than the stop deceleration (old: the drive held its last setpoint and
+            # the motor braked at its own limit). The demand, not the motor: the motor's speed
+            # at the kill wobbles around the last CSP steps (5.09 against a demand of 4.78 was
+            # seen), which the 0.25 s check below judges
+            t_top, v_top = max(((t, abs(d)) for t, _, d, _ in samples[axis] if t >= killed),
                                key=lambda p: p[1])
             mean = v_top / (rest - t_top)
             # and over any 0.25 s (the motor wobbles a little around the CSP steps of a loaded
