@@ -421,7 +421,7 @@ def test_rain_makes_it_unsafe_and_opening_is_refused(live):
 def test_a_lost_dome_plc_reads_as_an_error_not_the_last_azimuth(live):
     """The dome PLC switched off: Alpaca Dome.Azimuth and Slewing answer a driver error and
     ShutterStatus reads Error, and OpenTCI DOME[0].REALPOS / POWER_STATE / MOTION_STATE answer
-    FAILED 4, instead of the last values polled (issue 22 item 8); all read again once the PLC
+    FAILED 4 (or 3), instead of the last values polled (issue 22 item 8); all read again once the PLC
     is back."""
     from alpaca.dome import Dome, ShutterState
     from alpaca.exceptions import DriverException
@@ -445,7 +445,10 @@ def test_a_lost_dome_plc_reads_as_an_error_not_the_last_azimuth(live):
                 return [await c.value(f"DOME[0].{v}") for v in ("REALPOS", "POWER_STATE", "MOTION_STATE")]
             finally:
                 await c.close()
-        assert asyncio.run(tci()) == ["FAILED 4"] * 3
+        # 4: the PLC does not answer; 3 when its connection hung first (a loaded machine's
+        # request time-out before the refusal): either is the link's error, not a value
+        replies = asyncio.run(tci())
+        assert replies in (["FAILED 4"] * 3, ["FAILED 3"] * 3), replies
     finally:
         asyncio.run(live.call(plc.power_on))
     until(lambda: live.telescope.dome[0].link_error() is None, "the PLC back")
