@@ -61,7 +61,12 @@ def test_limit_switch_is_a_limit_error(can_channel):
             rig.drive("az").set_setpoint(target["x"])
 
         rig.cycle_hooks.append(creep)
-        status = rig.wait_state("az", DriveState.FAULT)
+        try:
+            status = rig.wait_state("az", DriveState.FAULT)
+        except AssertionError as exc:
+            sim = rig.sims["az"]
+            raise AssertionError(f"{exc}; creep target {target['x']}, drive at {rig.status('az').position}, "
+                                 f"simulated motor at {sim.logic.axis.x}") from None
         rig.cycle_hooks.clear()
         assert status.fault.number == ErrorNumber.LIMIT and status.fault.code == 0x8612
         assert "position limit" in str(status.fault)
