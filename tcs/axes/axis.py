@@ -61,7 +61,9 @@ HW_MIN, HW_MAX, HW_BLOCKING, SW_MIN, SW_MAX, SW_BLOCKING = 1, 2, 128, 256, 512, 
 MEASURED_MOVING_CYCLES = 3  # cycles above standstill before a measured motion sets MOVING
 POWER_TIMEOUT = 10.0  # s at least for a drive to reach Operation enabled / disabled
 POWER_MARGIN = 2.0  # s the axis waits beyond the drive's own power_timeout (its error first)
-HOMING_START_TIMEOUT = 2.0  # s for the drive to show the requested homing run in progress
+HOMING_START_TIMEOUT = 5.0  # s for the drive to show the requested homing run in progress (the
+# mode switch to HM alone may take the drive section's mode_switch_timeout, 1 s by default, and a
+# busy host adds to it: 2 s failed an Alpaca cold start under the suite's load)
 ACK_TIMEOUT = 3.0  # s for the drive's fault reset after ERROR_STATE=0
 
 REFERENCE_ORDER = {"ZD": 0, "DEC": 0, "AZ": 1, "HA": 1}
