@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from tcs.sim import DEFAULT_EDS, SimDriveParams
 from tcs.sim.drive_logic import DriveLogic
-from tcs.sim.drive_physics import Axis, Threshold, position_profile, velocity_profile
+from tcs.sim.drive_physics import Axis, Threshold, linear_profile, position_profile, velocity_profile
 from tcs.sim.homing import Switches, plan
 from tcs.sim.object_store import ObjectStore
 
@@ -67,6 +67,20 @@ def test_axis_reports_a_crossing_once_at_the_exact_time():
     ev = ax.advance(200.0)
     assert ev.threshold.name == "switch" and not ev.upward
     assert ax.advance(200.0) is None and ax.x == 0.0
+
+
+def test_axis_reports_a_switch_where_a_csp_segment_ends():
+    """A CSP line ends a rounding error short of its target: a switch exactly at the target (a
+    whole number of increments) is still crossed, by the step onto the next segment."""
+    t0, x0, v = 21379.928265003, 0.2950374649032756, 0.49625350967243964   # as logged
+    ax = Axis(x=x0, v=v, t=t0, max_velocity=2.0, max_acceleration=1.0)
+    ax.set_reference(linear_profile(t0, x0, 0.3, 0.01, extrapolate=0.5, trend=v))
+    ax.thresholds = [Threshold("switch", 0.3)]
+    line = ax.reference.segments[0]
+    assert line.state(line.t1)[0] < 0.3   # the rounding the test is about
+    ev = ax.advance(t0 + 0.1)
+    assert ev is not None and ev.kind == "crossing" and ev.upward
+    assert ev.time == pytest.approx(line.t1) and ax.x == 0.3
 
 
 def test_axis_following_error_when_the_reference_is_too_fast():

@@ -232,7 +232,8 @@ class Axis:
         """Follow ``profile`` from now on (the axis locks if it starts where the axis is)."""
         self.reference = profile
         r, vr = profile.state(self.t)
-        self.locked = abs(r - self.x) <= LOCK_POSITION and abs(vr - self.v) <= self.max_acceleration * SUBSTEP
+        self.locked = (abs(r - self.x) <= LOCK_POSITION and abs(vr - self.v) <= self.max_acceleration * SUBSTEP
+                       and self._threshold_between(self.x, r) is None)
         if self.locked:
             self.x, self.v = r, vr
 
@@ -288,8 +289,33 @@ class Axis:
             if abs(nxt.v0 - self.v) > self.max_acceleration * SUBSTEP or abs(nxt.x0 - self.x) > LOCK_POSITION:
                 self.locked = False
             else:
-                self.x, self.v = nxt.x0, nxt.v0
+                self.v = nxt.v0
+                return self._snap(nxt.x0)
         return None
+
+    def _threshold_between(self, xa: float, xb: float) -> tuple[Threshold, bool] | None:
+        """A threshold crossed going from ``xa`` to ``xb``, and whether upward."""
+        for th in self.thresholds:
+            if xa < th.position <= xb:
+                return th, True
+            if xa >= th.position > xb:
+                return th, False
+        return None
+
+    def _snap(self, x: float) -> Event | None:
+        """Put the axis on its reference at ``x`` (a rounding step away), crossing what lies between.
+
+        The last increment of a segment ends a rounding error short of where the next one starts;
+        a switch exactly there (a whole number of increments, as CSP targets are) is crossed by this
+        step and by no motion after it.
+        """
+        crossed = self._threshold_between(self.x, x)
+        if crossed is None:
+            self.x = x
+            return None
+        event = Event("crossing", self.t, *crossed)
+        self.x = _just_past(event)
+        return event
 
     def _crossing(self, seg: Segment, ta: float, tb: float) -> Event | None:
         """First threshold crossed on ``seg`` between ``ta`` and ``tb`` (motion is monotonic)."""
@@ -331,9 +357,9 @@ class Axis:
         self.x, self.v, self.t = x_new, v_new, t_new
         err = r - self.x
         if abs(err) <= LOCK_POSITION * 100 and abs(v_new - vr) <= dv_max and abs(vr) <= self.max_velocity:
-            self.x, self.v, self.locked = r, vr, True
+            self.v, self.locked = vr, True
             self._fe_since = None
-            return None
+            return self._snap(r)
         if self.fe_window > 0 and abs(err) > self.fe_window:
             if self._fe_since is None:
                 self._fe_since = self.t
