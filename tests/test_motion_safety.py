@@ -438,10 +438,12 @@ async def test_offset_on_a_running_trajectory_is_range_checked(live):
 
 # ---------------------------------------------------------------- 5: late cycles
 
-async def test_late_cycles_never_send_more_than_the_speed_limit(live):
+async def test_late_cycles_never_send_more_than_the_speed_and_acceleration_limits(live):
     """Every few cycles the loop is made late (a cycle callback that sleeps 1.5–2.5 periods)
     while AZ follows a 50°/s path (limit 60): no step between two CSP targets the drive
-    received exceeds 60°/s × T (the drive runs each step within one period)."""
+    received exceeds 60°/s × T (the drive runs each step within one period), and no step
+    differs from the one before by more than the acceleration limit × T² (120°/s² speeding
+    up, 240 slowing down: without the cut a skipped slot doubled the speed for one period)."""
     c = await connect(live)
     try:
         await ready(live, c, "AZ", "ZD")
@@ -472,6 +474,13 @@ async def test_late_cycles_never_send_more_than_the_speed_limit(live):
         steps = [b - a for a, b in zip(targets, targets[1:])]
         vmax = 60.0
         assert max(abs(s) for s in steps) <= vmax * period * (1 + 1e-5) + 1e-5, max(map(abs, steps))
+        section = live.telescope.axis("AZ").section
+        for a, b in zip(steps, steps[1:]):
+            speeding_up = abs(b) > abs(a) and a * b >= 0
+            limit = section.max_acceleration if speeding_up else section.stop_deceleration
+            # (+ 2 increments: the drive receives whole increments)
+            assert abs(b - a) <= limit * period ** 2 * (1 + 1e-4) + 2.0 / drive.params.increments_per_unit, \
+                (a / period, b / period)
         assert max(targets) > 100.0   # it did run the path at speed
     finally:
         await c.close()

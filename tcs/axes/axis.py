@@ -25,7 +25,7 @@ fault was acknowledged (ERROR_STATE=0); an unreferenced axis refuses TARGETPOS, 
 trajectories (5 invmode) and moves only to reference. A TPL2 ABORT of the command that started a
 motion (``abort_request``, matched by the command's cause) stops it with the normal deceleration;
 ``move_toward`` (Alpaca MoveAxis) runs to a drive-frame end at its own speed, never the other
-way; every sent setpoint step is cut to ``max_velocity`` × the SYNC period (``_limit_step``).
+way; every sent setpoint step is cut to the speed and acceleration limits (``_limit_step``).
 
 Discrete axes (FILTER, MIRROR) move between configured positions with profile-position moves
 of the drive; their positions are the integer keys of ``[axes.<name>].positions``.
@@ -37,6 +37,7 @@ import asyncio
 import bisect
 import collections
 import logging
+import math
 import threading
 from typing import Any, Callable
 
@@ -252,6 +253,7 @@ class Axis(ModuleHealth):
         self._reference_cause = None  # the REINIT that started homing (events 19/20 name it)
         self._sp = Setpoint(0.0)
         self._sent: float | None = None  # the last setpoint sent (for _limit_step)
+        self._sent_velocity = 0.0        # and its step / T
         self.clamped_steps = 0  # setpoint steps cut to the velocity limit
         self._running = False  # follower in charge (also while it brakes after an abort)
         self._run_cause = None  # the RUN=1 whose trajectory events (29-32) are sent
@@ -562,7 +564,7 @@ class Axis(ModuleHealth):
         self._watch_drive(st, now)
         setpoint = self._motion(st, t)
         if setpoint is not None:
-            setpoint = self._limit_step(setpoint, st.position)
+            setpoint = self._limit_step(setpoint, st.position, st.velocity)
             self.drive.set_setpoint(setpoint.position, setpoint.velocity)
         else:
             self._sent = None
@@ -570,30 +572,43 @@ class Axis(ModuleHealth):
         self._publish(st, t if measured is None else measured)
         self._flush()
 
-    def _limit_step(self, sp: Setpoint, measured: float) -> Setpoint:
-        """The last line of the velocity limit: the drive interpolates from one setpoint to
-        the next over one SYNC period whenever they arrive, so the step between two sent
-        setpoints must stay within ``max_velocity·T`` whatever the cycle's lateness (a
-        trajectory sampled at a late cycle's time asked for two cycles' travel in one: 7.8°/s
-        against 5 was measured). A cut setpoint replaces the axis's own, so a trajectory
-        re-intercepts its path from there (within the limits).
+    def _limit_step(self, sp: Setpoint, measured: float, measured_velocity: float = 0.0) -> Setpoint:
+        """The last line of the speed and acceleration limits: the drive interpolates from one
+        setpoint to the next over one SYNC period whenever they arrive, so the step between
+        two sent setpoints must stay within ``max_velocity·T`` and change from the step before
+        by no more than the acceleration limit × T² (``max_acceleration`` speeding up,
+        ``quick_stop_acceleration`` slowing down), whatever the cycle's lateness: a trajectory
+        sampled after skipped SYNC slots asks for several cycles' travel in one (7.8°/s against
+        5 was measured, and a one-period jump of the speed is an acceleration of v/T).
 
-        Acceleration is not cut here: the planner steps its profiles on the cycle grid (a
-        late cycle cannot change its steps), but a trajectory is sampled at the real time of
-        each cycle, and a cut of every millisecond of jitter at speed to the acceleration
-        limit made the follower lose its path on a loaded machine."""
+        A setpoint within both limits is sent as it is (the planner's profiles and a trajectory
+        sampled on the SYNC grid are). A cut one aims back at the axis's own setpoint: the speed
+        of its path plus a catch-up that can be braked within the limits (√(a·|e|)), then held to
+        the limits; it replaces the axis's setpoint, so the follower re-intercepts its path from
+        there. Counted in ``clamped_steps``."""
         T = self.dt
-        p0 = self._sent if self._sent is not None else measured
-        step = sp.position - p0
-        v_t = self.dynamics.max_velocity * T
-        if abs(step) <= v_t * (1 + 1e-6):
-            self._sent = sp.position
+        dyn = self.dynamics
+        if self._sent is None:
+            p0, v0 = measured, measured_velocity
+        else:
+            p0, v0 = self._sent, self._sent_velocity
+        v_want = (sp.position - p0) / T
+        vmax = dyn.max_velocity
+        acc = dyn.max_acceleration
+        dec = max(acc, dyn.quick_stop_acceleration or acc)
+        hi = v0 + (acc if v0 >= 0 else dec) * T
+        lo = v0 - (dec if v0 > 0 else acc) * T
+        slack = 1e-6 * max(vmax, abs(v0)) + 1e-9 / T
+        if lo - slack <= v_want <= hi + slack and abs(v_want) <= vmax * (1 + 1e-6):
+            self._sent, self._sent_velocity = sp.position, v_want
             return sp
-        step = v_t if step > 0 else -v_t
+        lag = sp.position - (p0 + sp.velocity * T)   # where the path will be, moving at its speed
+        v = sp.velocity + math.copysign(min(abs(lag) / T, math.sqrt(acc * abs(lag))), lag)
+        v = max(-vmax, min(vmax, max(lo, min(hi, v))))
         self.clamped_steps += 1
-        clamped = Setpoint(p0 + step, step / T, 0.0, 0.0)
+        clamped = Setpoint(p0 + v * T, v, (v - v0) / T, 0.0)
         self._sp = clamped
-        self._sent = clamped.position
+        self._sent, self._sent_velocity = clamped.position, v
         return clamped
 
     def _apply(self, kind, value, future, cause, st: DriveStatus, t: float, now: float) -> None:
