@@ -606,7 +606,7 @@ class Axis(ModuleHealth):
         v = sp.velocity + math.copysign(min(abs(lag) / T, math.sqrt(acc * abs(lag))), lag)
         v = max(-vmax, min(vmax, max(lo, min(hi, v))))
         self.clamped_steps += 1
-        clamped = Setpoint(p0 + v * T, v, (v - v0) / T, 0.0)
+        clamped = Setpoint(p0 + v * T, v, 0.0, 0.0)
         self._sp = clamped
         self._sent, self._sent_velocity = clamped.position, v
         return clamped

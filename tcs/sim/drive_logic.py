@@ -54,7 +54,8 @@ Behaviour chosen where CiA-402 leaves it to the vendor (the driver can rely on i
   applies the same reaction when SYNC stops (0x1006), when an RPDO misses its deadline
   (event timer 0x1400:5, watched in real time by the node) or NMT takes it out of
   operational. With a deadline set, a CSP drive bridges the missing setpoints until then at
-  the last step's speed (no braking at the motor's limit before the reaction starts), so
+  the setpoint stream's speed (the last two setpoints' difference per SYNC; no braking at the
+  motor's limit before the reaction starts), so
   a lost master ends in a ramp at 0x6085 (0x6007 = 3, 0x605A = 2).
 * Disable operation (transition 5) ramps down with the profile deceleration when 0x605C = 1,
   brakes at once when 0. Every SYNC without a fresh
@@ -155,6 +156,7 @@ class DriveLogic:
         self.internal_limit = False
         self.alarm_reason: str | None = None
         self.missed_in_row = 0
+        self._last_goal: float | None = None   # the last streamed setpoint (CSP/IP), units
         self.rpdo_missed = 0
         self.ip_ignored = 0                    # IP records received without enable-IP (bit 4)
         self.rpdo_deadlines: dict[int, float] = {}  # RPDO → deadline, s (set by the node)
@@ -597,11 +599,11 @@ class DriveLogic:
     def on_sync(self, fresh_rpdo: bool) -> None:
         """A SYNC (after :meth:`update` to its time and after applying the synchronous RPDOs)."""
         if self.state is not S.OPERATION_ENABLED or self.mode not in STREAMING_MODES:
-            self.missed_in_row = 0
+            self.missed_in_row, self._last_goal = 0, None
             return
         if self.mode == MODE_IP and not self.controlword & 0x10:
             # IP not enabled (controlword bit 4): the interpolation data record is ignored
-            self.missed_in_row = 0
+            self.missed_in_row, self._last_goal = 0, None
             if fresh_rpdo and self.store.get(0x60C1, 1) != self.to_inc(self.axis.x):
                 self.ip_ignored += 1
             return
@@ -611,7 +613,7 @@ class DriveLogic:
             if self.missed_in_row >= RPDO_TIMEOUT_SYNCS:
                 self.connection_lost(EMCY_RPDO_TIMEOUT)
             return
-        self.missed_in_row = 0
+        slots, self.missed_in_row = self.missed_in_row + 1, 0
         if self.mode == MODE_CSV:
             self._csv_velocity(self.store.get(0x60FF, 0))
             return
@@ -621,14 +623,24 @@ class DriveLogic:
         value, exponent = self.store.get(0x60C2, 1), self.store.get(0x60C2, 2)
         period = value * 10.0 ** exponent
         start, goal = ax.demand()[0], self.to_phys(target)
-        rate = (goal - start) / period if period > 0 else 0.0
-        ax.set_reference(linear_profile(ax.t, start, goal, period, self._bridge(goal, rate)))
+        last, self._last_goal = self._last_goal, goal
+        trend = 0.0
+        if last is not None and period > 0:
+            top = self.params.max_velocity
+            trend = max(-top, min(top, (goal - last) / (period * slots)))
+        ax.set_reference(linear_profile(ax.t, start, goal, period, self._bridge(goal, trend), trend))
 
     def _bridge(self, goal: float, v: float) -> float:
-        """How long the CSP demand goes on at the last step's speed ``v`` (continuous: no
-        step in the demand) when the next setpoints do not come: the RPDO deadline (0x1400:5;
-        the drive then stops per 0x6007 at 0x6085), never past a software limit; 0 (hold the
-        last setpoint) without one."""
+        """How long the CSP demand goes on, after reaching ``goal``, at the setpoint stream's
+        speed ``v`` (the last two setpoints' difference over the interpolation period) when
+        the next setpoints do not come: the RPDO deadline (0x1400:5; the drive then stops per
+        0x6007 at 0x6085), never past a software limit; 0 (hold the last setpoint) without one.
+
+        The stream's speed, not the last line's: the line from the demand where the SYNC found
+        it to the new setpoint also takes up the lateness of that SYNC; bridging at its speed
+        fed each SYNC's lateness into the next line's start (a gap of more than two periods
+        more than doubled it: the demand swung ±0.6° around a 0.4°/s path and the motor
+        faulted with a following error on a loaded machine)."""
         deadline = max(self.rpdo_deadlines.values(), default=0.0)
         if deadline <= 0 or v == 0:
             return 0.0

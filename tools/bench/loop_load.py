@@ -12,7 +12,10 @@ then one per load *profile*, each played by a separate process:
 * ``slowloris`` — 200 connections that never log in and trickle one byte a second;
 * ``huge`` — 10 clients GETting 1000 variables per command (~25 kB replies), reading them;
 * ``logins`` — 50 connections guessing passwords as fast as they are answered (last: it locks
-  the loopback address out, as it should).
+  the loopback address out, as it should);
+* ``hogs`` — no client at all: 2 × the CPUs busy-loop processes for the window (a compile on
+  the same machine; issue 27 item 4). Run it with ``--realtime-priority 40`` for the cabinet
+  computer's set-up, without for a development machine.
 
 During every profile a **probe** client GETs ``AZ.REALPOS`` every 0.1 s: its latency is what an
 operator's tool sees. Per window, from the cycle source (``lateness``: SYNC send time minus its
@@ -45,14 +48,24 @@ VARIABLES = [f"{ax}.{v}" for ax in ("AZ", "ZD") for v in (
 
 # ------------------------------------------------------------------ the load (child process)
 
-PROFILES = ("pollers", "pipeline", "slowloris", "huge", "logins")
+PROFILES = ("pollers", "pipeline", "slowloris", "huge", "logins", "hogs")
 HELP = {
     "pollers": "{clients} clients each GET 20 axis variables {rate:g} times a second",
     "pipeline": "30 clients pipeline 200-variable GETs as fast as the server reads, never reading replies",
     "slowloris": "200 connections never log in and send one byte a second (reconnecting when closed)",
     "huge": "10 clients GET 1000 variables per command (~25 kB replies) back to back, reading them",
     "logins": "50 connections guess passwords as fast as answered (reconnecting when dropped)",
+    "hogs": "2 x the CPUs busy-loop processes keep every core busy",
 }
+
+HOG = "import time\nend = time.monotonic() + {seconds}\nwhile time.monotonic() < end: pass\n"
+
+
+async def hogs(seconds: float) -> None:
+    """Every core busy for ``seconds`` (the processes end by themselves)."""
+    procs = [await asyncio.create_subprocess_exec(sys.executable, "-c", HOG.format(seconds=seconds))
+             for _ in range(2 * (os.cpu_count() or 2))]
+    await asyncio.gather(*(p.wait() for p in procs))
 
 
 async def _open(port: int, login: bool = True):
@@ -218,7 +231,8 @@ async def load(port: int, profile: str, clients: int, seconds: float, rate: floa
             "pipeline": lambda: [pipeliner(port, end, counts) for _ in range(30)],
             "slowloris": lambda: [slowloris(port, end, counts) for _ in range(200)],
             "huge": lambda: [huge(port, end, counts) for _ in range(10)],
-            "logins": lambda: [guesser(port, end, counts) for _ in range(50)]}[profile]()
+            "logins": lambda: [guesser(port, end, counts) for _ in range(50)],
+            "hogs": lambda: [hogs(seconds)]}[profile]()
     results = await asyncio.gather(probe(port, end, probe_lat), *work, return_exceptions=True)
     errors = [repr(r) for r in results if isinstance(r, BaseException)]
     out = {"profile": profile, "probe_ms": _ms(probe_lat), "counts": counts, "errors": errors[:3],
@@ -304,7 +318,10 @@ async def main(profiles: list[str], clients: int, seconds: float, rate: float,
             await child.wait()
             child = None
             results[profile] = {"window": w, "clients": json.loads(out),
-                                "connections_after": len(service.server.sessions)}
+                                "connections_after": len(service.server.sessions),
+                                "drive_errors": [await c.num(f"{ax}.ERROR_STATE") for ax in ("AZ", "ZD")]}
+            if any(results[profile]["drive_errors"]):
+                print("  errors:", (await c.get("CABINET.STATUS.LIST"))[0][:600], flush=True)
             await asyncio.sleep(min(5.0, service.config.server.login_timeout))  # let the dust settle
         following = [await c.num(f"{ax}.MOTION_STATE") for ax in ("AZ", "ZD")]
         await c.close()
@@ -329,6 +346,8 @@ async def main(profiles: list[str], clients: int, seconds: float, rate: float,
             seen["get_p99_ms"] = cl["latency_ms"]["p99"]
         if cl.get("n_errors"):
             seen["client_errors"] = cl["n_errors"]
+        if any(r.get("drive_errors") or ()):
+            seen["drive_errors"] = r["drive_errors"]
         probe_text = f"{pr.get('p50')}/{pr.get('p99')}/{pr.get('max')}" if pr else "-"
         print(f"{name:10s} {w['cycles']:6d} {w['late']:5d} {w['missed']:6d}  "
               f"{lat['p50']:.3f}/{lat['p99']:.3f}/{lat['max']:.3f}   {lp['p99']:.3f}/{lp['max']:.3f}   "
