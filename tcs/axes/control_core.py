@@ -7,7 +7,8 @@ with their boot and recovery, the simulated drives of an in-process (``virtual``
 :class:`~tcs.axes.axis.Axis` objects' control-loop side and the
 :class:`~tcs.axes.control_loop.ControlLoop` — so that nothing the TPL2, OpenTSI or Alpaca
 clients make the service do can take the interpreter from the loop: this process has its own
-interpreter lock and, with ``[can] realtime_priority``, every thread of it runs SCHED_FIFO.
+interpreter lock and, with ``[can] realtime_priority`` P, every thread of it runs SCHED_FIFO (the
+cycle thread at P, the others at P − 1, with a 1 ms interpreter-lock switch interval).
 
 How it talks to the service (one ``multiprocessing.connection.Connection`` on a socket pair,
 pickled tuples; the service is the only peer):
@@ -258,8 +259,22 @@ class Core:
         info: dict = {"realtime": False}
         if can_section.realtime_priority > 0:
             try:  # before any thread is made: every thread of this process inherits it
-                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(can_section.realtime_priority))
+                # one below the cycle thread's own (tcs.drivers.cycle): a woken cycle thread
+                # preempts the others at once instead of queueing behind a FIFO peer
+                others = os.sched_param(max(1, can_section.realtime_priority - 1))
+                os.sched_setscheduler(0, os.SCHED_FIFO, others)
+                # and the threads made before this one (receiver, log forwarder): a normal
+                # thread holding the interpreter lock, preempted by other processes, would keep
+                # the cycle thread waiting for as long as the machine is busy
+                for tid in os.listdir("/proc/self/task"):
+                    try:
+                        os.sched_setscheduler(int(tid), os.SCHED_FIFO, others)
+                    except OSError:  # (ended meanwhile)
+                        pass
                 info["realtime"] = True
+                # and they hand the interpreter lock over after 1 ms, not 5: the cycle thread
+                # waits for it behind threads of the same process (simulated drives, receiver)
+                sys.setswitchinterval(0.001)
             except (OSError, AttributeError) as exc:
                 log.warning("control process: real-time priority %d refused (%s); running with "
                             "normal scheduling (grant CAP_SYS_NICE or LimitRTPRIO)",
