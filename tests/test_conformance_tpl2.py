@@ -69,7 +69,9 @@ async def test_every_module_array_element_has_the_full_member_set(service):
     assert await c.get("DEROTATOR[2].VERSION") != "0"
     assert await c.get("DEROTATOR[1].REALPOS") == "FAILED 4"
     assert await c.get("DEROTATOR[1].REALPOS!TYPE") == "2"
-    assert await c.get("DEROTATOR[1].TRAJECTORY.BUFFER!COUNT") == "0"
+    # the same substructure down to the trajectory buffer's size (TPL2 §8.3), every element absent
+    assert await c.get("DEROTATOR[1].TRAJECTORY.BUFFER!COUNT") == await c.get("DEROTATOR[2].TRAJECTORY.BUFFER!COUNT") == "120"
+    assert await c.get("DEROTATOR[1].TRAJECTORY.BUFFER[119].TIME") == "FAILED 4"
     assert await c.get("FILTER[0].MOTION_STATE") == "FAILED 4"
     assert await c.command(7, "SET DEROTATOR[0].TARGETPOS=10") == [
         "7 COMMAND OK", "7 DATA ERROR DEROTATOR[0].TARGETPOS FAILED 4", "7 COMMAND COMPLETE"]

@@ -65,7 +65,8 @@ class Peripherals:
         self.local = local
         self.cabinet = cabinet
         self.dome_info = DomeInfo.from_section(config.dome) if config.dome is not None else None
-        mount_config.dome = self.dome_info
+        # without a dome CONFIG.DOME still answers: no capabilities, diameter 0 (spec §7 lists it)
+        mount_config.dome = self.dome_info if self.dome_info is not None else DomeInfo(0, 0.0)
         self.sims = None
         self.drivers: dict[str, PlcDriver] = {}
         self.gps_reader: GpsReader | None = None

@@ -612,7 +612,13 @@ def _build_members(parent: ModuleNode, members, obj, absent: bool = False,
                 if model is None:
                     continue  # the configured elements have no such submodule
             if spec.array:
-                parent.add(ArrayNode(spec.name, index, spec.info, parent))  # COUNT 0
+                array = ArrayNode(spec.name, index, spec.info, parent)
+                count = len(model.elements) if isinstance(model, ArrayNode) else 0
+                if count and all(isinstance(m, VarSpec) for m in spec.members):
+                    # as many elements as the configured sibling's (a trajectory BUFFER[120]),
+                    # each answering its members' absent value
+                    array.elements = _LazyElements(array, spec, [None] * count)
+                parent.add(array)  # else COUNT 0
             else:
                 child = ModuleNode(spec.name, index, spec.info, parent, None)
                 _build_members(child, spec.members, None, absent=True,
