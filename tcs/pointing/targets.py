@@ -374,8 +374,11 @@ class SatelliteTarget(Target):
         if not inside.any():
             return obs
         az = np.array(obs.az, float, copy=True)
-        az[inside] = np.mod(np.polyval(coef, (utc[inside] - t0) / (t1 - t0)), 360.0)
-        return replace(obs, az=az)
+        zd = np.array(obs.zd, float, copy=True)
+        lead = np.polyval(coef, (utc[inside] - t0) / (t1 - t0))
+        az[inside] = np.mod(lead, 360.0)
+        zd[inside] = _projected_zd(lead, obs.az[inside], obs.zd[inside])
+        return replace(obs, az=az, zd=zd)
 
     def radec(self, astrometry, utc):
         ra, dec, _ = self.topocentric(astrometry, float(utc))
@@ -449,6 +452,9 @@ class SatelliteTarget(Target):
             bridge, path, err = _keyhole_bridge(t, az, zd, culm, vmax, amax, jmax)
             if bridge is None:
                 reason = "AZ cannot follow near the zenith even with a lead"
+        if bridge is not None:
+            zd_path = np.asarray(replace(self, bridge=bridge).observed(astrometry, t).zd, float)
+            vzd = np.gradient(zd_path, dt)                  # ZD on the lead's vertical
         vpath = np.gradient(path, dt)
         apath = np.gradient(vpath, dt)
         # the cable-wrap turn: the one keeping every sample inside the AZ range, nearest
@@ -498,6 +504,14 @@ def _quintic(x0, v0, a0, x1, v1, a1, T):
     return np.array([c5, c4, c3, c2, c1, c0])
 
 
+def _projected_zd(az_axis, az, zd):
+    """ZD on the vertical circle of ``az_axis`` nearest the target at (``az``, ``zd``): the
+    pointing error is then only asin(sin ZD · |sin ΔAZ|); negative past ΔAZ = 90° (over the
+    zenith, the reverse side)."""
+    d = np.radians(np.asarray(az_axis, float) - np.asarray(az, float))
+    return np.degrees(np.arctan(np.tan(np.radians(zd)) * np.cos(d)))
+
+
 def _keyhole_bridge(t, az, zd, culm, vmax, amax, jmax):
     """Widen a window about the culmination until a quintic AZ bridge between the target's
     states at its ends stays within ``vmax``/``amax``/``jmax``; returns ((t0, t1, coef),
@@ -521,9 +535,9 @@ def _keyhole_bridge(t, az, zd, culm, vmax, amax, jmax):
         if np.abs(dv).max() <= vmax and np.abs(da).max() <= amax and np.abs(dj).max() <= jmax:
             path = az.copy()
             path[i0:i1 + 1] = np.polyval(coef, (t[i0:i1 + 1] - t[i0]) / T)
-            # angular distance between (path, zd) and (az, zd) on the sky
-            d = np.abs(np.remainder(path - az + 180.0, 360.0) - 180.0)
-            err = float((d * np.sin(zd * _D2R)).max())
+            # ZD on the lead azimuth's vertical nearest the target: error sin ZD · |sin ΔAZ|
+            d = np.radians(path - az)
+            err = float(np.degrees(np.arcsin(np.abs(np.sin(np.radians(zd)) * np.sin(d)))).max())
             return (float(t[i0]), float(t[i1]), coef), path, err
         half = int(half * 1.15) + 1
     return None, az, 0.0
