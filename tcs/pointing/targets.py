@@ -30,10 +30,12 @@ pointing model (:class:`~tcs.pointing.demand.Pipeline`). The kinds:
   (:class:`PassPlan`): when it rises above the altitude limit and sets, the largest axis
   rates, the cable-wrap turn that keeps AZ inside its range for the whole pass, and — for a
   pass through the zenith keyhole of an AZ-ZD mount, where AZ would need more speed or
-  acceleration than the axis has — the best-effort path: ZD follows the target (it is at its
-  minimum there and nearly still), AZ *leads*: it starts turning before the culmination on a
-  quintic bridge inside 90 % of the axis's speed and acceleration and ends on the target's
-  path after it, symmetric about the culmination. The plan is what OpenTSI's
+  acceleration than the axis has — the best-effort path: AZ *leads*: it starts turning before
+  the culmination on a quintic bridge inside 90 % of the axis's speed, acceleration and jerk
+  and ends on the target's path after it, symmetric about the culmination; ZD stays near its
+  minimum: it is put on the leading azimuth's vertical circle at the point nearest the
+  satellite (tan ZD' = tan ZD · cos ΔAZ, over the zenith when AZ lags by more than 90°), so the
+  error is asin(sin ZD · |sin ΔAZ|) instead of the whole lag (the plan's ``keyhole_error``). The plan is what OpenTSI's
   ``OBJECT.TLE.PASS.*`` reads and what TRACK=1 then follows (the axes wait at the rise point).
 * :class:`HorizontalTarget` — a fixed observed azimuth and altitude (through the pointing
   model like any other path).
