@@ -296,7 +296,7 @@ class Operations(ModuleHealth):
             if obj.kind == "body":
                 target = BodyTarget(obj.body)
             elif obj.kind == "satellite":
-                plan = self.pass_plan(fresh=True)
+                plan = self.pass_plan()
                 if plan is None:
                     raise TcsError(f"{obj.tle[2] or 'the satellite'} does not rise above "
                                    f"{p.config.min_altitude:g}° in the next 24 h", ErrorNumber.SOFTLIMIT)

@@ -318,6 +318,7 @@ class PassPlan:
 
 _PLAN_STEP = 0.5              # s between the samples of a pass plan
 _SEARCH_STEP = 10.0           # s between the samples of the pass search
+_SEARCH_CHUNK = 3600.0        # s searched at a time
 _SHARE = 0.9                  # of an axis's speed / acceleration a planned path may use
 
 
@@ -403,22 +404,27 @@ class SatelliteTarget(Target):
 
     def next_pass(self, astrometry: Astrometry, zd_limit: float, utc: float,
                   search: float = 86400.0) -> tuple[float, float] | None:
-        """(rise, set) UTC of the pass in progress or the next one above the limit."""
-        t = utc + np.arange(0.0, search + _SEARCH_STEP, _SEARCH_STEP)
-        up = self._zd(astrometry, t) <= zd_limit
-        if up[0]:
-            rise = float(utc)
-        else:
-            i = np.flatnonzero(up)
-            if not i.size:
-                return None
-            rise = self._crossing(astrometry, zd_limit, t[i[0] - 1], t[i[0]])
-        j0 = int(np.searchsorted(t, rise))
-        down = np.flatnonzero(~up[j0:])
-        if not down.size:
-            return rise, float(t[-1])
-        k = j0 + int(down[0])
-        return rise, self._crossing(astrometry, zd_limit, t[k - 1], t[k])
+        """(rise, set) UTC of the pass in progress or the next one above the limit (searched
+        an hour at a time: a pass soon costs little)."""
+        rise = None
+        t0 = float(utc)
+        while t0 < utc + search:
+            t = t0 + np.arange(0.0, _SEARCH_CHUNK + _SEARCH_STEP / 2, _SEARCH_STEP)
+            up = self._zd(astrometry, t) <= zd_limit
+            if rise is None:
+                i = np.flatnonzero(up)
+                if i.size:
+                    rise = float(utc) if (i[0] == 0 and t0 == utc) else \
+                        self._crossing(astrometry, zd_limit, t[i[0] - 1], t[i[0]]) if i[0] else float(t[0])
+                    up = up.copy()
+                    up[:i[0]] = True          # (before the rise: not the set)
+            if rise is not None:
+                down = np.flatnonzero(~up)
+                if down.size:
+                    k = int(down[0])
+                    return rise, self._crossing(astrometry, zd_limit, t[k - 1], t[k]) if k else float(t[0])
+            t0 = float(t[-1])
+        return None if rise is None else (rise, t0)
 
     def plan(self, astrometry: Astrometry, *, zd_limit: float, utc: float,
              az_range: tuple[float, float], az_limits: tuple[float, float],
