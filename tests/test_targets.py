@@ -198,7 +198,11 @@ def test_catalogue_place_and_horizontal_target():
     from tcs.pointing.sky_object import precess_from_j2000
     utc = 1.9e9
     r25, d25 = precess_from_j2000(6.0, 20.0, 2025.0)
-    t = IcrsTarget.from_catalogue(r25, d25, equinox=2025.0, utc=utc)
+    obj = SkyObject()
+    obj.set_ra(r25)
+    obj.set_dec(d25)
+    obj.set_equinox(2025.0)
+    t = IcrsTarget(*obj.icrs(utc), epoch=utc)
     assert abs(t.ra - 6.0) * 15 * 3600 * math.cos(math.radians(20)) < 0.01
     assert abs(t.dec - 20.0) * 3600 < 0.01
     ast = Astrometry(SITE, TimeBase(37.0, 0.0))

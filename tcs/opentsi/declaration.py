@@ -146,7 +146,9 @@ _PASS_FIELDS = (
 
 def _pass_field(obj, field: str):
     planner = getattr(obj, "planner", None)
-    plan = planner() if planner is not None else None
+    if planner is None or not (obj.tle[0] and obj.tle[1]):
+        return None                      # no TLE yet: NULL, as a pass that does not rise
+    plan = planner()
     if plan is None:
         return None
     value = getattr(plan, field)

@@ -7,9 +7,9 @@ Every target answers :meth:`Target.observed` — the observed place (Az/ZD, HA/D
 tracker (:mod:`tcs.pointing.tracker`) samples into the axes' trajectory queues, through the
 pointing model (:class:`~tcs.pointing.demand.Pipeline`). The kinds:
 
-* :class:`IcrsTarget` — a catalogue place: ICRS, or any Julian equinox (IAU 2006 precession,
-  pyerfa) with an epoch and proper motion (:class:`~tcs.pointing.sky_object.SkyObject`), plus
-  differential rates. **Rates** are kept as the model's ``POINTING.TARGET.RA_V`` / ``DEC_V``:
+* :class:`IcrsTarget` — a catalogue place in ICRS (any Julian equinox, epoch and proper motion
+  are brought there by :meth:`tcs.pointing.sky_object.SkyObject.icrs`, IAU 2006 precession with
+  pyerfa), plus differential rates. **Rates** are kept as the model's ``POINTING.TARGET.RA_V`` / ``DEC_V``:
   arcsec *of RA* (not × cos Dec) and arcsec of Dec per SI second. Clients use two conventions
   for the RA rate; :func:`ra_rate_to_ra_v` converts both: ``"time"`` — seconds of time of RA
   per second (× 15 = arcsec of RA; ASCOM's ``RightAscensionRate`` is this per *sidereal*
@@ -188,24 +188,6 @@ class IcrsTarget(Target):
     epoch: float = 0.0
     name: str = ""
     kind = "icrs"
-
-    @classmethod
-    def from_catalogue(cls, ra_h: float, dec_deg: float, *, equinox: float = 2000.0,
-                       epoch: float | None = None, ra_pm: float = 0.0, dec_pm: float = 0.0,
-                       utc: float, ra_v: float = 0.0, dec_v: float = 0.0, name: str = ""):
-        """A catalogue place (any Julian equinox, epoch, proper motion in mas/yr with RA·cos
-        Dec) brought to ICRS at ``utc`` (:meth:`SkyObject.icrs`)."""
-        from tcs.pointing.sky_object import SkyObject
-        obj = SkyObject()
-        obj.set_ra(ra_h)
-        obj.set_dec(dec_deg)
-        obj.set_equinox(equinox)
-        if epoch is not None:
-            obj.set_epoch(epoch)
-        obj.set_ra_pm(ra_pm)
-        obj.set_dec_pm(dec_pm)
-        ra, dec = obj.icrs(utc)
-        return cls(ra, dec, ra_v, dec_v, utc, name)
 
     def place(self, utc):
         """(RA hours, Dec degrees) at ``utc`` with the rates applied (as TrackRequest.place)."""
