@@ -105,6 +105,14 @@ def test_bad_tle_and_bodies_are_refused():
         obj.set_tle(1, "1 25544U")
     with pytest.raises(RangeRefused):
         obj.set_solarsystem_object(9)
+    with pytest.raises(RangeRefused):
+        obj.set_solarsystem_name("vulcan")
+    obj.set_solarsystem_name("Jupiter")
+    assert (obj.kind, obj.body, obj.solarsystem_index) == ("body", "jupiter", 4)
+    obj.set_solarsystem_name("moon")
+    assert (obj.kind, obj.body, obj.moon) == ("body", "moon", 1)
+    obj.set_ra(1.0)
+    assert obj.kind == "equatorial"
 
 
 def _plan(culm, zd_limit=75.0):

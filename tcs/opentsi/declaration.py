@@ -180,6 +180,8 @@ OBJECT = module(
                info="body for POINTING.TRACK=1: 0 Sun, 1 Mercury, 2 Venus, 3 Mars, 4 Jupiter, "
                     "5 Saturn, 6 Uranus, 7 Neptune, 8 Pluto (JPL DE421)"),
            var("MOON", INT, get="moon", set="set_moon", min=0, max=1, info="1: POINTING.TRACK=1 tracks the Moon"),
+           var("NAME", STRING, get="solarsystem_name", set="set_solarsystem_name",
+               info="the body by name (sun, moon, mercury … pluto), whatever the index"),
            info="solar-system targets (apparent, topocentric)"),
     module("TLE",
            var("LINE1", STRING, get=lambda o: o.tle[0], set=lambda o, v: o.set_tle(0, v),

@@ -152,6 +152,21 @@ class SkyObject:
         self.solarsystem_index = index
         self.body, self.kind, self.moon = SOLARSYSTEM_INDEX[index], "body", 0
 
+    def set_solarsystem_name(self, value: str) -> None:
+        """The body by name (sun, moon, mercury … pluto): unambiguous, whatever the index."""
+        from tcs.pointing.targets import BODIES, SOLARSYSTEM_INDEX
+        name = str(value).strip().strip('"').lower()
+        if name not in BODIES:
+            raise RangeRefused(f"SOLARSYSTEM.NAME {value!r}: one of {', '.join(BODIES)}")
+        if name == "moon":
+            self.set_moon(1)
+            return
+        self.set_solarsystem_object(SOLARSYSTEM_INDEX.index(name))
+
+    @property
+    def solarsystem_name(self) -> str:
+        return self.body if self.kind == "body" else ""
+
     def set_moon(self, value: int) -> None:
         value = int(value)
         if value not in (0, 1):
