@@ -301,6 +301,7 @@ class PassPlan:
 _PLAN_STEP = 0.5              # s between the samples of a pass plan
 _SEARCH_STEP = 10.0           # s between the samples of the pass search
 _SEARCH_CHUNK = 3600.0        # s searched at a time
+_PLAN_POINTS = 4000           # at most this many samples per planned pass
 _SHARE = 0.9                  # of an axis's speed / acceleration a planned path may use
 
 
@@ -421,7 +422,8 @@ class SatelliteTarget(Target):
         if found is None:
             return None
         rise, set_ = found
-        n = max(3, int(math.ceil((set_ - rise) / _PLAN_STEP)) + 1)
+        n = max(3, min(int(math.ceil((set_ - rise) / _PLAN_STEP)) + 1, _PLAN_POINTS))   # (a slow
+        # satellite that stays up for hours is planned more coarsely: it is slow)
         t = np.linspace(rise, set_, n)
         obs = self.sky(astrometry, t)
         az = np.unwrap(np.asarray(obs.az, float), period=360.0)

@@ -219,7 +219,7 @@ def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derot
     end = getattr(request.target, "end", None)
     if end is not None:          # a satellite pass: the whole pass, densely (the cable wrap)
         plan_horizon = max(end - first, 2.0)
-        step = min(1.0, plan_horizon / 4)
+        step = max(min(1.0, plan_horizon / 4), plan_horizon / 4000)
     else:
         step = min(_COARSE_STEP, plan_horizon / 4)
     times = first + np.arange(0.0, plan_horizon + step / 2, step)
