@@ -46,6 +46,13 @@ the moving path with ruckig and then follows it, checking speed, acceleration an
    ABORT_ON_DISCONNECT) ends only the wait, as for the axes' long SETs: tracking goes on
    until TRACK=0 or STOP, and its end is still announced by the events.
 
+The target: POINTING.TARGET (ICRS J2000 with the RA_V/DEC_V rates), or any target of
+:mod:`tcs.pointing.targets` given by a front end (``TrackRequest.target``: the Sun, the Moon,
+a planet, a planned satellite pass, a fixed alt/az): its observed path goes through the same
+pointing model, checks and queues. A satellite pass starts at its rise (the axes wait on the
+extrapolated start), uses its own point spacing (0.5 s), is planned over the whole pass
+densely (the cable-wrap turn), and its setting ends tracking as asked (1015), not as an error.
+
 A new TARGET or a new TRACK value while tracking re-plans at once (the SET returns
 immediately); so do a new pointing model and new refraction settings (same orientation).
 Re-planning is ``RUN=0`` and a new ``RUN=1`` on each axis: the follower intercepts the new
