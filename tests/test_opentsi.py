@@ -949,3 +949,28 @@ async def test_opentsi_rates_and_a_solar_system_body(live):
     finally:
         await c.close()
         await o.close()
+
+
+async def test_opentsi_satellite_not_yet_risen_is_waited_for(live):
+    """A pass that rises in a few seconds: TRACK=1 completes at once (the axes go to where the
+    path starts and wait), MOTION_STATE is not 11 before the rise; after it the axes follow
+    the satellite on target."""
+    c = await tsi(live)
+    try:
+        await ready(c)
+        p = live.telescope.pointing
+        l1, l2 = _leo_tle(p.latitude, p.local.longitude, time.time() + 200.0)   # rises in ~12 s
+        assert complete(await c.set(f'OBJECT.TLE.LINE1="{l1}";OBJECT.TLE.LINE2="{l2}"'))
+        start = await c.num("OBJECT.TLE.PASS.START")
+        assert start > time.time() + 3.0, start - time.time()
+        assert complete(await pyobs_set(c, "POINTING.TRACK", 1))
+        while time.time() < start - 1.0:
+            assert int(await c.num("TELESCOPE.MOTION_STATE")) != 11     # nothing to be on yet
+            await asyncio.sleep(0.5)
+        await c.wait("TELESCOPE.MOTION_STATE", lambda v: v == 11)
+        await c.wait("CURRENT.TARGETDISTANCE", lambda v: v < ARCSEC)
+        assert time.time() >= start
+        await pyobs_set(c, "POINTING.TRACK", 0)
+        await c.wait("TELESCOPE.MOTION_STATE", lambda v: v == 0)
+    finally:
+        await c.close()
