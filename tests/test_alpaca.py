@@ -573,7 +573,7 @@ def test_device_errors_are_200_with_ascom_numbers_and_values_have_their_types(li
     api(live, "PUT", "connect", form="")
     assert api(live, "PUT", "synctoaltaz", form="Azimuth=1&Altitude=45")["ErrorNumber"] == 0x400
     assert api(live, "PUT", "moveaxis", form="Axis=0&Rate=1000")["ErrorNumber"] == 0x401
-    assert api(live, "PUT", "trackingrate", form="TrackingRate=2")["ErrorNumber"] == 0x401
+    assert api(live, "PUT", "trackingrate", form="TrackingRate=3")["ErrorNumber"] == 0x401   # King
     bad = api(live, "PUT", "moveaxis", form="Axis=0&Rate=1000")
     assert isinstance(bad["ErrorMessage"], str) and bad["ErrorMessage"] and "Value" not in bad
     types = {"rightascension": float, "declination": float, "altitude": float, "azimuth": float,
@@ -756,3 +756,62 @@ def test_rotator_sync_and_reverse_platform7_model(live):
         rot.Sync(rot.MechanicalPosition)             # back to sky = mechanical for the other tests
         rot.Disconnect()
         t.Disconnect()
+
+
+def test_lunar_and_solar_tracking_rates_follow_the_real_moon_and_sun(live):
+    """TrackingRates lists sidereal, lunar and solar; with lunar the tracked place moves at the
+    Moon's topocentric rate against the stars now (skyfield's DE421, computed here on its own),
+    not at ASCOM's constant; solar likewise; an RA/Dec offset is refused off sidereal."""
+    from alpaca.telescope import DriveRates
+    from skyfield.api import load, wgs84
+    from tcs.pointing.targets import ephemeris
+
+    t = connected_telescope(live)
+    ready(live, t)
+    assert [int(x) for x in t.TrackingRates] == [0, 1, 2]
+    p = live.telescope.pointing
+
+    def body_rate_now(name: str) -> tuple[float, float]:
+        ts = load.timescale(builtin=True)
+        eph = ephemeris()
+        here = eph["earth"] + wgs84.latlon(p.latitude, p.local.longitude, elevation_m=p.local.height)
+        now = time.time()
+        tt = ts.from_datetimes([__import__("datetime").datetime.fromtimestamp(x, __import__("datetime").timezone.utc)
+                                for x in (now - 300.0, now + 300.0)])
+        ra, dec, _ = here.at(tt).observe(eph[name]).radec()
+        return ((ra.hours[1] - ra.hours[0]) * 15 * 3600 / 600.0, (dec.degrees[1] - dec.degrees[0]) * 3600 / 600.0)
+
+    t.Tracking = True
+    ra, dec = star_up_now(t)
+    t.SlewToCoordinatesAsync(ra, dec)
+    until(lambda: not t.Slewing, "the slew to end")
+    t.TrackingRate = DriveRates.driveLunar                 # while tracking: re-planned from here
+    assert t.TrackingRate == DriveRates.driveLunar
+    moon = body_rate_now("moon")
+    assert abs(p.target.ra_v - moon[0]) < 0.005 and abs(p.target.dec_v - moon[1]) < 0.005, (p.target.ra_v, moon)
+    assert 0.3 < p.target.ra_v < 0.9                     # east among the stars, ~0.55″ of RA/s
+    assert t.RightAscensionRate == 0.0
+    with pytest.raises(InvalidOperationException):
+        t.RightAscensionRate = 0.01
+    # the pointing drifts with the Moon: RA grows at its rate
+    until(lambda: abs(t.RightAscension - ra) * 15 * 3600 < 2.0, "on the lunar path", timeout=10.0)
+    r0, u0 = t.RightAscension, time.time()
+    time.sleep(3.0)
+    r1, u1 = t.RightAscension, time.time()
+    drift = (r1 - r0) * 15 * 3600 / (u1 - u0)
+    assert abs(drift - p.target.ra_v) < 0.3, (drift, p.target.ra_v)
+    # solar while tracking: re-planned from where it is, at the Sun's rate
+    t.TrackingRate = DriveRates.driveSolar
+    sun = body_rate_now("sun")
+    assert abs(p.target.ra_v - sun[0]) < 0.002 and abs(p.target.dec_v - sun[1]) < 0.002
+    until(lambda: not t.Slewing, "on the solar path")
+    assert abs(t.RightAscension - r1) * 15 * 3600 < 5.0          # no jump back to the start
+    # a slew at the solar rate takes the Sun's rate at its start
+    ra2, dec2 = star_up_now(t, hours_east=1.0)
+    t.SlewToCoordinatesAsync(ra2, dec2)
+    until(lambda: not t.Slewing, "the second slew to end")
+    assert abs(p.target.ra_v - sun[0]) < 0.002
+    t.TrackingRate = DriveRates.driveSidereal
+    assert p.target.ra_v == 0.0 and p.target.dec_v == 0.0
+    t.Tracking = False
+    t.Disconnect()

@@ -836,3 +836,141 @@ def test_fuzz_the_opentsi_port(live):
             s.close()
 
     check()
+
+
+# ------------------------------------------------------------------------------ moving targets
+
+def _leo_tle(lat: float, lon: float, culm_utc: float, offset_deg: float = 2.5) -> tuple[str, str]:
+    """A circular 420 km, 51.6° orbit whose ground track passes ``offset_deg`` north of the
+    site at ``culm_utc`` (an ISS-like pass at about 60°, happening now)."""
+    import erfa
+    from sgp4.api import WGS72, Satrec
+    from sgp4.exporter import export_tle
+    a = 6378.135 + 420.0
+    n = math.sqrt(398600.4418 / a ** 3)
+    epoch = culm_utc - 120.0
+    inc = math.radians(51.6)
+    u = math.asin(math.sin(math.radians(lat + offset_deg)) / math.sin(inc))
+    gmst = erfa.gmst82(2440587.5 + culm_utc / 86400.0, 0.0)
+    node = gmst + math.radians(lon) - math.atan2(math.cos(inc) * math.sin(u), math.cos(u))
+    sat = Satrec()
+    sat.sgp4init(WGS72, "i", 99999, 2440587.5 + epoch / 86400.0 - 2433281.5, 0.0, 0.0, 0.0, 0.0001,
+                 0.0, inc, (u - n * (culm_utc - epoch)) % (2 * math.pi), n * 60.0, node % (2 * math.pi))
+    return export_tle(sat)
+
+
+async def test_opentsi_satellite_pass_planned_then_followed(live):
+    """OBJECT.TLE.LINE1/LINE2/NAME as SONG sends them; OBJECT.TLE.PASS.* is the plan before
+    tracking (start, duration, rates, cable-wrap turn, feasible); TRACK=1 follows the pass in
+    progress: on target within 1″ of the planned path, where SGP4 puts the satellite."""
+    from tcs.pointing.targets import SatelliteTarget
+    c = await tsi(live)
+    try:
+        await ready(c)
+        p = live.telescope.pointing
+        l1, l2 = _leo_tle(p.latitude, p.local.longitude, time.time() + 80.0)
+        assert complete(await c.set(f'OBJECT.TLE.NAME="TESTSAT";OBJECT.TLE.LINE1="{l1}";'
+                                    f'OBJECT.TLE.LINE2="{l2}"'))
+        assert "RANGE" in (await c.set('OBJECT.TLE.LINE2="2 garbage"'))[-2]   # kept the good one
+        now = time.time()
+        start, duration, feasible, rate, alt = await c.nums(
+            "OBJECT.TLE.PASS.START", "OBJECT.TLE.PASS.DURATION", "OBJECT.TLE.PASS.FEASIBLE",
+            "OBJECT.TLE.PASS.MAX_RATE", "OBJECT.TLE.PASS.MAX_ALT")
+        assert feasible == 1 and start <= now + 5.0 and duration > 100.0, (start - now, duration)
+        assert 0.5 < rate < 2.0 and 40.0 < alt < 80.0, (rate, alt)
+        assert -270.0 <= await c.num("OBJECT.TLE.PASS.AZ_START") <= 270.0
+        assert complete(await pyobs_set(c, "POINTING.TRACK", 1))
+        await c.wait("TELESCOPE.MOTION_STATE", lambda v: v == 11)
+        await c.wait("CURRENT.TARGETDISTANCE", lambda v: v < ARCSEC)
+        sat = SatelliteTarget(line1=l1, line2=l2)
+        utc, az, zd = await c.nums("POSITION.LOCAL.UTC", "POSITION.HORIZONTAL.AZ", "POSITION.HORIZONTAL.ZD")
+        sky = sat.sky(p.astrometry(), [utc])
+        off = sky_separation(az / 15.0, 90.0 - zd, float(sky.az[0]) / 15.0, 90.0 - float(sky.zd[0]))
+        assert off < 0.05, off        # encoders a cycle and a GET old at ~1°/s
+        assert await c.num("CURRENT.TRACK") == 1
+        await pyobs_set(c, "POINTING.TRACK", 0)
+        await c.wait("TELESCOPE.MOTION_STATE", lambda v: v == 0)
+    finally:
+        await c.close()
+
+
+async def test_opentsi_rates_and_a_solar_system_body(live):
+    """OBJECT.EQUATORIAL.RA_RATE (on the sky, RA·cos Dec) and DEC_RATE become POINTING.TARGET.
+    RA_V / DEC_V (arcsec of RA, of Dec per second) at TRACK=1, RA_RATE_TIME reads the same rate
+    in seconds of time; then a body that is up (the Moon or a planet) is tracked on its
+    apparent topocentric place within 1″."""
+    from tcs.pointing.targets import SOLARSYSTEM_INDEX, BodyTarget
+    c, o = await tsi(live), await tci(live)
+    try:
+        await ready(c)
+        ra, dec = star_near(live, 200.0, 60.0, ahead=5.0)
+        assert complete(await c.set(f"OBJECT.EQUATORIAL.RA={ra!r};OBJECT.EQUATORIAL.DEC={dec!r};"
+                                    "OBJECT.EQUATORIAL.RA_RATE=15;OBJECT.EQUATORIAL.DEC_RATE=20"))
+        cosd = math.cos(math.radians(dec))
+        assert abs(await c.num("OBJECT.EQUATORIAL.RA_RATE_TIME") - 1.0 / cosd) < 1e-6
+        assert complete(await pyobs_set(c, "POINTING.TRACK", 1))
+        ra_v, dec_v = await o.nums("POINTING.TARGET.RA_V", "POINTING.TARGET.DEC_V")
+        assert abs(ra_v - 15.0 / cosd) < 1e-6 and dec_v == 20.0, (ra_v, dec_v)
+        await c.wait("TELESCOPE.MOTION_STATE", lambda v: v == 11)
+        await c.wait("CURRENT.TARGETDISTANCE", lambda v: v < ARCSEC)
+        t0, d0 = await o.nums("LOCAL.UTC", "POINTING.CURRENT.DEC")
+        await asyncio.sleep(3.0)
+        await c.wait("CURRENT.TARGETDISTANCE", lambda v: v < ARCSEC)
+        t1, d1 = await o.nums("LOCAL.UTC", "POINTING.CURRENT.DEC")
+        assert abs((d1 - d0) * 3600.0 / (t1 - t0) - 20.0) < 1.0
+        await c.set("OBJECT.EQUATORIAL.RA_RATE=0;OBJECT.EQUATORIAL.DEC_RATE=0")
+
+        p = live.telescope.pointing
+        ast = p.astrometry()
+        now = time.time() + 10.0
+        sun = BodyTarget("sun").observed(ast, [now])
+        up = []
+        for body in ("moon", *SOLARSYSTEM_INDEX[1:]):
+            obs = BodyTarget(body).observed(ast, [now])
+            elong = sky_separation(obs.az[0] / 15, 90 - obs.zd[0], sun.az[0] / 15, 90 - sun.zd[0])
+            if obs.zd[0] < 60.0 and elong > 45.0:
+                up.append(body)
+        if not up:
+            pytest.skip("neither the Moon nor a planet is up, away from the Sun, now")
+        body = up[0]
+        key = ("OBJECT.SOLARSYSTEM.MOON" if body == "moon" else "OBJECT.SOLARSYSTEM.OBJECT")
+        value = 1 if body == "moon" else SOLARSYSTEM_INDEX.index(body)
+        assert complete(await pyobs_set(c, key, value))
+        assert complete(await pyobs_set(c, "POINTING.TRACK", 1))
+        await c.wait("TELESCOPE.MOTION_STATE", lambda v: v == 11)
+        await c.wait("CURRENT.TARGETDISTANCE", lambda v: v < ARCSEC)
+        utc, az, zd = await c.nums("POSITION.LOCAL.UTC", "POSITION.HORIZONTAL.AZ", "POSITION.HORIZONTAL.ZD")
+        place = BodyTarget(body).observed(ast, [utc])
+        off = sky_separation(az / 15.0, 90.0 - zd, float(place.az[0]) / 15.0, 90.0 - float(place.zd[0]))
+        assert off < 3.0 * ARCSEC, (body, off * 3600)   # sidereal rate × a cycle and a GET
+        await pyobs_set(c, "POINTING.TRACK", 0)
+        await c.wait("TELESCOPE.MOTION_STATE", lambda v: v == 0)
+        await pyobs_set(c, "OBJECT.SOLARSYSTEM.MOON", 0)
+    finally:
+        await c.close()
+        await o.close()
+
+
+async def test_opentsi_satellite_not_yet_risen_is_waited_for(live):
+    """A pass that rises in a few seconds: TRACK=1 completes at once (the axes go to where the
+    path starts and wait), MOTION_STATE is not 11 before the rise; after it the axes follow
+    the satellite on target."""
+    c = await tsi(live)
+    try:
+        await ready(c)
+        p = live.telescope.pointing
+        l1, l2 = _leo_tle(p.latitude, p.local.longitude, time.time() + 200.0)   # rises in ~12 s
+        assert complete(await c.set(f'OBJECT.TLE.LINE1="{l1}";OBJECT.TLE.LINE2="{l2}"'))
+        start = await c.num("OBJECT.TLE.PASS.START")
+        assert start > time.time() + 3.0, start - time.time()
+        assert complete(await pyobs_set(c, "POINTING.TRACK", 1))
+        while time.time() < start - 1.0:
+            assert int(await c.num("TELESCOPE.MOTION_STATE")) != 11     # nothing to be on yet
+            await asyncio.sleep(0.5)
+        await c.wait("TELESCOPE.MOTION_STATE", lambda v: v == 11)
+        await c.wait("CURRENT.TARGETDISTANCE", lambda v: v < ARCSEC)
+        assert time.time() >= start
+        await pyobs_set(c, "POINTING.TRACK", 0)
+        await c.wait("TELESCOPE.MOTION_STATE", lambda v: v == 0)
+    finally:
+        await c.close()

@@ -43,7 +43,14 @@ What maps to what
   (``Axis.move_toward``), and CURRSPEED is left as the operator set it.
 * ``SideOfPier``: pierEast (0) in the normal orientation, pierWest (1) in the reverse one.
 * ``RightAscensionRate``/``DeclinationRate``: POINTING.TARGET.RA_V/DEC_V (a differential
-  rate, from the next slew or tracking start on).
+  rate, from the next slew or tracking start on); only with ``TrackingRate`` sidereal
+  (InvalidOperation otherwise, as ITelescopeV4 asks).
+* ``TrackingRate``/``TrackingRates``: sidereal (0), lunar (1), solar (2). Lunar and solar are
+  not ASCOM's constants: RA_V/DEC_V are the real Moon's / Sun's topocentric motion against
+  the stars (DE421, :func:`tcs.pointing.targets.body_rates`, a 10-minute centred difference)
+  when tracking starts, at every slew and when the rate is chosen while tracking (then from
+  the place being tracked, without a jump); the place pointed at drifts with the body.
+  Choosing a rate resets RightAscensionRate/DeclinationRate to 0. King (3) is refused.
 
 Refusals: parked → InvalidWhileParked (0x408); outside the limits or below the horizon, or a
 value out of range → InvalidValue (0x401); axes not powered/referenced, an interlock, tracking
@@ -62,10 +69,12 @@ from tcs.alpaca.device import Device, axis_ready, need, utc_iso
 from tcs.alpaca.protocol import AlpacaRequest, AscomError, Code, not_implemented
 from tcs.pointing.orientation import to_normal
 from tcs.errors import RangeRefused
+from tcs.pointing.targets import body_rates
 
 SIDEREAL_DEG_S = 360.0 / 86164.0905   # degrees per SI second
 GUIDE_RATE = 0.5 * SIDEREAL_DEG_S
 SOLAR_TO_SIDEREAL = 1.00273790935
+RATE_BODIES = {0: None, 1: "moon", 2: "sun"}   # TrackingRate → body whose motion it follows
 TRACK_INSIDE_LIMITS = 2               # POINTING.TRACK mode: the orientation that stays inside
 ON_TARGET = 8
 SLEW_RULE = ("asynchronous: Slewing True right after until on target (a failure: the next Slewing read "
@@ -156,6 +165,7 @@ class TelescopeDevice(Device):
     def __init__(self, *args, **kw):
         super().__init__(*args, **kw)
         self._moving_axes: set = set()   # axes a MoveAxis sent towards a limit (speed to restore)
+        self._rate = 0                   # TrackingRate: 0 sidereal, 1 lunar, 2 solar
 
     # -- parts of the model ----------------------------------------------------------------------
     @property
@@ -389,31 +399,63 @@ class TelescopeDevice(Device):
         self._track(place.ra, place.dec, 3 if place.reverse else 1)
 
     def get_trackingrate(self, r) -> int:
-        return 0   # driveSidereal
+        return self._rate
 
     def put_trackingrate(self, r) -> None:
         rate = r.int("TrackingRate")
-        if rate != 0:
-            raise AscomError(Code.INVALID_VALUE, f"TrackingRate {rate}: only sidereal (0) is supported")
+        if rate not in RATE_BODIES:
+            raise AscomError(Code.INVALID_VALUE, f"TrackingRate {rate}: sidereal (0), lunar (1) "
+                                                 "and solar (2) are supported")
+        p = self.p
+        self._rate = rate
+        session = p._tracking()
+        here = session.plan.request.place(p.ut1()) if session is not None else None
+        p.target.set_ra_v(0.0)            # the offsets go; a body's rates come in _apply_rate
+        p.target.set_dec_v(0.0)
+        if here is not None and session.plan.request.target is None:
+            ra, dec = (float(x) for x in here)
+            p.target.set_ra(ra % 24.0)
+            p.target.set_dec(dec)
+            self._apply_rate()
+            p.set_track(p.track)          # re-planned from where it is, at the new rate
 
     def get_trackingrates(self, r) -> list[int]:
-        return [0]
+        return list(RATE_BODIES)
+
+    def _apply_rate(self) -> None:
+        """Lunar / solar: RA_V/DEC_V = the body's motion against the stars now."""
+        body = RATE_BODIES.get(self._rate)
+        if body is None:
+            return
+        p = self.p
+        ra_v, dec_v = body_rates(body, p.astrometry(), p.utc())
+        p.target.set_ra_v(ra_v)
+        p.target.set_dec_v(dec_v)
+
+    def _sidereal_only(self, what: str, value: float) -> None:
+        if self._rate != 0 and value != 0.0:
+            raise AscomError(Code.INVALID_OPERATION, f"{what}: an offset only applies to the "
+                                                     "sidereal TrackingRate")
 
     def get_rightascensionrate(self, r) -> float:
+        if self._rate != 0:
+            return 0.0
         # RA_V: arcsec of RA per SI second → seconds of RA per sidereal second
         return float(self.p.target.ra_v) / 15.0 * SOLAR_TO_SIDEREAL
 
     def put_rightascensionrate(self, r) -> None:
         value = r.float("RightAscensionRate")
+        self._sidereal_only("RightAscensionRate", value)
         if abs(value) > 1000.0:
             raise AscomError(Code.INVALID_VALUE, f"RightAscensionRate {value} is beyond ±1000 s/sidereal s")
         self.p.target.set_ra_v(value * 15.0 / SOLAR_TO_SIDEREAL)
 
     def get_declinationrate(self, r) -> float:
-        return float(self.p.target.dec_v)
+        return 0.0 if self._rate != 0 else float(self.p.target.dec_v)
 
     def put_declinationrate(self, r) -> None:
         value = r.float("DeclinationRate")
+        self._sidereal_only("DeclinationRate", value)
         if abs(value) > 15000.0:
             raise AscomError(Code.INVALID_VALUE, f"DeclinationRate {value} is beyond ±15000 arcsec/s")
         self.p.target.set_dec_v(value)
@@ -509,6 +551,7 @@ class TelescopeDevice(Device):
         self._end_moves()
         target.set_ra(ra)
         target.set_dec(dec)
+        self._apply_rate()
         try:
             result = p.set_track(mode)
         except Exception:

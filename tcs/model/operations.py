@@ -44,6 +44,7 @@ from tcs.errors import ErrorNumber, RangeRefused, TcsError, gather_all
 from tcs.model.health import ERROR, PANIC, ModuleHealth
 from tcs.model.events import current_cause
 from tcs.pointing.sky_object import SkyObject
+from tcs.pointing.targets import BodyTarget
 
 log = logging.getLogger(__name__)
 
@@ -109,6 +110,7 @@ class Operations(ModuleHealth):
         super().__init__("TELESCOPE", telescope.events, status_sink=telescope.cabinet.status_sink)
         self.telescope = telescope
         self.object = SkyObject(telescope.config.mount.type)
+        self.object.planner = self.pass_plan     # OBJECT.TLE.PASS.* of OpenTSI
         self.setup = TrackSetup()
         self._ready_demand = 0
         self._job: asyncio.Task | None = None
@@ -116,6 +118,8 @@ class Operations(ModuleHealth):
         self._closing = False
         self._parked = False          # parked by park() or READY=0 (at_park also checks positions)
         self._guiding_until = 0.0     # loop time a pulse_guide() ends
+        self._pass = None             # (key, PassPlan | None, UTC planned) of the TLE
+        self._satellite = None
 
     # -- parts of the model ----------------------------------------------------------------------
     @property
@@ -286,20 +290,49 @@ class Operations(ModuleHealth):
 
     def track_object(self):
         p = self._need_pointing()
+        obj = self.object
         try:
-            ra, dec = self.object.icrs(p.utc())
-            p.target.set_ra(ra)
-            p.target.set_dec(dec)
-            p.target.set_ra_v(0.0)        # OBJECT has no differential rates: none left over
-            p.target.set_dec_v(0.0)
+            target = None
+            if obj.kind == "body":
+                target = BodyTarget(obj.body)
+            elif obj.kind == "satellite":
+                plan = self.pass_plan()
+                if plan is None:
+                    raise TcsError(f"{obj.tle[2] or 'the satellite'} does not rise above "
+                                   f"{p.config.min_altitude:g}° in the next 24 h", ErrorNumber.SOFTLIMIT)
+                if not plan.feasible:
+                    raise TcsError(f"the pass cannot be followed: {plan.reason}", ErrorNumber.SOFTLIMIT)
+                target = self._satellite.planned(plan, p.ut1_utc)
+            else:
+                ra, dec = obj.icrs(p.utc())
+                ra_v, dec_v = obj.rates_v(dec)     # OBJECT's rates (0 unless written)
+                p.target.set_ra(ra)
+                p.target.set_dec(dec)
+                p.target.set_ra_v(ra_v)
+                p.target.set_dec_v(dec_v)
             result = p.set_track(self.setup.track_mode() | self._track_flags(),
-                                 pa=self.setup.derotator_offset)
+                                 pa=self.setup.derotator_offset, target=target)
         except TcsError as exc:
             self._failed("track", exc)
             raise
         if result is not None:
             result.add_done_callback(self._tracking_ended)
         return self._start("track", self._until_tracking(result))
+
+    def pass_plan(self, fresh: bool = False):
+        """The :class:`~tcs.pointing.targets.PassPlan` of the TLE's pass in progress or next
+        (None: none within 24 h); kept until that pass has set or the TLE changes."""
+        p = self._need_pointing()
+        key = (tuple(self.object.tle[:2]), p.zd_limit, p.mount)
+        now = p.utc()
+        cached = self._pass
+        if cached is not None and cached[0] == key and not fresh and (
+                cached[1] is None and now < cached[2] + 60.0 or cached[1] is not None and now < cached[1].set):
+            return cached[1]
+        self._satellite = self.object.satellite()
+        plan = p.plan_pass(self._satellite, now)
+        self._pass = (key, plan, now)
+        return plan
 
     async def _until_tracking(self, result) -> None:
         p = self.pointing

@@ -127,6 +127,34 @@ TELESCOPE = module(
 
 # ------------------------------------------------------------------------------ OBJECT
 
+_PASS_FIELDS = (
+    ("START", FLOAT, "rise", "UTC (Unix s) the pass rises above the altitude limit (now, if up)"),
+    ("END", FLOAT, "set", "UTC (Unix s) it sets below the limit"),
+    ("DURATION", FLOAT, "duration", "s"),
+    ("MAX_ALT", FLOAT, "max_altitude", "highest altitude, degrees"),
+    ("MAX_RATE", FLOAT, "max_rate", "fastest motion on the sky, deg/s"),
+    ("MAX_AZ_RATE", FLOAT, "max_az_rate", "fastest AZ of the planned path, deg/s"),
+    ("MAX_ZD_RATE", FLOAT, "max_zd_rate", "fastest ZD, deg/s"),
+    ("AZ_START", FLOAT, "az_start", "AZ axis position at the rise on the chosen cable-wrap turn"),
+    ("AZ_END", FLOAT, "az_end", "AZ axis position at the set"),
+    ("KEYHOLE", INT, "keyhole", "1: AZ cannot follow near the zenith and leads (best effort)"),
+    ("KEYHOLE_ERROR", FLOAT, "keyhole_error", "largest pointing error there, degrees"),
+    ("FEASIBLE", INT, "feasible", "1: the axes can follow the pass (within 90 % of their limits)"),
+    ("REASON", STRING, "reason", "why not, when FEASIBLE is 0"),
+)
+
+
+def _pass_field(obj, field: str):
+    planner = getattr(obj, "planner", None)
+    if planner is None or not (obj.tle[0] and obj.tle[1]):
+        return None                      # no TLE yet: NULL, as a pass that does not rise
+    plan = planner()
+    if plan is None:
+        return None
+    value = getattr(plan, field)
+    return int(value) if isinstance(value, bool) else value
+
+
 OBJECT = module(
     "OBJECT",
     module("EQUATORIAL",
@@ -140,7 +168,33 @@ OBJECT = module(
            var("RA_PM", FLOAT, get="ra_pm", set="set_ra_pm", info="proper motion RA·cos Dec, mas/yr"),
            var("DEC_PM", FLOAT, get="dec_pm", set="set_dec_pm", info="proper motion Dec, mas/yr"),
            var("NAME", STRING, get="name", set="set_name", info="name of the object"),
+           var("RA_RATE", FLOAT, get="ra_rate_sky", set="set_ra_rate", min=-36000.0, max=36000.0,
+               info="differential RA rate on the sky (RA·cos Dec), arcsec/s"),
+           var("RA_RATE_TIME", FLOAT, get="ra_rate_time", set="set_ra_rate_time", min=-2400.0, max=2400.0,
+               info="the same rate in seconds of time of RA per second (×15: arcsec of RA)"),
+           var("DEC_RATE", FLOAT, get="dec_rate", set="set_dec_rate", min=-36000.0, max=36000.0,
+               info="differential Dec rate, arcsec/s"),
            info="the target of POINTING.TRACK=1"),
+    module("SOLARSYSTEM",
+           var("OBJECT", INT, get="solarsystem_index", set="set_solarsystem_object", min=0, max=8,
+               info="body for POINTING.TRACK=1: 0 Sun, 1 Mercury, 2 Venus, 3 Mars, 4 Jupiter, "
+                    "5 Saturn, 6 Uranus, 7 Neptune, 8 Pluto (JPL DE421)"),
+           var("MOON", INT, get="moon", set="set_moon", min=0, max=1, info="1: POINTING.TRACK=1 tracks the Moon"),
+           var("NAME", STRING, get="solarsystem_name", set="set_solarsystem_name",
+               info="the body by name (sun, moon, mercury … pluto), whatever the index"),
+           info="solar-system targets (apparent, topocentric)"),
+    module("TLE",
+           var("LINE1", STRING, get=lambda o: o.tle[0], set=lambda o, v: o.set_tle(0, v),
+               info="line 1 of the two-line elements (quote it)"),
+           var("LINE2", STRING, get=lambda o: o.tle[1], set=lambda o, v: o.set_tle(1, v),
+               info="line 2 of the two-line elements"),
+           var("NAME", STRING, get=lambda o: o.tle[2], set=lambda o, v: o.set_tle(2, v),
+               info="name of the satellite"),
+           module("PASS",
+                  *(var(name, type_, get=lambda o, f=f: _pass_field(o, f), info=info)
+                    for name, type_, f, info in _PASS_FIELDS),
+                  info="the pass POINTING.TRACK=1 will follow, planned now (NULL: none in 24 h)"),
+           info="an Earth satellite (SGP4, topocentric)"),
     module("HORIZONTAL",
            var("AZ", FLOAT, get="az", set="set_az", min=-360.0, max=720.0,
                info="observed azimuth, degrees, north 0 east 90"),

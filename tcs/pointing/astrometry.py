@@ -333,6 +333,27 @@ class Astrometry:
             return Observed(*(float(v[0]) for v in values))
         return Observed(*(v.reshape(shape) for v in values))
 
+    def observed_apparent(self, ra_h, dec_deg, utc) -> Observed:
+        """Observed place of *apparent topocentric* directions in GCRS axes (RA hours, Dec
+        degrees): light time, deflection and aberration already applied (or, for an Earth
+        satellite, deliberately not) by the caller (:mod:`tcs.pointing.targets`). Only the
+        bias-precession-nutation, the Earth's rotation and refraction are applied here
+        (``bpn`` of the context, then ``atioq``); arrays like :meth:`observed`."""
+        ra, dec, t = np.broadcast_arrays(np.asarray(ra_h, float), np.asarray(dec_deg, float),
+                                         np.asarray(utc, float))
+        shape, scalar = ra.shape, ra.ndim == 0
+        astrom, eo = self._contexts(t.ravel())
+        v = erfa.s2c(ra.ravel() * (math.pi / 12.0), dec.ravel() * _D2R)
+        ri, di = erfa.c2s(erfa.rxp(astrom["bpn"], v))
+        az, zd, ha, dob, _rob = erfa.atioq(ri, di, astrom)
+        pa = erfa.hd2pa(ha, dob, self._site.latitude * _D2R)
+        lst = np.mod(astrom["eral"] - eo, 2.0 * math.pi) * _R2H
+        values = (np.mod(az * _R2D, 360.0), zd * _R2D, _wrap_hours(ha * _R2H), dob * _R2D,
+                  pa * _R2D, lst)
+        if scalar:
+            return Observed(*(float(v[0]) for v in values))
+        return Observed(*(v.reshape(shape) for v in values))
+
     def sidereal_time(self, utc):
         """Local apparent sidereal time, hours 0…24, for Unix seconds ``utc``."""
         t = np.asarray(utc, float)

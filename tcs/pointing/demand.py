@@ -144,7 +144,11 @@ class Pipeline:
     def demand(self, ra_h: float, dec_deg: float, utc, reverse: bool = False) -> Demand:
         """The target's ideal position and the axis demand at the UTC times ``utc`` (array)."""
         utc = np.atleast_1d(np.asarray(utc, float))
-        obs = self.astrometry.observed(ra_h, dec_deg, utc)
+        return self.demand_observed(self.astrometry.observed(ra_h, dec_deg, utc), reverse)
+
+    def demand_observed(self, obs: Observed, reverse: bool = False) -> Demand:
+        """As :meth:`demand` for an observed place already computed (any kind of target,
+        :mod:`tcs.pointing.targets`)."""
         i1, i2 = self.ideal(obs)
         if reverse:
             i1, i2 = to_reverse(i1, i2, self.mount)

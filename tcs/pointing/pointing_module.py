@@ -385,19 +385,30 @@ class Pointing(ModuleHealth):
         s = self._tracking()
         return s.value if s is not None else 0
 
-    def set_track(self, value: int, pa: float = 0.0):
+    def set_track(self, value: int, pa: float = 0.0, target=None):
         """``TRACK``: from 0 an awaitable ending with the tracking; while tracking, at once.
-        ``pa``: position angle on the sky added to the derotator's field angle (flag 256)."""
+        ``pa``: position angle on the sky added to the derotator's field angle (flag 256).
+        ``target``: a moving or fixed target of :mod:`tcs.pointing.targets` (OpenTSI's
+        Moon, planets, TLEs) instead of TARGET and its rates; TARGET.RA/DEC then show its
+        place now."""
         mode, flags = parse_track(value)
         session = self._tracking()
         if mode == 0:
             if session is not None:
                 session.stop(None)
             return None
+        if target is not None:
+            start = getattr(target, "start", None)
+            ra, dec = target.radec(self.astrometry(), max(self.utc(), (start or 0.0) - self.ut1_utc))
+            self.target.set_ra(ra % 24.0)
+            self.target.set_dec(dec)
+            self.target.set_ra_v(0.0)
+            self.target.set_dec_v(0.0)
         if not self.target.complete:
             raise TcsError("no target: set TARGET.RA and TARGET.DEC first", ErrorNumber.INVMODE)
         request = TrackRequest(self.target.ra, self.target.dec, mode, flags, float(pa),
-                               self.target.ra_v / 3600.0, self.target.dec_v / 3600.0, self.ut1())
+                               self.target.ra_v / 3600.0, self.target.dec_v / 3600.0, self.ut1(),
+                               target)
         plan = self._plan(request)
         if session is not None:
             session.retarget(plan, current_cause.get())
@@ -407,6 +418,23 @@ class Pointing(ModuleHealth):
         previous = self._session.task if self._session is not None else None
         self._session = TrackSession(self, plan, result, current_cause.get(), after=previous)
         return result
+
+    def plan_pass(self, satellite, utc: float | None = None):
+        """Plan the satellite's pass in progress or next (:meth:`SatelliteTarget.plan`): AZ's
+        range and limits decide the cable-wrap turn and the keyhole bridge (AZ-ZD mounts; on
+        an equatorial mount the plan gives the times and rates only)."""
+        a1, a2 = self.axis1, self.axis2
+        s1, s2 = a1.section, a2.section
+        if self.mount == "AZ-ZD":
+            rng = (s1.min - a1.offset, s1.max - a1.offset)
+            lim1 = (s1.max_velocity, s1.max_acceleration, s1.max_jerk)
+            lim2 = (s2.max_velocity, s2.max_acceleration, s2.max_jerk)
+        else:
+            rng, lim1, lim2 = (-1e9, 1e9), (1e9, 1e9, 1e9), (1e9, 1e9, 1e9)
+        return satellite.plan(self.astrometry(), zd_limit=self.zd_limit,
+                              utc=self.utc() if utc is None else utc, az_range=rng,
+                              az_limits=lim1, zd_limits=lim2,
+                              az_current=a1.real_position - a1.offset)
 
     def _plan(self, request: TrackRequest, keep_reverse: bool | None = None) -> Plan:
         derotator = port = None

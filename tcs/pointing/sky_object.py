@@ -14,6 +14,15 @@ Conventions (the README's "OpenTSI" section says why):
 * ``EPOCH`` is the epoch of the position for proper motion, in years; unset, it is the equinox.
 * ``RA_PM`` (RA·cos Dec) and ``DEC_PM`` are in milliarcseconds per year, applied linearly from
   ``EPOCH`` to the time of the track.
+* ``RA_RATE`` / ``DEC_RATE`` are differential rates in arcsec per second: RA_RATE on the sky
+  (RA·cos Dec, as ephemeris services give "dRA*cosD"), ``RA_RATE_TIME`` the same rate in the
+  other convention clients use, seconds of time of RA per second (×15 = arcsec of RA). The
+  last one written counts; both read back converted at the target's Dec. At TRACK they become
+  POINTING.TARGET.RA_V (arcsec of RA, not × cos Dec) and DEC_V (:func:`tcs.pointing.targets.ra_rate_to_ra_v`).
+* Moving targets: ``SOLARSYSTEM.OBJECT`` (index of :data:`tcs.pointing.targets.SOLARSYSTEM_INDEX`:
+  0 Sun, 1 Mercury … 7 Neptune, 8 Pluto), ``SOLARSYSTEM.MOON`` = 1, or a TLE (``TLE.LINE1``,
+  ``LINE2``, ``NAME``). ``kind`` says what TRACK=1 follows: the kind written last
+  (equatorial RA/DEC, a body, a TLE line).
 * Horizontal positions are observed (refracted) azimuth (north 0, east 90) and altitude;
   an instrumental goto target is in the main axes' own frame (their TARGETPOS). A goto uses
   the kind written last.
@@ -52,6 +61,16 @@ class SkyObject:
         self.instrumental: list[float | None] = [None, None]
         #: which of the two the next goto uses: the one written last
         self.goto_frame = "horizontal"
+        #: differential rates: RA in arcsec/s of RA·cos Dec ("sky") or s of time/s ("time")
+        self.ra_rate = 0.0
+        self.ra_rate_convention = "sky"
+        self.dec_rate = 0.0
+        #: what TRACK=1 follows: "equatorial", "body" or "satellite" (the kind written last)
+        self.kind = "equatorial"
+        self.body = ""
+        self.solarsystem_index: int | None = None
+        self.moon = 0
+        self.tle = ["", "", ""]       # LINE1, LINE2, NAME
 
     # -- equatorial --------------------------------------------------------------------------
     @property
@@ -68,12 +87,14 @@ class SkyObject:
         if not 0.0 <= value < 24.0:
             raise RangeRefused(f"RA {value} h is outside 0 <= RA < 24")
         self.ra = value
+        self.kind = "equatorial"
 
     def set_dec(self, value: float) -> None:
         value = float(value)
         if not -90.0 <= value <= 90.0:
             raise RangeRefused(f"Dec {value}° is outside -90…90")
         self.dec = value
+        self.kind = "equatorial"
 
     def set_equinox(self, value: float) -> None:
         self.equinox = _years(value, "EQUINOX")
@@ -89,6 +110,89 @@ class SkyObject:
 
     def set_name(self, value: str) -> None:
         self.name = str(value)
+
+    # -- rates -------------------------------------------------------------------------------
+    def _cos_dec(self) -> float:
+        return max(math.cos(math.radians(self.dec_value)), 1e-6)
+
+    @property
+    def ra_rate_sky(self) -> float:
+        """RA rate, arcsec of RA·cos Dec per second."""
+        if self.ra_rate_convention == "sky":
+            return self.ra_rate
+        return self.ra_rate * 15.0 * self._cos_dec()
+
+    @property
+    def ra_rate_time(self) -> float:
+        """RA rate, seconds of time of RA per second."""
+        if self.ra_rate_convention == "time":
+            return self.ra_rate
+        return self.ra_rate / self._cos_dec() / 15.0
+
+    def set_ra_rate(self, value: float) -> None:
+        self.ra_rate, self.ra_rate_convention = _finite(value, "RA_RATE"), "sky"
+
+    def set_ra_rate_time(self, value: float) -> None:
+        self.ra_rate, self.ra_rate_convention = _finite(value, "RA_RATE_TIME"), "time"
+
+    def set_dec_rate(self, value: float) -> None:
+        self.dec_rate = _finite(value, "DEC_RATE")
+
+    def rates_v(self, dec_deg: float) -> tuple[float, float]:
+        """(RA_V, DEC_V) of POINTING.TARGET: arcsec of RA and of Dec per second at ``dec_deg``."""
+        from tcs.pointing.targets import ra_rate_to_ra_v
+        return ra_rate_to_ra_v(self.ra_rate, dec_deg, self.ra_rate_convention), self.dec_rate
+
+    # -- solar system and satellites -------------------------------------------------------------
+    def set_solarsystem_object(self, value: int) -> None:
+        from tcs.pointing.targets import SOLARSYSTEM_INDEX
+        index = int(value)
+        if not 0 <= index < len(SOLARSYSTEM_INDEX):
+            raise RangeRefused(f"SOLARSYSTEM.OBJECT {index}: 0 Sun, 1 Mercury … 7 Neptune, 8 Pluto")
+        self.solarsystem_index = index
+        self.body, self.kind, self.moon = SOLARSYSTEM_INDEX[index], "body", 0
+
+    def set_solarsystem_name(self, value: str) -> None:
+        """The body by name (sun, moon, mercury … pluto): unambiguous, whatever the index."""
+        from tcs.pointing.targets import BODIES, SOLARSYSTEM_INDEX
+        name = str(value).strip().strip('"').lower()
+        if name not in BODIES:
+            raise RangeRefused(f"SOLARSYSTEM.NAME {value!r}: one of {', '.join(BODIES)}")
+        if name == "moon":
+            self.set_moon(1)
+            return
+        self.set_solarsystem_object(SOLARSYSTEM_INDEX.index(name))
+
+    @property
+    def solarsystem_name(self) -> str:
+        return self.body if self.kind == "body" else ""
+
+    def set_moon(self, value: int) -> None:
+        value = int(value)
+        if value not in (0, 1):
+            raise RangeRefused(f"SOLARSYSTEM.MOON {value}: 1 tracks the Moon, 0 does not")
+        self.moon = value
+        if value:
+            self.body, self.kind = "moon", "body"
+        elif self.kind == "body" and self.body == "moon":
+            self.kind = "equatorial"
+
+    def set_tle(self, index: int, value: str) -> None:
+        """TLE line 1 (index 0), line 2 (1) or the name (2); a line must look like one."""
+        value = str(value).strip().strip('"')
+        if index < 2:
+            if value[:2] != f"{index + 1} " or len(value) < 60:
+                raise RangeRefused(f"TLE.LINE{index + 1} must be the element set's line {index + 1} "
+                                   f"(69 characters starting with '{index + 1} ')")
+            self.kind = "satellite"
+        self.tle[index] = value
+
+    def satellite(self):
+        """The TLE as a :class:`~tcs.pointing.targets.SatelliteTarget` (RANGE if it is not one)."""
+        from tcs.pointing.targets import SatelliteTarget
+        if not (self.tle[0] and self.tle[1]):
+            raise RangeRefused("no satellite: write OBJECT.TLE.LINE1 and LINE2 first")
+        return SatelliteTarget(line1=self.tle[0], line2=self.tle[1], name=self.tle[2])
 
     @property
     def equatorial_complete(self) -> bool:
@@ -147,6 +251,13 @@ def precess_from_j2000(ra_h: float, dec_deg: float, equinox: float) -> tuple[flo
     v = erfa.rxp(erfa.pmat06(d1, d2), erfa.s2c(math.radians(ra_h * 15.0), math.radians(dec_deg)))
     ra, dec = erfa.c2s(v)
     return float(erfa.anp(ra)) * 12.0 / math.pi, math.degrees(float(dec))
+
+
+def _finite(value: float, what: str) -> float:
+    value = float(value)
+    if not math.isfinite(value) or abs(value) > 36000.0:
+        raise RangeRefused(f"{what} {value} is not a rate (arcsec/s, at most 10°/s)")
+    return value
 
 
 def _years(value: float, what: str) -> float:

@@ -46,6 +46,13 @@ the moving path with ruckig and then follows it, checking speed, acceleration an
    ABORT_ON_DISCONNECT) ends only the wait, as for the axes' long SETs: tracking goes on
    until TRACK=0 or STOP, and its end is still announced by the events.
 
+The target: POINTING.TARGET (ICRS J2000 with the RA_V/DEC_V rates), or any target of
+:mod:`tcs.pointing.targets` given by a front end (``TrackRequest.target``: the Sun, the Moon,
+a planet, a planned satellite pass, a fixed alt/az): its observed path goes through the same
+pointing model, checks and queues. A satellite pass starts at its rise (the axes wait on the
+extrapolated start), uses its own point spacing (0.5 s), is planned over the whole pass
+densely (the cable-wrap turn), and its setting ends tracking as asked (1015), not as an error.
+
 A new TARGET or a new TRACK value while tracking re-plans at once (the SET returns
 immediately); so do a new pointing model and new refraction settings (same orientation).
 Re-planning is ``RUN=0`` and a new ``RUN=1`` on each axis: the follower intercepts the new
@@ -105,6 +112,20 @@ class TrackRequest:
     ra_rate: float = 0.0     # differential rates, degrees of RA / Dec per second (RA_V, DEC_V)
     dec_rate: float = 0.0
     epoch: float = 0.0       # UT1 where the target is at (ra, dec)
+    #: any other kind of target (tcs.pointing.targets: Sun, Moon, planet, satellite pass,
+    #: fixed alt/az); ra/dec are then only its place for display. None: ra/dec and the rates
+    target: Any = None
+
+    def observed(self, astrometry, ut1, ut1_utc: float):
+        """The observed place to follow at the UT1 times ``ut1`` (array)."""
+        if self.target is not None:
+            return self.target.observed(astrometry, np.asarray(ut1, float) - ut1_utc)
+        return astrometry.observed(*self.place(ut1), np.asarray(ut1, float) - ut1_utc)
+
+    @property
+    def start(self) -> float | None:
+        """UT1 where the target's path begins (a satellite pass), None: now."""
+        return getattr(self.target, "start", None)
 
     def place(self, ut1):
         """(RA hours, Dec degrees) at the UT1 times ``ut1`` (the rates applied)."""
@@ -201,9 +222,15 @@ def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derot
     for axis in (axis1, axis2, derotator):
         if axis is not None:
             _ready(axis, "track")
-    step = min(_COARSE_STEP, plan_horizon / 4)
-    times = ut1 + np.arange(0.0, plan_horizon + step / 2, step)
-    obs = pipeline.astrometry.observed(*request.place(times), times - ut1_utc)
+    first = ut1 if request.start is None else max(ut1, request.start)
+    end = getattr(request.target, "end", None)
+    if end is not None:          # a satellite pass: the whole pass, densely (the cable wrap)
+        plan_horizon = max(end - first, 2.0)
+        step = max(min(1.0, plan_horizon / 4), plan_horizon / 4000)
+    else:
+        step = min(_COARSE_STEP, plan_horizon / 4)
+    times = first + np.arange(0.0, plan_horizon + step / 2, step)
+    obs = request.observed(pipeline.astrometry, times, ut1_utc)
     if obs.zd[0] > zd_limit:
         raise TcsError(f"target is {90.0 - obs.zd[0]:.2f}° above the horizon, below the "
                        f"altitude limit {90.0 - zd_limit:g}°", ErrorNumber.SOFTLIMIT)
@@ -426,7 +453,7 @@ class TrackSession:
         lanes = [Lane(lane.axis, lane.role, lane.port, lane.start) for lane in plan.lanes]
         points = self._points(plan, lanes, owner.ut1(), first=True)
         if points.times.size < 2:
-            raise self._planned_end()
+            raise self._planned_end() or TcsError("the pass is over", ErrorNumber.SOFTLIMIT)
         now = owner.ut1()
         for lane in lanes:
             lane.axis.queue.add_points(points.times, points.values[lane.role], now)
@@ -442,6 +469,8 @@ class TrackSession:
         await self._taken(lanes)
         self._check_zenith(points)
         ra_text = f"RA {plan.request.ra:.6f} h, Dec {plan.request.dec:+.5f}°"
+        if plan.request.target is not None:
+            ra_text = f"{plan.request.target.describe()} ({ra_text} now)"
         owner.emit(INFO, TRACKING,
                    f"tracking {ra_text}, {'reverse' if plan.reverse else 'normal'} orientation"
                    + (f", {lanes[2].axis.module_name} follows the field" if len(lanes) > 2 else ""),
@@ -462,12 +491,15 @@ class TrackSession:
         """Points from the grid time after the last queued one (or just before ``now``) to
         ``horizon`` ahead, cut before the first one that breaks a limit."""
         cfg = self.owner.config
-        dt = cfg.sample_spacing
+        req = plan.request
+        dt = getattr(req.target, "spacing", None) or cfg.sample_spacing
         if first or self._last_t is None:
             t0 = math.floor(now / dt) * dt
+            if req.start is not None and req.start > t0:      # a pass that rises later
+                t0 = math.ceil(req.start / dt) * dt
         else:
             t0 = self._last_t + dt
-        t1 = now + cfg.horizon
+        t1 = max(now, t0) + cfg.horizon
         capacity = min(lane.axis.queue.capacity for lane in lanes)
         n = int(math.floor((t1 - t0) / dt + 1e-9)) + 1
         n = max(0, min(n, capacity - 4 - (0 if first else len(lanes[0].axis.queue))))
@@ -480,8 +512,7 @@ class TrackSession:
                 out.values[lane.role] = np.zeros(0)
             return out
         pipe = self.owner.pipeline()
-        req = plan.request
-        d = pipe.demand(*req.place(times), times - self.owner.ut1_utc, plan.reverse)
+        d = pipe.demand_observed(req.observed(pipe.astrometry, times, self.owner.ut1_utc), plan.reverse)
         ok = d.zd <= self.owner.zd_limit
         reason = np.where(ok, "", "set")
         for lane in lanes:
@@ -531,7 +562,9 @@ class TrackSession:
         self._check_zenith(points)
 
     # -- endings --------------------------------------------------------------------------------
-    def _planned_end(self) -> TcsError:
+    def _planned_end(self) -> TcsError | None:
+        if self._end_reason == "set" and getattr(self.plan.request.target, "ends_normally", False):
+            return None          # a satellite pass that set as planned: tracking ended as asked
         if self._end_reason.startswith("limit:"):
             name = self._end_reason.split(":", 1)[1]
             return TcsError(f"{name} would leave its software limits", ErrorNumber.SOFTLIMIT)
@@ -565,7 +598,9 @@ class TrackSession:
         if dome is None or (self._dome_move is not None and not self._dome_move.done()):
             return
         req = self.plan.request
-        az = float(self.owner.pipeline().astrometry.observed(*req.place(now), now - self.owner.ut1_utc).az)
+        if req.start is not None and now < req.start:
+            now = req.start
+        az = float(np.atleast_1d(req.observed(self.owner.pipeline().astrometry, now, self.owner.ut1_utc).az)[0])
         if abs(math.remainder(dome.current_position - az, 360.0)) <= self.owner.dome_deviation:
             return
         try:
