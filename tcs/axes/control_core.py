@@ -52,7 +52,7 @@ log = logging.getLogger("tcs.control")
 #: Readbacks sent per axis, in this order (``ControlProcess`` applies them by name).
 READBACKS = ("power_state", "referenced", "real_position", "current_speed", "current_acc",
              "current_jerk", "motion_state", "limit_state", "target_position", "offset",
-             "measured_ut1")
+             "measured_ut1", "sample")
 
 
 def drive_tuple(st) -> tuple | None:
