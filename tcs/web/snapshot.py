@@ -278,4 +278,4 @@ def _horizon(tel) -> list[list[float]] | None:
     if tel.pointing is None:
         return None
     alt = float(tel.config.pointing.min_altitude)
-    return [[float(az), alt] for az in range(0, 361, 30)]
+    return [[float(az), alt] for az in range(0, 361, 10)]

@@ -85,7 +85,7 @@ function axes(snap) {
     const unit = a.unit === "deg" ? "°" : (a.unit === "mm" ? " mm" : "");
     let state = a.fresh ? a.motion : "stale";
     if (a.power === 0) state = "off";
-    if (a.referenced !== null && a.referenced < 1 && a.fresh) state += ", not referenced";
+    if (a.referenced !== null && a.referenced < 1 && a.fresh) state += ", unreferenced";
     const cls = a.fault ? "bad" : (!a.fresh ? "unknown" : (a.motion_state & 1 ? "warn" : "ok"));
     const tr = row(tbody, a.name, [
       a.name,
