@@ -326,3 +326,25 @@ async def test_page_in_a_real_browser_shows_an_axis_move(live, tmp_path):
     finally:
         await c.close()
         stop_browser(proc)
+
+
+def test_grafana_dashboard_uses_only_served_metrics():
+    """Every metric a panel of tools/grafana/tcs-dashboard.json queries is one /metrics serves
+    (tcs/web/metrics.py names it), and the committed JSON is what its generator writes."""
+    import re
+    import subprocess
+    import sys
+    root = Path(__file__).resolve().parent.parent
+    board = root / "tools" / "grafana" / "tcs-dashboard.json"
+    text = board.read_text()
+    served = (root / "tcs" / "web" / "metrics.py").read_text()
+    used = set(re.findall(r"\btcs_[a-z0-9_]+", text)) - {"tcs_build_info"}
+    assert used
+    for name in used:
+        base = re.sub(r"_(total|bucket|count|sum)$", "", name)
+        assert f'"{base}"' in served, name
+    proc = subprocess.run([sys.executable, "-c", "import json, runpy; d = runpy.run_path("
+                           "'tools/grafana/make_dashboard.py')['dashboard']; print(json.dumps(d, indent=1))"],
+                          cwd=root, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout) == json.loads(text)
