@@ -180,6 +180,33 @@ async def test_samples_carry_demand_and_actual_while_moving(live):
         await c.close()
 
 
+async def test_tracking_shows_in_status_and_metrics(live):
+    """While POINTING tracks a star, /status.json and /metrics say so with the tracking error
+    and the target distance POINTING reads (compared loosely: they are read at other moments)."""
+    c = await Client.connect(live.port)
+    try:
+        await ready(c, "AZ", "ZD")
+        ra, dec = await c.nums("POINTING.CURRENT.RA", "POINTING.CURRENT.DEC")
+        await c.set(f"POINTING.TARGET.RA={ra!r};POINTING.TARGET.DEC={dec!r}")
+        cmd = await c.start("POINTING.TRACK=1")
+        await c.wait("POINTING.TARGETDISTANCE", lambda v: 0 < v < 0.01, WAIT)
+        await asyncio.sleep(live.service.web_server.interval * 2)
+        snap, m = await status(live), await metrics(live)
+        track, distance = await c.nums("POINTING.TRACK", "POINTING.TARGETDISTANCE")
+        t = snap["tracking"]
+        assert t["tracking"] and t["track"] == track == 1
+        assert t["distance_arcsec"] is not None and t["distance_arcsec"] < 36.0
+        assert m[("tcs_tracking_active", ())] == 1.0
+        assert m[("tcs_tracking_error_arcsec", ())] < 36.0 and distance * 3600 < 36.0
+        assert m[("tcs_tracking_target_distance_degrees", ())] < 0.01
+        assert t["target"]["alt"] is not None and t["current"]["alt"] == pytest.approx(t["target"]["alt"], abs=0.1)
+        await c.set("POINTING.TRACK=0")
+        await c.until(cmd, WAIT)
+        await at_rest(c, "AZ", "ZD")
+    finally:
+        await c.close()
+
+
 async def test_unknown_paths_404_and_nothing_writable(live):
     for path in ("/nope", "/metrics/x", "/static/style.css", "/index.html.bak", "/api/v1/telescope/0/park",
                  "/%2e%2e/etc/passwd", "/status.json/"):

@@ -17,12 +17,16 @@ snapshot's ``sync`` is the newest of them, so a consumer can tell which control 
 
 from __future__ import annotations
 
+import logging
 import math
 import platform
 import time
 from typing import Any
 
 import tcs
+from tcs.errors import TcsError
+
+log = logging.getLogger(__name__)
 
 #: Modules whose positions are angles in degrees (their following error is shown in arcsec).
 ANGULAR = frozenset({"AZ", "ZD", "HA", "DEC", "DEROTATOR", "DOME"})
@@ -40,10 +44,22 @@ def _num(value) -> float | None:
     return v if math.isfinite(v) else None
 
 
+_reported: set = set()
+
+
 def _safe(fn, default=None):
+    """``fn()``, or ``default`` when it raises: a TcsError is the model saying the value is
+    unknown now (a stale drive, a lost PLC); anything else is a bug here, logged once per place."""
     try:
         return fn()
+    except TcsError:
+        return default
     except Exception:
+        where = getattr(fn, "__code__", None)
+        key = (where.co_filename, where.co_firstlineno) if where is not None else repr(fn)
+        if key not in _reported:
+            _reported.add(key)
+            log.exception("status snapshot: a value could not be read (reported once)")
         return default
 
 
@@ -215,8 +231,8 @@ def _tracking(tel) -> dict[str, Any] | None:
     p = tel.pointing
     if p is None:
         return None
-    track = int(_safe(lambda: p.track(), 0) or 0)
-    distance = _num(_safe(p.targetdistance)) if track else None
+    track = int(_safe(lambda: p.track, 0) or 0)
+    distance = _num(_safe(lambda: p.targetdistance)) if track else None
     target = _safe(lambda: p.target)
     current = _safe(lambda: p.current)
     out = {"mount": p.mount, "track": track, "tracking": bool(track),
