@@ -71,7 +71,7 @@ function followBar(axis) {
   const left = e >= 0 ? 50 : 50 - w;
   const cls = Math.abs(e) > scale ? "bad" : (Math.abs(e) > 1 ? "warn" : "");
   return {
-    text: "", cls: "",
+    text: "", cls: "fe",
     html: `<span class="bar ${cls}"><span style="left:${left}%;width:${Math.max(w, 0.5)}%"></span></span>` +
           `<span class="mono">${e.toFixed(2)}″</span>`,
   };
