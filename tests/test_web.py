@@ -118,6 +118,8 @@ async def test_metrics_parse_and_match_tpl2(live):
     assert m[("tcs_frontend_connections", (("front_end", "opentci"),))] >= 0
     assert ("tcs_tracking_active", ()) in m and ("tcs_tracking_on_target", ()) in m
     assert ("tcs_gps_position_fix", ()) in m
+    assert m[("tcs_can_bus_state", (("state", "ok"),))] == 1.0  # (from the control process)
+    assert m[("tcs_can_error_frames_total", ())] == 0
     assert ("tcs_weather_interlock_active", ()) in m
 
 

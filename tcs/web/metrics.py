@@ -25,6 +25,8 @@ from prometheus_client.core import (CounterMetricFamily, GaugeMetricFamily, Hist
 from tcs.axes.control_loop import HISTOGRAM_BOUNDS
 
 CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
+#: The CAN controller states of :class:`tcs.drivers.canbus.BusHealth`.
+BUS_STATES = ("ok", "warning", "passive", "bus-off", "failed")
 
 
 class Counters:
@@ -84,6 +86,7 @@ class SnapshotCollector:
         yield from self._cabinet(snap)
         yield from self._axes(snap)
         yield from self._loop(snap)
+        yield from self._can(snap)
         yield from self._tracking(snap)
         yield from self._enclosure(snap)
         yield from self._links(snap)
@@ -212,6 +215,23 @@ class SnapshotCollector:
                                loop["loop_time_hist"])):
             if fam is not None:
                 yield fam
+
+    @staticmethod
+    def _can(snap):
+        bus = snap.get("can")
+        if not bus:
+            return
+        g = _gauge("tcs_can_bus_state", "1 for the CAN controller's present state", ["state"])
+        for state in BUS_STATES:
+            g.add_metric([state], 1.0 if bus["state"] == state else 0.0)
+        yield g
+        for key, name, doc in (("error_frames", "tcs_can_error_frames", "CAN error frames received"),
+                               ("bus_off", "tcs_can_bus_off", "times the controller went bus-off"),
+                               ("send_failures", "tcs_can_send_failures", "frames that could not be sent"),
+                               ("receive_failures", "tcs_can_receive_failures", "receive errors of the bus")):
+            c = CounterMetricFamily(name, doc)
+            c.add_metric([], bus[key])
+            yield c
 
     @staticmethod
     def _tracking(snap):

@@ -192,6 +192,11 @@ def take(service) -> dict[str, Any]:
         "max_lateness": _num(stats.get("max_lateness")), "realtime": stats.get("realtime"),
         "loop_time_hist": stats.get("loop_time_hist"), "lateness_hist": stats.get("lateness_hist"),
     }
+    bus = stats.get("bus")
+    if bus is None and tel.can is not None and hasattr(tel.can, "bus"):  # (the loop in this process)
+        from tcs.axes.control_core import bus_figures
+        bus = _safe(lambda: bus_figures(tel.can))
+    snap["can"] = bus
     snap["tracking"] = _tracking(tel)
     per = tel.peripherals
     snap["dome"] = [plc_axis_snapshot(m) for m in (tel.dome or []) if m is not None]

@@ -100,6 +100,14 @@ series("Loop time and SYNC lateness (p50, p99 over 5 min)",
         (f"tcs_control_loop_sync_period_seconds{{{SEL}}}", "SYNC period")], 12, unit="s",
        desc="the time of one loop step and how late each SYNC went out; both well under the SYNC period")
 _y[0] += 8
+series("CAN bus errors (per minute)",
+       [(f"increase(tcs_can_error_frames_total{{{SEL}}}[1m])", "error frames"),
+        (f"increase(tcs_can_bus_off_total{{{SEL}}}[1m])", "bus-off"),
+        (f"increase(tcs_can_send_failures_total{{{SEL}}}[1m])", "send failures")], 0,
+       desc="error frames, bus-off events and failed sends of the drives' CAN bus; should stay 0")
+series("CAN controller state", [(f"tcs_can_bus_state{{{SEL}}} == 1", "{{state}}")], 12,
+       desc="the controller's state: ok, warning, passive, bus-off or failed")
+_y[0] += 8
 
 row("Dome, weather, links")
 series("Dome and covers", [(f"tcs_enclosure_position{{{SEL}}}", "{{module}}")], 0, w=8,
