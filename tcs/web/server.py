@@ -9,7 +9,8 @@ default; ``port = -1``: not started). Routes, all GET (HEAD too); anything else 
 * ``/`` — the status page (``tcs/web/static/index.html`` with ``style.css`` and ``app.js``:
   plain files shipped in the package, no build step, nothing fetched from elsewhere);
 * ``/events`` — server-sent events: one ``snapshot`` event per new snapshot (every
-  ``[web] interval`` s, 4 Hz by default) with the same JSON as ``/status.json``;
+  ``[web] interval`` s, 4 Hz by default) with the same JSON as ``/status.json``; at most
+  :data:`MAX_VIEWERS` at once (then ``503``);
 * ``/status.json`` — the newest snapshot (:func:`tcs.web.snapshot.take`);
 * ``/metrics`` — the same snapshot in the Prometheus text format (:mod:`tcs.web.metrics`).
 
@@ -40,6 +41,7 @@ STATIC = ("index.html", "style.css", "app.js")
 CONTENT_TYPES = {"html": "text/html", "css": "text/css", "js": "text/javascript"}
 IDLE_INTERVAL = 1.0      # s between snapshots while no page is open
 KEEPALIVE = 15.0         # s between SSE comments on an otherwise quiet stream
+MAX_VIEWERS = 32         # open event streams at most (each costs a connection, not a snapshot)
 
 
 def _static(name: str) -> bytes:
@@ -171,6 +173,9 @@ class WebServer:
                                                 "Cache-Control": "no-store"})
 
     async def _events(self, request: web.Request) -> web.StreamResponse:
+        if self._viewers >= MAX_VIEWERS:
+            return web.Response(status=503, text=f"{MAX_VIEWERS} status pages are open already; "
+                                                 "use /status.json", headers={"Retry-After": "10"})
         response = web.StreamResponse(headers={"Content-Type": "text/event-stream",
                                                "Cache-Control": "no-store",
                                                "X-Accel-Buffering": "no"})
@@ -188,7 +193,7 @@ class WebServer:
                     await asyncio.wait_for(waiter.wait(), KEEPALIVE)
                 except asyncio.TimeoutError:
                     await response.write(b": keepalive\n\n")
-        except (ConnectionResetError, ConnectionError, asyncio.CancelledError):
+        except ConnectionError:  # (the page was closed)
             pass
         finally:
             self._viewers -= 1
