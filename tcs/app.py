@@ -26,7 +26,8 @@ class Service:
     """One running TCS."""
 
     def __init__(self, config: HwConfig, host: str | None = None, port: int | None = None,
-                 opentsi_port: int | None = None, alpaca_port: int | None = None):
+                 opentsi_port: int | None = None, alpaca_port: int | None = None,
+                 web_port: int | None = None):
         self.config = config
         self.host = host
         self.port = port
@@ -38,6 +39,9 @@ class Service:
         #: The ASCOM Alpaca HTTP server (``[alpaca] port`` ≥ 0), same model.
         self.alpaca_server = None
         self.alpaca_port = config.alpaca.port if alpaca_port is None else alpaca_port
+        #: The read-only status page and /metrics (``[web] port`` ≥ 0; :mod:`tcs.web`).
+        self.web_server = None
+        self.web_port = config.web.port if web_port is None else web_port
 
     async def start(self) -> int:
         """Start everything; returns the TPL2 port.
@@ -67,12 +71,18 @@ class Service:
                 from tcs.alpaca.start import start_alpaca
                 self.alpaca_server = await start_alpaca(self)
                 self.alpaca_port = self.alpaca_server.port
+            if self.web_port >= 0:
+                from tcs.web.server import start_web
+                self.web_server = await start_web(self)
+                self.web_port = self.web_server.port
             return port
         except BaseException:
             await self.stop()
             raise
 
     async def stop(self) -> None:
+        if self.web_server is not None:
+            await self.web_server.stop()
         if self.alpaca_server is not None:
             await self.alpaca_server.stop()
         if self.opentsi_server is not None:

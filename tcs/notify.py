@@ -20,13 +20,16 @@ log = logging.getLogger(__name__)
 def serving_status(service, host: str, port: int) -> str:
     """The ``STATUS=`` line of a service that serves: every listener it has, e.g.
     ``STATUS=serving OpenTCI on 127.0.0.1:65432, OpenTSI on 127.0.0.1:65433, ASCOM Alpaca on
-    http://127.0.0.1:11111`` (``service``: a started :class:`tcs.app.Service`)."""
+    http://127.0.0.1:11111, status page on http://127.0.0.1:8088/`` (``service``: a started :class:`tcs.app.Service`)."""
     parts = [f"OpenTCI on {host}:{port}"]
     if getattr(service, "opentsi_server", None) is not None:
         parts.append(f"OpenTSI on {host}:{service.opentsi_port}")
     alpaca = getattr(service, "alpaca_server", None)
     if alpaca is not None:
         parts.append(f"ASCOM Alpaca on http://{alpaca.host}:{alpaca.port}")
+    web = getattr(service, "web_server", None)
+    if web is not None:
+        parts.append(f"status page on http://{web.host}:{web.port}/")
     return "STATUS=serving " + ", ".join(parts)
 
 

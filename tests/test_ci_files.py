@@ -42,3 +42,12 @@ def test_ci_runs_the_readme_gate_then_the_readme_test_command():
                            "g.check_commands(); sys.exit(1 if g.failures else 0)"],
                           cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_ci_installs_chromium_for_the_status_page_browser_test():
+    """tests/test_web.py drives Debian's chromium: .ci/run installs it (as root, when missing)
+    before the tests, and says loudly when it cannot."""
+    ci = (ROOT / ".ci" / "run").read_text()
+    install = ci.index("apt-get install -y -qq --no-install-recommends chromium")
+    assert install < ci.index("\npython -m pytest\n")
+    assert "SKIPPED" in ci and 'id -u' in ci

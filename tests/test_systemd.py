@@ -54,7 +54,7 @@ def test_notify_sequence_and_watchdog(tmp_path):
     config.write_text(re.sub(r"(?m)^discovery_port = \d+", "discovery_port = -1",
                              (REPO / "hwconfig" / "sim.toml").read_text()))
     proc = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--config", str(config),
-                             "--port", str(port), "--opentsi-port", "0", "--alpaca-port", "0"], env=env,
+                             "--port", str(port), "--opentsi-port", "0", "--alpaca-port", "0", "--web-port", "0"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         before_ready = receive_all(sock, "READY=1")
@@ -64,13 +64,16 @@ def test_notify_sequence_and_watchdog(tmp_path):
         serving = [m for m in before_ready if m.startswith("STATUS=serving ")]
         assert serving, before_ready
         m = re.fullmatch(rf"STATUS=serving OpenTCI on 127\.0\.0\.1:{port}, OpenTSI on 127\.0\.0\.1:(\d+), "
-                         rf"ASCOM Alpaca on http://127\.0\.0\.1:(\d+)", serving[0])
+                         rf"ASCOM Alpaca on http://127\.0\.0\.1:(\d+), "
+                         rf"status page on http://127\.0\.0\.1:(\d+)/", serving[0])
         assert m, serving
         connect(port).close()  # it serves once READY was sent
         with connect(int(m[1])) as tsi:
             assert tsi.recv(200).startswith(b"TPL2 ")
         with urllib.request.urlopen(f"http://127.0.0.1:{m[2]}/management/apiversions", timeout=10) as r:
             assert b'"Value": [1]' in r.read()
+        with urllib.request.urlopen(f"http://127.0.0.1:{m[3]}/metrics", timeout=10) as r:
+            assert b"tcs_build_info" in r.read()
         assert "WATCHDOG=1" in receive_all(sock, "WATCHDOG=1", timeout=30)
         proc.send_signal(signal.SIGTERM)
         after = receive_all(sock, "STOPPING=1", timeout=30)
@@ -183,7 +186,7 @@ def test_watchdog_fed_while_the_loop_is_late_withheld_when_it_is_dead(tmp_path):
                XDG_STATE_HOME=str(tmp_path / "state"))
     env.pop("WATCHDOG_PID", None)
     proc = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--port", str(port),
-                             "--opentsi-port", "-1", "--alpaca-port", "-1"], env=env,
+                             "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     child = None
     try:

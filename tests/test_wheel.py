@@ -75,9 +75,9 @@ def test_the_installed_package_is_the_wheel(installed, tmp_path):
 
 
 def test_tcs_server_runs_the_simulated_telescope_from_the_wheel(installed, tmp_path):
-    port = free_port()
+    port, web = free_port(), free_port()
     proc = subprocess.Popen([str(installed / "tcs-server"), "--port", str(port), "--opentsi-port", "0",
-                             "--alpaca-port", "-1"], cwd=tmp_path,
+                             "--alpaca-port", "-1", "--web-port", str(web)], cwd=tmp_path,
                             env=run_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     try:
@@ -87,6 +87,11 @@ def test_tcs_server_runs_the_simulated_telescope_from_the_wheel(installed, tmp_p
         s.sendall(b'AUTH PLAIN "admin" "admin"\n1 GET CONFIG.MOUNT\n')
         assert f.readline() == b"AUTH OK 0 0\n"
         assert [f.readline() for _ in range(3)][1] == b'1 DATA INLINE CONFIG.MOUNT="AZ-ZD"\n'
+        # the status page's files are package data of the wheel
+        import urllib.request
+        for path, text in (("/", b'src="app.js"'), ("/app.js", b"EventSource"), ("/style.css", b"#sky")):
+            with urllib.request.urlopen(f"http://127.0.0.1:{web}{path}", timeout=30) as r:
+                assert text in r.read(), path
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(60) == 0
         f.close()

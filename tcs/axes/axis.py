@@ -237,6 +237,10 @@ class Axis(ModuleHealth):
         self.limit_state = 0
         self.target_position = 0.0
         self.offset = 0.0
+        #: this cycle's telemetry sample, one tuple written at once (read from any thread):
+        #: (SYNC UT1 of the measurement, measured position, UT1 the setpoint is reached at,
+        #: setpoint position or None when none was sent), positions in the drive's frame
+        self.sample: tuple | None = None
         self.last_status: DriveStatus | None = None
         self.stale: TcsError | None = None  # set while the drive gives no fresh data (FAILED 4)
         self.measured_ut1 = 0.0  # UT1 at which REALPOS was measured (the cycle's SYNC); 0: never
@@ -569,7 +573,9 @@ class Axis(ModuleHealth):
         else:
             self._sent = None
         self.drive.step()
-        self._publish(st, t if measured is None else measured)
+        sync = t if measured is None else measured
+        self.sample = (sync, st.position, t, None if setpoint is None else setpoint.position)
+        self._publish(st, sync)
         self._flush()
 
     def _limit_step(self, sp: Setpoint, measured: float, measured_velocity: float = 0.0) -> Setpoint:

@@ -53,7 +53,7 @@ log = logging.getLogger("tcs.control")
 #: Readbacks sent per axis, in this order (``ControlProcess`` applies them by name).
 READBACKS = ("power_state", "referenced", "real_position", "current_speed", "current_acc",
              "current_jerk", "motion_state", "limit_state", "target_position", "offset",
-             "measured_ut1")
+             "measured_ut1", "sample")
 
 
 def drive_tuple(st) -> tuple | None:
@@ -66,6 +66,16 @@ def drive_tuple(st) -> tuple | None:
     return (st.name, st.state.value, st.statusword, error_tuple(fault),
             getattr(fault, "code", None), st.position, st.velocity, st.following_error,
             st.heartbeat_ok)
+
+
+def bus_figures(can) -> dict | None:
+    """The CAN bus's health as plain data (for ``/metrics``): state and error counters."""
+    bus = getattr(can, "bus", None)
+    if bus is None or not hasattr(bus, "health"):
+        return None
+    h = bus.health()
+    return {"state": h.state, "error_frames": h.error_frames, "bus_off": h.bus_off_count,
+            "send_failures": h.send_failures, "receive_failures": h.receive_failures}
 
 
 #: s added to the stopping time an orphaned control process waits for (late cycles, jerk).
@@ -318,7 +328,8 @@ class Core:
         snaps = {axis.index: axis.snapshot() for axis in self.axes}
         stats = None
         if self._cycles % self._stats_every == 0:
-            stats = dict(self.loop.stats(), last_cycle=self.loop.last_cycle)
+            stats = dict(self.loop.stats(), last_cycle=self.loop.last_cycle,
+                         bus=bus_figures(self.can))
         self.outbox.cycle(snaps, stats)
 
     # -- receiver ----------------------------------------------------------------------------

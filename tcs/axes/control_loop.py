@@ -19,11 +19,14 @@ each drive to a controlled stop before it disables it).
 
 Health is reported, not assumed: the loop counts its own exceptions (an axis whose step raises
 is logged, counted and stopped; the other axes go on) and the cycle source counts late and
-missed cycles; :meth:`healthy` is what the systemd watchdog is fed from.
+missed cycles; :meth:`healthy` is what the systemd watchdog is fed from. Each step's own time
+and the SYNC's lateness also go into fixed-bucket histograms (:data:`HISTOGRAM_BOUNDS`,
+cumulative counts in :meth:`stats`, for ``/metrics``: a few integer additions per cycle).
 """
 
 from __future__ import annotations
 
+import bisect
 import logging
 import time
 from typing import Callable, Sequence
@@ -34,6 +37,26 @@ from tcs.errors import ErrorNumber, TcsError
 log = logging.getLogger(__name__)
 
 MOUNT_MODULES = frozenset({"AZ", "ZD", "HA", "DEC"})
+
+#: Upper bounds (s) of the loop-time and lateness histogram buckets (one more: +Inf).
+HISTOGRAM_BOUNDS = (0.0002, 0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1)
+
+
+class Histogram:
+    """Counts per bucket of :data:`HISTOGRAM_BOUNDS` and the sum (s); written by the loop thread only."""
+
+    __slots__ = ("counts", "sum")
+
+    def __init__(self) -> None:
+        self.counts = [0] * (len(HISTOGRAM_BOUNDS) + 1)
+        self.sum = 0.0
+
+    def observe(self, value: float) -> None:
+        self.counts[bisect.bisect_left(HISTOGRAM_BOUNDS, value)] += 1
+        self.sum += value
+
+    def export(self) -> tuple[list[int], float]:
+        return list(self.counts), self.sum
 
 
 class ControlLoop:
@@ -52,6 +75,8 @@ class ControlLoop:
         self.last_cycle = 0.0
         self.max_step = 0.0
         self.setpoint_ut1 = self.measured_ut1 = 0.0
+        self.loop_time = Histogram()   # each step's own time
+        self.lateness = Histogram()    # each SYNC's lateness (the cycle source's newest)
         self.mount = [a for a in self.axes if getattr(getattr(a, "section", None), "module", None)
                       in MOUNT_MODULES and getattr(a.section, "index", None) is None]
         self._mount_faulted: set = set()
@@ -104,6 +129,10 @@ class ControlLoop:
         end = self.clock()
         self.last_cycle = end
         self.max_step = max(self.max_step, end - now)
+        self.loop_time.observe(end - now)
+        late = self.source.lateness
+        if late:
+            self.lateness.observe(max(0.0, late[-1]))
 
     def _couple_mount(self) -> None:
         faulted = {a for a in self.mount if getattr(a, "fault", None) is not None}
@@ -121,7 +150,8 @@ class ControlLoop:
         return {"cycles": s.cycles, "late": s.late, "missed": s.missed,
                 "tpdo_timeouts": s.tpdo_timeouts, "errors": self.errors,
                 "max_step_ms": self.max_step * 1e3, "max_lateness": self.source.max_lateness,
-                "realtime": int(self.source.realtime)}
+                "realtime": int(self.source.realtime), "period": self.source.period,
+                "loop_time_hist": self.loop_time.export(), "lateness_hist": self.lateness.export()}
 
     def samples(self, clear: bool = False):
         """(lateness list, loop time list, cycle counters as a dict) of the cycle source, for

@@ -3,7 +3,8 @@
 No arguments: the simulated telescope of ``hwconfig/sim.toml`` on 127.0.0.1:65432.
 ``--config FILE`` runs whatever the file describes; ``--host``/``--port`` override the file,
 ``--opentsi-port`` the port of the OpenTSI tree (65433 in sim.toml; -1 serves none),
-``--alpaca-port`` the ASCOM Alpaca devices' (11111 in sim.toml; -1 serves none).
+``--alpaca-port`` the ASCOM Alpaca devices' (11111 in sim.toml; -1 serves none),
+``--web-port`` the read-only status page and ``/metrics`` (8088 in sim.toml; -1 serves none).
 Logs go to stderr: under systemd (stderr is the journal, ``$JOURNAL_STREAM``) as ``LEVEL
 name: message`` — journald adds the time; started by hand with the time (UTC, as in
 ``CABINET.STATUS.LOG[]``) in front: ``2026-11-25T21:03:04.123Z INFO name: message``. A bad
@@ -42,6 +43,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="TCP port of the OpenTSI tree (overrides [server] opentsi_port; -1: off)")
     p.add_argument("--alpaca-port", type=int,
                    help="HTTP port of the ASCOM Alpaca devices (overrides [alpaca] port; -1: off)")
+    p.add_argument("--web-port", type=int,
+                   help="HTTP port of the status page and /metrics (overrides [web] port; -1: off)")
     p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     p.add_argument("--check-config", metavar="FILE",
                    help="validate FILE as a service's hardware file and exit (0 valid, 2 not); "
@@ -112,7 +115,7 @@ def main(argv=None) -> int:
 
     return run_until_signalled("tcs-server", lambda stop: serve_until_signalled(
         Service(config, args.host, args.port, args.opentsi_port,
-                args.alpaca_port), stop))
+                args.alpaca_port, args.web_port), stop))
 
 
 def run_until_signalled(prog: str, main_coro) -> int:

@@ -7,8 +7,8 @@ before the README's test command. It checks, and prints one PASS/FAIL line each:
    (the tests) and the install part of the first;
 2. the first command's server — ``tcs-server`` with no arguments, as the README says — starts
    the simulated telescope from this venv, serves OpenTCI on 127.0.0.1:65432 with the login the
-   README names, answers ``GET CONFIG.MOUNT`` and ``AZ.REALPOS``, serves Alpaca on :11111, and
-   stops cleanly (exit 0, no traceback) on SIGTERM.
+   README names, answers ``GET CONFIG.MOUNT`` and ``AZ.REALPOS``, serves Alpaca on :11111 and
+   the status page's ``/metrics`` on :8088, and stops cleanly (exit 0, no traceback) on SIGTERM.
 
 The server's state goes to a temporary ``XDG_STATE_HOME`` so a run leaves nothing behind. It
 uses only the standard library and what the README's install step installed. Exit status 0
@@ -30,7 +30,7 @@ import urllib.request
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-PORT, ALPACA_PORT = 65432, 11111
+PORT, ALPACA_PORT, WEB_PORT = 65432, 11111, 8088
 START_TIMEOUT = 180.0  # a loaded 2-core machine may take a while; this is a hang guard only
 
 failures: list[str] = []
@@ -92,7 +92,7 @@ def tpl2(sock_file, sock: socket.socket, line: str, cid: str) -> list[str]:
 
 def check_server() -> None:
     deadline = time.monotonic() + 120  # another program's server may be ending
-    while (busy := [p for p in (PORT, ALPACA_PORT) if not port_free(p)]) and time.monotonic() < deadline:
+    while (busy := [p for p in (PORT, ALPACA_PORT, WEB_PORT) if not port_free(p)]) and time.monotonic() < deadline:
         time.sleep(1)
     if not check(not busy, "the README's ports are free on this machine", f"taken: {busy}"):
         return
@@ -139,6 +139,12 @@ def check_server() -> None:
             check('"Value"' in body, "ASCOM Alpaca answers on :11111", body)
         except OSError as exc:
             check(False, "ASCOM Alpaca answers on :11111", str(exc))
+        try:
+            with urllib.request.urlopen(f"http://127.0.0.1:{WEB_PORT}/metrics", timeout=30) as r:
+                body = r.read().decode()
+            check("tcs_build_info" in body, "the status page's /metrics answers on :8088", body[:200])
+        except OSError as exc:
+            check(False, "the status page's /metrics answers on :8088", str(exc))
     finally:
         if proc.poll() is None:
             proc.send_signal(signal.SIGTERM)

@@ -1,0 +1,336 @@
+"""``/metrics``: the snapshot (:mod:`tcs.web.snapshot`) in the Prometheus text format.
+
+:class:`SnapshotCollector` is a ``prometheus_client`` collector on a registry of its own (not
+the library's global one): each scrape turns the newest snapshot into metric families, and
+``prometheus_client.generate_latest`` writes them — no hand-written formatter. The few
+counters the model does not keep itself (drive faults, limit hits: a new fault or limit seen
+by a snapshot) are counted by :class:`Counters`, which the web server feeds every snapshot.
+
+Conventions: every name starts with ``tcs_``; seconds for times; angles have the unit in the
+name (``_degrees``, ``_arcsec``); an axis position is in the axis's user units (degrees for
+AZ/ZD/HA/DEC/DEROTATOR, mm for FOCUS, the port number for FILTER/MIRROR: see the ``unit``
+label of ``tcs_axis_info``); labels are the fixed names of the hardware file (``axis="AZ"``,
+``plc="dome"``) — nothing per client or per request. A measured value without a fresh readback
+is left out (absent = unknown), never reported with its last value.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Iterable
+
+from prometheus_client import CollectorRegistry, generate_latest
+from prometheus_client.core import (CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily,
+                                    InfoMetricFamily)
+
+from tcs.axes.control_loop import HISTOGRAM_BOUNDS
+
+CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
+#: The CAN controller states of :class:`tcs.drivers.canbus.BusHealth`.
+BUS_STATES = ("ok", "warning", "passive", "bus-off", "failed")
+
+
+class Counters:
+    """Counts fault and limit transitions between snapshots (per axis name)."""
+
+    def __init__(self) -> None:
+        self.faults: dict[str, int] = {}
+        self.limit_hits: dict[str, int] = {}
+        self._fault: dict[str, Any] = {}
+        self._limit: dict[str, int] = {}
+
+    def update(self, snap: dict[str, Any]) -> None:
+        for axis in snap.get("axes", ()):
+            name = axis["name"]
+            self.faults.setdefault(name, 0)
+            self.limit_hits.setdefault(name, 0)
+            fault = axis["fault"]
+            if fault is not None and self._fault.get(name) is None:
+                self.faults[name] += 1
+            self._fault[name] = fault
+            limit = axis["limit_state"]
+            if limit is not None:
+                if limit and not self._limit.get(name):
+                    self.limit_hits[name] += 1
+                self._limit[name] = limit
+
+
+def _gauge(name: str, doc: str, labels: list[str] | None = None) -> GaugeMetricFamily:
+    return GaugeMetricFamily(name, doc, labels=labels or [])
+
+
+def _histogram(name: str, doc: str, data) -> HistogramMetricFamily | None:
+    if not data:
+        return None
+    counts, total = data
+    family = HistogramMetricFamily(name, doc)
+    buckets, running = [], 0
+    for bound, count in zip((*HISTOGRAM_BOUNDS, float("inf")), counts):
+        running += count
+        buckets.append(("+Inf" if bound == float("inf") else repr(bound), running))
+    family.add_metric([], buckets, total)
+    return family
+
+
+class SnapshotCollector:
+    """A collector over ``source()`` (the newest snapshot) and ``counters``."""
+
+    def __init__(self, source, counters: Counters):
+        self.source = source
+        self.counters = counters
+
+    def collect(self) -> Iterable:
+        snap = self.source()
+        if snap is None:
+            return
+        yield from self._build(snap)
+        yield from self._cabinet(snap)
+        yield from self._axes(snap)
+        yield from self._loop(snap)
+        yield from self._can(snap)
+        yield from self._tracking(snap)
+        yield from self._enclosure(snap)
+        yield from self._links(snap)
+        yield from self._front_ends(snap)
+
+    # -- families ------------------------------------------------------------------------------
+    @staticmethod
+    def _build(snap):
+        info = InfoMetricFamily("tcs_build", "the running tcs: version, Python, hardware file")
+        b = snap["build"]
+        info.add_metric([], {"version": b["version"], "python": b["python"], "config": b["config"]})
+        yield info
+        t = snap["time"]
+        g = _gauge("tcs_snapshot_timestamp_seconds", "UTC (Unix seconds) when the snapshot shown was taken")
+        g.add_metric([], t["utc"])
+        yield g
+        sync = snap.get("sync") or {}
+        if sync.get("utc") is not None:
+            g = _gauge("tcs_sync_timestamp_seconds",
+                       "UTC of the newest control cycle's SYNC in the snapshot (Unix seconds)")
+            g.add_metric([], sync["utc"])
+            yield g
+        g = _gauge("tcs_tai_utc_seconds", "TAI - UTC in use (LOCAL.TAI-UTC)")
+        g.add_metric([], t["tai_utc"])
+        yield g
+        g = _gauge("tcs_ut1_utc_seconds", "UT1 - UTC in use (LOCAL.UT1-UTC)")
+        g.add_metric([], t["ut1_utc"])
+        yield g
+
+    @staticmethod
+    def _cabinet(snap):
+        c = snap["cabinet"]
+        for key, name, doc in (("power", "tcs_cabinet_power", "CABINET.POWER state (0 off … 1 on)"),
+                               ("referenced", "tcs_cabinet_referenced", "CABINET.REFERENCED (0 … 1)"),
+                               ("error_state", "tcs_cabinet_error_state", "CABINET.ERROR_STATE bits")):
+            if c[key] is not None:
+                g = _gauge(name, doc)
+                g.add_metric([], c[key])
+                yield g
+        g = _gauge("tcs_cabinet_status_entries", "entries of CABINET.STATUS.LIST", ["active"])
+        errors = c["errors"]
+        g.add_metric(["1"], sum(1 for e in errors if e["active"]))
+        g.add_metric(["0"], sum(1 for e in errors if not e["active"]))
+        yield g
+
+    def _axes(self, snap):
+        axes = snap["axes"]
+        fam = {
+            "info": InfoMetricFamily("tcs_axis", "the axes of the hardware file and their position unit",
+                                     labels=["axis"]),
+            "fresh": _gauge("tcs_axis_fresh", "1 while the drive gives fresh readbacks (else the "
+                                              "measured values are unknown and left out)", ["axis"]),
+            "position": _gauge("tcs_axis_position", "REALPOS, user units (see tcs_axis_info unit)", ["axis"]),
+            "target": _gauge("tcs_axis_target", "TARGETPOS, user units", ["axis"]),
+            "distance": _gauge("tcs_axis_target_distance", "TARGETDISTANCE (TARGETPOS - CURRPOS), user units", ["axis"]),
+            "velocity": _gauge("tcs_axis_velocity", "CURRSPEED, user units per second", ["axis"]),
+            "following": _gauge("tcs_axis_following_error_arcsec",
+                                "following error of the drive (measured - demand), arcsec", ["axis"]),
+            "motion": _gauge("tcs_axis_motion_state", "MOTION_STATE bits (1 moving, 2 trajectory, "
+                                                      "4 blocked, 8 on target, 16 limited)", ["axis"]),
+            "moving": _gauge("tcs_axis_moving", "1 while the axis moves (MOTION_STATE bit 0)", ["axis"]),
+            "power": _gauge("tcs_axis_power", "POWER state (0 off, 1 on)", ["axis"]),
+            "referenced": _gauge("tcs_axis_referenced", "REFERENCED (0 no, 1 yes)", ["axis"]),
+            "error_state": _gauge("tcs_axis_error_state", "ERROR_STATE bits", ["axis"]),
+            "fault": _gauge("tcs_axis_fault", "1 while the axis has a drive fault", ["axis"]),
+            "limit": _gauge("tcs_axis_limit_state", "LIMIT_STATE bits (0: no limit)", ["axis"]),
+            "sync": _gauge("tcs_axis_sample_timestamp_seconds",
+                           "UTC of the SYNC at which the position shown was measured", ["axis"]),
+        }
+        faults = CounterMetricFamily("tcs_axis_drive_faults", "drive faults seen (a new fault)", labels=["axis"])
+        limits = CounterMetricFamily("tcs_axis_limit_hits", "times a limit was reached (LIMIT_STATE became non-zero)",
+                                     labels=["axis"])
+        for a in axes:
+            name = [a["name"]]
+            fam["info"].add_metric(name, {"unit": a["unit"], "module": a["module"]})
+            fam["fresh"].add_metric(name, 1.0 if a["fresh"] else 0.0)
+            for key, value in (("position", a["position"]), ("target", a["target"]),
+                               ("distance", a["distance"]), ("velocity", a["velocity"]),
+                               ("following", a["following_error_arcsec"]), ("motion", a["motion_state"]),
+                               ("power", a["power"]), ("referenced", a["referenced"]),
+                               ("error_state", a["error_state"]), ("limit", a["limit_state"])):
+                if value is not None:
+                    fam[key].add_metric(name, value)
+            if a["motion_state"] is not None:
+                fam["moving"].add_metric(name, float(a["motion_state"] & 1))
+            fam["fault"].add_metric(name, 0.0 if a["fault"] is None else 1.0)
+            sample = a["sample"]
+            if a["fresh"] and sample is not None and sample["sync"]["utc"] is not None:
+                fam["sync"].add_metric(name, sample["sync"]["utc"])
+            faults.add_metric(name, self.counters.faults.get(a["name"], 0))
+            limits.add_metric(name, self.counters.limit_hits.get(a["name"], 0))
+        yield from fam.values()
+        yield faults
+        yield limits
+
+    @staticmethod
+    def _loop(snap):
+        loop = snap["loop"]
+        g = _gauge("tcs_control_loop_running", "1 while the control loop runs (healthy)")
+        g.add_metric([], 1.0 if loop["running"] else 0.0)
+        yield g
+        if loop["period"] is not None:
+            g = _gauge("tcs_control_loop_sync_period_seconds", "the SYNC period ([can] sync_period)")
+            g.add_metric([], loop["period"])
+            yield g
+        for key, name, doc in (("cycles", "tcs_control_loop_cycles", "control cycles run"),
+                               ("late", "tcs_control_loop_late_cycles", "cycles whose work ended after the next SYNC was due"),
+                               ("missed", "tcs_control_loop_missed_cycles", "SYNC slots skipped (the loop was still busy)"),
+                               ("tpdo_timeouts", "tcs_control_loop_tpdo_timeouts", "cycles run without every synchronous TPDO"),
+                               ("errors", "tcs_control_loop_errors", "axis steps that raised")):
+            if loop[key] is not None:
+                c = CounterMetricFamily(name, doc)
+                c.add_metric([], loop[key])
+                yield c
+        if loop["max_lateness"] is not None:
+            g = _gauge("tcs_control_loop_max_lateness_seconds", "worst SYNC lateness since start")
+            g.add_metric([], loop["max_lateness"])
+            yield g
+        if loop["realtime"] is not None:
+            g = _gauge("tcs_control_loop_realtime", "1 when the loop runs with real-time priority")
+            g.add_metric([], loop["realtime"])
+            yield g
+        for fam in (_histogram("tcs_control_loop_lateness_seconds", "SYNC lateness of each cycle",
+                               loop["lateness_hist"]),
+                    _histogram("tcs_control_loop_time_seconds", "time of each control loop step",
+                               loop["loop_time_hist"])):
+            if fam is not None:
+                yield fam
+
+    @staticmethod
+    def _can(snap):
+        bus = snap.get("can")
+        if not bus:
+            return
+        g = _gauge("tcs_can_bus_state", "1 for the CAN controller's present state", ["state"])
+        for state in BUS_STATES:
+            g.add_metric([state], 1.0 if bus["state"] == state else 0.0)
+        yield g
+        for key, name, doc in (("error_frames", "tcs_can_error_frames", "CAN error frames received"),
+                               ("bus_off", "tcs_can_bus_off", "times the controller went bus-off"),
+                               ("send_failures", "tcs_can_send_failures", "frames that could not be sent"),
+                               ("receive_failures", "tcs_can_receive_failures", "receive errors of the bus")):
+            c = CounterMetricFamily(name, doc)
+            c.add_metric([], bus[key])
+            yield c
+
+    @staticmethod
+    def _tracking(snap):
+        t = snap["tracking"]
+        if t is None:
+            return
+        g = _gauge("tcs_tracking_active", "1 while POINTING tracks (POINTING.TRACK != 0)")
+        g.add_metric([], 1.0 if t["tracking"] else 0.0)
+        yield g
+        g = _gauge("tcs_tracking_on_target", "1 while tracking with every controlled axis on target")
+        g.add_metric([], 1.0 if t["on_target"] else 0.0)
+        yield g
+        if t["distance_arcsec"] is not None:
+            g = _gauge("tcs_tracking_error_arcsec", "POINTING.TARGETDISTANCE while tracking: largest distance "
+                                                    "of the controlled axes from their demand on the sky")
+            g.add_metric([], t["distance_arcsec"])
+            yield g
+        if t["target_distance"] is not None:
+            g = _gauge("tcs_tracking_target_distance_degrees",
+                       "angle on the sky between POINTING.CURRENT and POINTING.TARGET")
+            g.add_metric([], t["target_distance"])
+            yield g
+
+    @staticmethod
+    def _enclosure(snap):
+        parts = [("dome", m) for m in snap["dome"]] + [("cover", m) for m in snap["covers"]]
+        if parts:
+            pos = _gauge("tcs_enclosure_position", "position of a dome part or cover (DOME[].REALPOS, COVER.REALPOS)",
+                         ["module", "kind"])
+            mov = _gauge("tcs_enclosure_moving", "1 while the dome part or cover moves", ["module", "kind"])
+            err = _gauge("tcs_enclosure_error_state", "ERROR_STATE bits", ["module", "kind"])
+            for kind, m in parts:
+                labels = [m["name"], kind]
+                if m["position"] is not None:
+                    pos.add_metric(labels, m["position"])
+                if m["motion_state"] is not None:
+                    mov.add_metric(labels, float(m["motion_state"] & 1))
+                err.add_metric(labels, m["error_state"])
+            yield from (pos, mov, err)
+        if snap["interlock"] is not None:
+            g = _gauge("tcs_weather_interlock_active", "1 while the weather interlock holds dome and covers closed")
+            g.add_metric([], 1.0 if snap["interlock"]["active"] else 0.0)
+            yield g
+        if snap["sensors"]:
+            g = _gauge("tcs_sensor_value", "SENSOR[].VALUE (the unit is the sensor's)", ["module", "name"])
+            for s in snap["sensors"]:
+                if s["value"] is not None:
+                    g.add_metric([s["name"], s["label"]], s["value"])
+            yield g
+        if snap["switches"]:
+            g = _gauge("tcs_switch_value", "SWITCH[].VALUE", ["module", "name"])
+            for s in snap["switches"]:
+                if s["value"] is not None:
+                    g.add_metric([s["name"], s["label"]], s["value"])
+            yield g
+
+    @staticmethod
+    def _links(snap):
+        if snap["plcs"]:
+            up = _gauge("tcs_plc_up", "1 while the PLC's Modbus link is up", ["plc"])
+            rtt = _gauge("tcs_plc_round_trip_seconds", "the last Modbus request's round trip", ["plc"])
+            fails = CounterMetricFamily("tcs_plc_failures", "failed Modbus poll cycles", labels=["plc"])
+            connects = CounterMetricFamily("tcs_plc_connects", "Modbus (re)connections", labels=["plc"])
+            for p in snap["plcs"]:
+                up.add_metric([p["name"]], 1.0 if p["connected"] else 0.0)
+                if p["round_trip"] is not None:
+                    rtt.add_metric([p["name"]], p["round_trip"])
+                fails.add_metric([p["name"]], p["failures"])
+                connects.add_metric([p["name"]], p["connects"])
+            yield from (up, rtt, fails, connects)
+        gps = snap["gps"]
+        if gps is not None:
+            g = _gauge("tcs_gps_position_fix", "1 while the GPS has a good position fix")
+            g.add_metric([], 1.0 if gps["position_good"] else 0.0)
+            yield g
+            g = _gauge("tcs_gps_time_good", "1 while the GPS time is good")
+            g.add_metric([], 1.0 if gps["time_good"] else 0.0)
+            yield g
+            if gps["time_offset"] is not None:
+                g = _gauge("tcs_gps_time_offset_seconds", "GPS time minus the system's UTC")
+                g.add_metric([], gps["time_offset"])
+                yield g
+
+    @staticmethod
+    def _front_ends(snap):
+        g = _gauge("tcs_frontend_connections", "open TPL2 connections per front end", ["front_end"])
+        counts = {"opentci": 0, "opentsi": 0}
+        for c in snap["clients"]:
+            counts[c["front_end"]] = counts.get(c["front_end"], 0) + 1
+        for name, n in counts.items():
+            g.add_metric([name], n)
+        yield g
+
+
+def make_registry(source, counters: Counters) -> CollectorRegistry:
+    registry = CollectorRegistry(auto_describe=False)
+    registry.register(SnapshotCollector(source, counters))
+    return registry
+
+
+def render(registry: CollectorRegistry) -> bytes:
+    return generate_latest(registry)

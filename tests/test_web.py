@@ -1,0 +1,379 @@
+"""The read-only web port (issue 29): /metrics, /status.json, the live status page.
+
+One service (module scope) runs the simulated telescope (``hwconfig/sim.toml``: the control
+loop in its control process) with its web port on a free loopback port. Values are compared
+with what TPL2 reads from the same service; the page is opened in a real browser (Debian's
+``chromium``, headless, driven over its DevTools protocol) where one is installed — the test
+is skipped with the reason where none is (``.ci/run`` installs it).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import io
+import json
+import os
+import shutil
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import aiohttp
+import pytest
+from prometheus_client.parser import text_string_to_metric_families
+
+from support.live import live_service
+from support.opentci_client import Client
+from tcs.config import DEFAULT_CONFIG, load_config
+from test_axes import ready
+
+live = live_service(DEFAULT_CONFIG)
+WAIT = 60.0
+
+
+@pytest.fixture(autouse=True)
+def _no_leaked_threads():  # the module's service thread is expected; LiveService.stop checks
+    yield
+
+
+def base(live) -> str:
+    return f"http://127.0.0.1:{live.service.web_port}"
+
+
+async def fetch(live, path: str, method: str = "GET") -> tuple[int, str, str]:
+    async with aiohttp.ClientSession() as s:
+        async with s.request(method, base(live) + path, timeout=aiohttp.ClientTimeout(total=30)) as r:
+            return r.status, r.headers.get("Content-Type", ""), await r.text()
+
+
+async def metrics(live) -> dict:
+    """{(name, ((label, value), …)): value} of one scrape, parsed by prometheus-client."""
+    status, kind, text = await fetch(live, "/metrics")
+    assert status == 200 and kind.startswith("text/plain"), (status, kind)
+    out = {}
+    for family in text_string_to_metric_families(text):
+        assert family.name.startswith("tcs_"), family.name
+        for sample in family.samples:
+            out[(sample.name, tuple(sorted(sample.labels.items())))] = sample.value
+    return out
+
+
+async def status(live) -> dict:
+    code, kind, text = await fetch(live, "/status.json")
+    assert code == 200 and kind.startswith("application/json"), (code, kind)
+    return json.loads(text)
+
+
+async def at_rest(c: Client, *axes: str) -> None:
+    for ax in axes:
+        await c.wait(f"{ax}.MOTION_STATE", lambda v: not int(v) & 1, WAIT)
+
+
+def test_shipped_file_serves_the_web_port_on_loopback():
+    web = load_config(DEFAULT_CONFIG).web
+    assert web.port == 8088 and web.host == "127.0.0.1"
+    assert web.interval <= 0.5  # pages are pushed at 2 Hz or more
+    assert load_config(Path(__file__).with_name("hw_opentsi.toml")).web.port == -1  # off by default
+
+
+async def test_metrics_parse_and_match_tpl2(live):
+    c = await Client.connect(live.port)
+    try:
+        await ready(c, "ZD")
+        await c.set("ZD.TARGETPOS=31.25", WAIT)
+        await at_rest(c, "ZD", "AZ")
+        # (the snapshot is at most [web] interval old: wait for one taken after the move)
+        await asyncio.sleep(live.service.web_server.interval * 2)
+        m = await metrics(live)
+        tpl = dict(zip(("ZD.REALPOS", "ZD.TARGETPOS", "ZD.POWER_STATE", "ZD.REFERENCED", "AZ.REALPOS",
+                        "CABINET.POWER_STATE", "ZD.MOTION_STATE", "LOCAL.TAI-UTC"),
+                       await c.nums("ZD.REALPOS", "ZD.TARGETPOS", "ZD.POWER_STATE", "ZD.REFERENCED",
+                                    "AZ.REALPOS", "CABINET.POWER_STATE", "ZD.MOTION_STATE", "LOCAL.TAI-UTC")))
+    finally:
+        await c.close()
+    zd, az = (("axis", "ZD"),), (("axis", "AZ"),)
+    assert m[("tcs_axis_position", zd)] == pytest.approx(tpl["ZD.REALPOS"], abs=1e-9)
+    assert m[("tcs_axis_position", zd)] == pytest.approx(31.25, abs=1e-3)
+    assert m[("tcs_axis_target", zd)] == pytest.approx(tpl["ZD.TARGETPOS"], abs=1e-9)
+    assert m[("tcs_axis_power", zd)] == tpl["ZD.POWER_STATE"] == 1.0
+    assert m[("tcs_axis_referenced", zd)] == tpl["ZD.REFERENCED"] == 1.0
+    assert m[("tcs_axis_motion_state", zd)] == tpl["ZD.MOTION_STATE"]
+    assert m[("tcs_axis_position", az)] == pytest.approx(tpl["AZ.REALPOS"], abs=1e-9)
+    assert m[("tcs_cabinet_power", ())] == tpl["CABINET.POWER_STATE"]
+    assert m[("tcs_tai_utc_seconds", ())] == tpl["LOCAL.TAI-UTC"]
+    # the families the issue lists that the model knows, with their types
+    build = [dict(labels) for (name, labels) in m if name == "tcs_build_info"]
+    assert len(build) == 1 and build[0]["config"] == "sim.toml" and build[0]["version"]
+    assert m[("tcs_control_loop_sync_period_seconds", ())] == 0.01
+    assert m[("tcs_control_loop_cycles_total", ())] > 0
+    assert ("tcs_control_loop_missed_cycles_total", ()) in m
+    assert ("tcs_control_loop_tpdo_timeouts_total", ()) in m
+    assert m[("tcs_control_loop_time_seconds_count", ())] > 0
+    assert m[("tcs_control_loop_lateness_seconds_bucket", (("le", "+Inf"),))] > 0
+    assert ("tcs_axis_drive_faults_total", zd) in m and ("tcs_axis_limit_hits_total", zd) in m
+    assert ("tcs_axis_following_error_arcsec", zd) in m
+    assert m[("tcs_plc_up", (("plc", "dome"),))] == 1.0
+    assert m[("tcs_frontend_connections", (("front_end", "opentci"),))] >= 0
+    assert ("tcs_tracking_active", ()) in m and ("tcs_tracking_on_target", ()) in m
+    assert ("tcs_gps_position_fix", ()) in m
+    assert m[("tcs_can_bus_state", (("state", "ok"),))] == 1.0  # (from the control process)
+    assert m[("tcs_can_error_frames_total", ())] == 0
+    assert ("tcs_weather_interlock_active", ()) in m
+
+
+async def test_status_json_matches_the_tree(live):
+    c = await Client.connect(live.port)
+    try:
+        await at_rest(c, "AZ", "ZD")
+        await asyncio.sleep(live.service.web_server.interval * 2)
+        snap = await status(live)
+        names = [a["name"] for a in snap["axes"]]
+        assert names[:2] == ["AZ", "ZD"] and "FOCUS" in names
+        for axis in snap["axes"]:
+            if axis["module"] in ("FILTER", "MIRROR"):
+                continue  # (discrete: REALPOS is the port)
+            name = axis["name"]
+            real, target, power, ref, err = await c.nums(
+                f"{name}.REALPOS", f"{name}.TARGETPOS", f"{name}.POWER_STATE", f"{name}.REFERENCED",
+                f"{name}.ERROR_STATE")
+            assert axis["fresh"] and axis["position"] == pytest.approx(real, abs=1e-9), name
+            assert axis["target"] == pytest.approx(target, abs=1e-9), name
+            assert (axis["power"], axis["referenced"], axis["error_state"]) == (power, ref, err), name
+        cab = await c.nums("CABINET.POWER_STATE", "CABINET.REFERENCED", "CABINET.ERROR_STATE")
+        assert [snap["cabinet"][k] for k in ("power", "referenced", "error_state")] == cab
+        listed = (await c.value("CABINET.STATUS.LIST")).strip('"')
+        assert len([x for x in listed.split(",") if x]) == len(snap["cabinet"]["errors"])
+        dome0 = await c.num("DOME[0].REALPOS")
+        assert snap["dome"][0]["name"] == "DOME[0]" and snap["dome"][0]["position"] == pytest.approx(dome0, abs=1e-6)
+        lat, lon, tai_utc = await c.nums("LOCAL.LATITUDE", "LOCAL.LONGITUDE", "LOCAL.TAI-UTC")
+        assert (snap["site"]["latitude"], snap["site"]["longitude"]) == (lat, lon)
+        # one clock: UTC, UT1 and TAI of the snapshot and of every sample from LOCAL's offsets
+        t = snap["time"]
+        assert t["tai"] - t["utc"] == pytest.approx(tai_utc) and t["ut1"] - t["utc"] == pytest.approx(t["ut1_utc"])
+        for axis in snap["axes"]:
+            s = axis["sample"]
+            assert s["sync"]["tai"] - s["sync"]["utc"] == pytest.approx(tai_utc)
+            assert s["sync"]["ut1"] <= s["demand_time"]["ut1"]  # the setpoint is reached after its SYNC
+            assert s["actual"] is not None
+        assert snap["sync"]["ut1"] == max(a["sample"]["sync"]["ut1"] for a in snap["axes"])
+        # this client is listed, logged in
+        mine = [x for x in snap["clients"] if x["front_end"] == "opentci" and x["user"] == "admin"]
+        assert mine, snap["clients"]
+    finally:
+        await c.close()
+
+
+async def test_samples_carry_demand_and_actual_while_moving(live):
+    c = await Client.connect(live.port)
+    try:
+        await ready(c, "ZD")
+        start = await c.num("ZD.REALPOS")
+        cmd = await c.start(f"ZD.TARGETPOS={35.0 if start < 33 else 28.0}")
+        await c.wait("ZD.CURRSPEED", lambda v: abs(v) > 0.5, WAIT)
+        snap = await status(live)
+        zd = next(a for a in snap["axes"] if a["name"] == "ZD")
+        s = zd["sample"]
+        assert s["demand"] is not None and s["actual"] is not None
+        assert zd["motion_state"] & 1 and zd["velocity"] != 0.0
+        await c.until(cmd, WAIT)
+    finally:
+        await c.close()
+
+
+async def test_tracking_shows_in_status_and_metrics(live):
+    """While POINTING tracks a star, /status.json and /metrics say so with the tracking error
+    and the target distance POINTING reads (compared loosely: they are read at other moments)."""
+    c = await Client.connect(live.port)
+    try:
+        await ready(c, "AZ", "ZD")
+        ra, dec = await c.nums("POINTING.CURRENT.RA", "POINTING.CURRENT.DEC")
+        await c.set(f"POINTING.TARGET.RA={ra!r};POINTING.TARGET.DEC={dec!r}")
+        cmd = await c.start("POINTING.TRACK=1")
+        await c.wait("POINTING.TARGETDISTANCE", lambda v: 0 < v < 0.01, WAIT)
+        await asyncio.sleep(live.service.web_server.interval * 2)
+        snap, m = await status(live), await metrics(live)
+        track, distance = await c.nums("POINTING.TRACK", "POINTING.TARGETDISTANCE")
+        t = snap["tracking"]
+        assert t["tracking"] and t["track"] == track == 1
+        assert t["distance_arcsec"] is not None and t["distance_arcsec"] < 36.0
+        assert m[("tcs_tracking_active", ())] == 1.0
+        assert m[("tcs_tracking_error_arcsec", ())] < 36.0 and distance * 3600 < 36.0
+        assert m[("tcs_tracking_target_distance_degrees", ())] < 0.01
+        assert t["target"]["alt"] is not None and t["current"]["alt"] == pytest.approx(t["target"]["alt"], abs=0.1)
+        await c.set("POINTING.TRACK=0")
+        await c.until(cmd, WAIT)
+        await at_rest(c, "AZ", "ZD")
+    finally:
+        await c.close()
+
+
+async def test_unknown_paths_404_and_nothing_writable(live):
+    for path in ("/nope", "/metrics/x", "/static/style.css", "/index.html.bak", "/api/v1/telescope/0/park",
+                 "/%2e%2e/etc/passwd", "/status.json/"):
+        code, _, _ = await fetch(live, path)
+        assert code == 404, path
+    for path in ("/", "/metrics", "/status.json", "/events", "/app.js"):
+        for method in ("POST", "PUT", "DELETE", "PATCH"):
+            code, _, _ = await fetch(live, path, method)
+            assert code == 405, (method, path)
+    # the query string changes nothing
+    before = live.telescope.axis("AZ").target_position
+    code, _, _ = await fetch(live, "/status.json?AZ.TARGETPOS=100")
+    assert code == 200 and live.telescope.axis("AZ").target_position == before
+    # and the service still serves
+    assert (await status(live))["axes"]
+
+
+async def test_event_stream_pushes_new_snapshots(live):
+    seqs = []
+    async with aiohttp.ClientSession() as s:
+        async with s.get(base(live) + "/events", timeout=aiohttp.ClientTimeout(total=WAIT)) as r:
+            assert r.status == 200 and r.headers["Content-Type"].startswith("text/event-stream")
+            async for line in r.content:
+                if line.startswith(b"data: "):
+                    seqs.append(json.loads(line[6:])["seq"])
+                    if len(seqs) == 4:
+                        break
+    assert seqs == sorted(seqs) and len(set(seqs)) == 4
+
+
+# -- a real browser ---------------------------------------------------------------------------
+
+def find_browser() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+class DevTools:
+    """A page of a headless Chromium, over its DevTools protocol (a websocket, aiohttp)."""
+
+    def __init__(self, ws):
+        self.ws = ws
+        self._id = 0
+
+    async def call(self, method: str, **params):
+        self._id += 1
+        await self.ws.send_json({"id": self._id, "method": method, "params": params})
+        while True:
+            msg = await asyncio.wait_for(self.ws.receive_json(), WAIT)
+            if msg.get("id") == self._id:
+                assert "error" not in msg, msg
+                return msg.get("result", {})
+
+    async def eval(self, expression: str):
+        result = await self.call("Runtime.evaluate", expression=expression, returnByValue=True)
+        return result.get("result", {}).get("value")
+
+    async def until(self, expression: str, what: str, timeout: float = WAIT):
+        deadline = time.monotonic() + timeout
+        while True:
+            value = await self.eval(expression)
+            if value:
+                return value
+            assert time.monotonic() < deadline, f"the page did not show {what}"
+            await asyncio.sleep(0.1)
+
+
+async def start_browser(path: str, profile: Path) -> tuple[subprocess.Popen, int]:
+    args = [path, "--headless=new", "--disable-gpu", "--no-first-run", "--no-default-browser-check",
+            "--remote-debugging-address=127.0.0.1", "--remote-debugging-port=0",
+            f"--user-data-dir={profile}", "--window-size=430,1500", "--hide-scrollbars", "about:blank"]
+    if hasattr(os, "geteuid") and os.geteuid() == 0:
+        args.insert(1, "--no-sandbox")  # (root: Chromium refuses its sandbox)
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    port_file = profile / "DevToolsActivePort"
+    deadline = time.monotonic() + WAIT
+    while not (port_file.exists() and port_file.read_text().strip()):
+        assert proc.poll() is None, f"{path} ended at start (status {proc.returncode})"
+        assert time.monotonic() < deadline, "the browser did not open its DevTools port"
+        await asyncio.sleep(0.1)
+    return proc, int(port_file.read_text().split()[0])
+
+
+def stop_browser(proc: subprocess.Popen) -> None:
+    try:
+        os.killpg(proc.pid, signal.SIGTERM)
+    except ProcessLookupError:
+        return
+    try:
+        proc.wait(10)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(10)
+
+
+def png_spread(data: bytes) -> float:
+    """Standard deviation of the grey levels of a PNG (0 for a blank picture)."""
+    from PIL import Image, ImageStat
+    with Image.open(io.BytesIO(data)) as img:
+        return ImageStat.Stat(img.convert("L")).stddev[0]
+
+
+async def test_page_in_a_real_browser_shows_an_axis_move(live, tmp_path):
+    browser = find_browser()
+    if browser is None:
+        pytest.skip("no Chromium/Chrome installed (Debian: apt-get install chromium; .ci/run does)")
+    pytest.importorskip("PIL", reason="Pillow (with matplotlib, the 'dev' extra) checks the screenshot")
+    proc, port = await start_browser(browser, tmp_path / "profile")
+    c = await Client.connect(live.port)
+    try:
+        await ready(c, "ZD")
+        async with aiohttp.ClientSession() as s:
+            async with s.put(f"http://127.0.0.1:{port}/json/new?about:blank") as r:
+                target = await r.json()
+            async with s.ws_connect(target["webSocketDebuggerUrl"], max_msg_size=0) as ws:
+                page = DevTools(ws)
+                await page.call("Page.enable")
+                await page.call("Page.navigate", url=base(live) + "/")
+                cell = "document.querySelector('tr[data-axis=\"ZD\"] .pos')"
+                first = await page.until(f"{cell} && {cell}.textContent.includes('°') && {cell}.textContent",
+                                         "ZD's position")
+                seq = int(await page.until("document.body.dataset.seq", "a snapshot"))
+                start = await c.num("ZD.REALPOS")
+                cmd = await c.start(f"ZD.TARGETPOS={40.0 if start < 35 else 25.0}")
+                seen = {first}
+                deadline = time.monotonic() + WAIT
+                while len(seen) < 3:  # the value changes on the page while the axis moves
+                    seen.add(await page.eval(f"{cell}.textContent"))
+                    assert time.monotonic() < deadline, f"the page kept showing {seen}"
+                    await asyncio.sleep(0.05)
+                await c.until(cmd, WAIT)
+                assert int(await page.eval("document.body.dataset.seq")) > seq
+                assert await page.eval("document.getElementById('link').textContent") == "live"
+                shot = await page.call("Page.captureScreenshot", format="png", captureBeyondViewport=True)
+        data = base64.b64decode(shot["data"])
+        out = tmp_path / "status-page.png"
+        out.write_bytes(data)
+        if os.environ.get("TCS_SCREENSHOT_DIR"):
+            shutil.copy(out, Path(os.environ["TCS_SCREENSHOT_DIR"]) / out.name)
+        assert data.startswith(b"\x89PNG") and png_spread(data) > 10.0, f"blank screenshot {out}"
+    finally:
+        await c.close()
+        stop_browser(proc)
+
+
+def test_grafana_dashboard_uses_only_served_metrics():
+    """Every metric a panel of tools/grafana/tcs-dashboard.json queries is one /metrics serves
+    (tcs/web/metrics.py names it), and the committed JSON is what its generator writes."""
+    import re
+    import subprocess
+    import sys
+    root = Path(__file__).resolve().parent.parent
+    board = root / "tools" / "grafana" / "tcs-dashboard.json"
+    text = board.read_text()
+    served = (root / "tcs" / "web" / "metrics.py").read_text()
+    used = set(re.findall(r"\btcs_[a-z0-9_]+", text)) - {"tcs_build_info"}
+    assert used
+    for name in used:
+        base = re.sub(r"_(total|bucket|count|sum)$", "", name)
+        assert f'"{base}"' in served, name
+    proc = subprocess.run([sys.executable, "-c", "import json, runpy; d = runpy.run_path("
+                           "'tools/grafana/make_dashboard.py')['dashboard']; print(json.dumps(d, indent=1))"],
+                          cwd=root, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout) == json.loads(text)
