@@ -30,37 +30,19 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import dataclasses
 import json
 import tempfile
-import time
-import uuid
 from pathlib import Path
 
 import numpy as np
 
 from tcs.app import Service
 from tcs.axes.control_core import READBACKS
-from tcs.config import DEFAULT_CONFIG, load_config
-from tcs.config.sections import StateSection
+from tcs.config import DEFAULT_CONFIG
+from web_load import make_config, start_tracking  # tools/bench/web_load.py
 
 ARCSEC = 3600.0
 SAMPLE = 1 + READBACKS.index("sample")
-
-
-def make_config(path: Path, state: Path):
-    config = load_config(path)
-    changes = dict(server=dataclasses.replace(config.server, port=0, opentsi_port=-1),
-                   alpaca=dataclasses.replace(config.alpaca, port=-1),
-                   web=dataclasses.replace(config.web, port=-1),
-                   state=StateSection(path=str(state)))
-    if config.can is not None and config.can.interface == "virtual":
-        changes["can"] = dataclasses.replace(config.can, channel=f"bench-{uuid.uuid4().hex[:8]}")
-    changes["drives"] = {name: dataclasses.replace(d, heartbeat_consumer_timeout=max(
-        d.heartbeat_consumer_timeout, 5.0)) for name, d in config.drives.items()}
-    new = dataclasses.replace(config, **changes)
-    object.__setattr__(new, "source", config.source)
-    return new
 
 
 async def track(tel, seconds: float) -> dict:
@@ -69,20 +51,7 @@ async def track(tel, seconds: float) -> dict:
     process = tel.can
     if not hasattr(process, "_batch"):
         raise SystemExit("this benchmark needs [can] control_process = true (the shipped sim.toml)")
-    await tel.cabinet.set_power(1)
-    tel.cabinet.set_reinit(0)
-    deadline = time.monotonic() + 300.0
-    while min(az.referenced, zd.referenced) < 1.0:
-        assert time.monotonic() < deadline, "the axes were not referenced"
-        await asyncio.sleep(0.1)
-    ra, dec = p.astrometry().icrs_from_observed((az.real_position + 20.0) % 360.0, 35.0, time.time() + 10.0)
-    p.target.set_ra(ra)
-    p.target.set_dec(dec)
-    done = p.set_track(1)
-    deadline = time.monotonic() + 120.0
-    while not all(a.follower.state.value == "following" for a in (az, zd)):
-        assert time.monotonic() < deadline, "the axes never reached the path"
-        await asyncio.sleep(0.1)
+    done = await start_tracking(tel)
     await asyncio.sleep(2.0)
     rows: list[tuple] = []
     ut1 = tel.local.ut1
@@ -140,7 +109,7 @@ async def track(tel, seconds: float) -> dict:
 
 async def run(seconds: float, config_path: Path) -> dict:
     with tempfile.TemporaryDirectory() as state:
-        service = Service(make_config(config_path, Path(state)))
+        service = Service(make_config(config_path, Path(state), web_port=-1))
         await service.start()
         try:
             return await track(service.telescope, seconds)

@@ -58,11 +58,13 @@ print(n)
 """
 
 
-def make_config(path: Path, state: Path):
+def make_config(path: Path, state: Path, web_port: int = 0):
+    """``path`` on free ports (no OpenTSI, no Alpaca; the web port ``web_port``: 0 a free one,
+    -1 off), its own virtual bus and state, tolerant drive heartbeats (a loaded machine)."""
     config = load_config(path)
     changes = dict(server=dataclasses.replace(config.server, port=0, opentsi_port=-1),
                    alpaca=dataclasses.replace(config.alpaca, port=-1),
-                   web=dataclasses.replace(config.web, port=0),
+                   web=dataclasses.replace(config.web, port=web_port),
                    state=StateSection(path=str(state)))
     if config.can is not None and config.can.interface == "virtual":
         changes["can"] = dataclasses.replace(config.can, channel=f"bench-{uuid.uuid4().hex[:8]}")
@@ -73,7 +75,9 @@ def make_config(path: Path, state: Path):
     return new
 
 
-async def start_tracking(tel) -> None:
+async def start_tracking(tel):
+    """Power and reference AZ/ZD, track a star 20° east of where AZ stands; returns TRACK=1's
+    future once both axes follow the path."""
     p = tel.pointing
     az, zd = p.axis1, p.axis2
     await tel.cabinet.set_power(1)
@@ -85,11 +89,12 @@ async def start_tracking(tel) -> None:
     ra, dec = p.astrometry().icrs_from_observed((az.real_position + 20.0) % 360.0, 35.0, time.time() + 10.0)
     p.target.set_ra(ra)
     p.target.set_dec(dec)
-    p.set_track(1)
+    done = p.set_track(1)
     deadline = time.monotonic() + 120.0
     while not all(a.follower.state.value == "following" for a in (az, zd)):
         assert time.monotonic() < deadline, "the axes never reached the path"
         await asyncio.sleep(0.1)
+    return done
 
 
 def loop_counts(tel) -> tuple[int, int]:
