@@ -521,3 +521,44 @@ async def test_a_burst_of_logins_from_one_host_shares_one_password_check(make_se
 
 
 WAIT_S = 30.0
+
+
+# ------------------------------------------------------------------------------ issue 27, item 1
+async def _flood_rests(**server_kw) -> int:
+    """Rests the scheduler took while one client's 3000 pipelined GETs were handled."""
+    server, counter = await start_counting(**server_kw)
+    try:
+        a, _ = await login(server.port, "observer", "obs-pw")
+        n = 3000
+        a.writer.write(b"".join(b"%d GET COUNT.A\n" % (i + 1) for i in range(n)))
+        await a.writer.drain()
+        for _ in range(3 * n):  # every command answered
+            await a.readline()
+        assert counter.order.count("A") == n
+        assert server.scheduler.slices > 1  # the work ran in slices, taking turns
+        await a.close()
+        return server.scheduler.rests
+    finally:
+        await server.stop()
+
+
+async def test_the_server_does_not_rest_when_the_loop_has_its_own_process():
+    """By default (``work_rest = -1``) a flood is served without rests when the control loop
+    runs in its own process (old code rested as long as it worked: half the loop idle while
+    clients waited); with the loop in this interpreter it still rests, and an explicit
+    ``work_rest`` is kept."""
+    from tcs.config import DEFAULT_CONFIG, load_config
+    from tcs.opentci_server.server import loop_shares_interpreter
+
+    assert ServerSection().work_rest == -1
+    assert not loop_shares_interpreter(load_config(DEFAULT_CONFIG))  # control_process = true
+    assert await _flood_rests() == 0
+    assert await _flood_rests(work_rest=1.0) > 0
+
+
+def test_the_rest_protects_a_control_loop_in_the_same_interpreter():
+    from tcs.opentci_server.server import work_rest
+
+    assert work_rest(ServerSection(), shares_interpreter=True) == 1.0
+    assert work_rest(ServerSection(), shares_interpreter=False) == 0.0
+    assert work_rest(ServerSection(work_rest=0.5), shares_interpreter=False) == 0.5

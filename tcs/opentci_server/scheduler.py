@@ -12,9 +12,11 @@ heavy clients are pipelining, and a heavy one gets its share and no more.
 
 Work runs in *slices* of at most ``slice`` seconds; after a slice that ran out of time the
 scheduler rests ``rest`` times as long before the next (``call_later``), so under a flood the
-event-loop thread spends at most ``1 / (1 + rest)`` of its time on command work, and the
-control-loop thread — which needs the interpreter lock for every cycle — never waits longer
-than about one slice. Without a flood the queue empties within the slice and nothing rests.
+event-loop thread spends at most ``1 / (1 + rest)`` of its time on command work, and a
+control-loop thread in the same interpreter — which needs its lock for every cycle — never
+waits longer than about one slice. Without a flood the queue empties within the slice and
+nothing rests. With the control loop in its own process the server passes ``rest = 0``
+(:func:`tcs.opentci_server.server.work_rest`): resting then only leaves clients waiting.
 
 Only :class:`~tcs.opentci_server.server.Tpl2Server` makes one (one per server instance, so a
 second listener has its own); sessions talk to it through :meth:`ready` and :meth:`forget`,

@@ -34,9 +34,9 @@ Fairness and back-pressure (``[server]`` limits, README "Security")
 Received bytes wait in an inbox and are parsed a little at a time (:data:`PARSE_CHUNK`) as
 work of their own; parsed lines wait in one queue per connection; the server's
 :class:`~tcs.opentci_server.scheduler.FairScheduler` handles them one at a time, least-served
-connection first, in short slices (``work_slice``, resting ``work_rest`` times as long after a
-full one), so pipelined commands of one client take turns with every other client and leave
-the interpreter to the control loop instead of running in one long burst. Reading from the
+connection first, in short slices (``work_slice``; after a full one it rests ``work_rest``
+times as long when the control loop shares this interpreter), so pipelined commands of one
+client take turns with every other client instead of running in one long burst. Reading from the
 socket pauses while more than :data:`QUEUE_HIGH` lines or :data:`INBOX_HIGH` bytes wait.
 Output: past ``max_output`` unsent bytes the transport calls ``pause_writing`` — the
 connection then neither handles commands nor reads until the client has read its replies;
