@@ -562,3 +562,36 @@ def test_the_rest_protects_a_control_loop_in_the_same_interpreter():
     assert work_rest(ServerSection(), shares_interpreter=True) == 1.0
     assert work_rest(ServerSection(), shares_interpreter=False) == 0.0
     assert work_rest(ServerSection(work_rest=0.5), shares_interpreter=False) == 0.5
+
+
+async def test_a_repeated_get_reads_live_values_with_the_levels_and_budget_of_each_connection():
+    """The same GET text is parsed and looked up once, then answered from its plan: every
+    answer still reads the value now, a connection's read level still denies, and
+    ``max_objects`` still cuts the reply (issue 27: the plan caches lookups, never values)."""
+    from tcs.opentci_server.tree import INT, module, var
+
+    hub = EventHub()
+    hub.bind_loop()
+    server = Tpl2Server(ServerSection(port=0, auth_fail_delay=0.01, max_objects=3), USERS, hub)
+    counter = _Counter(server)
+    server.tree = Tree.build((SERVER, module(
+        "COUNT", var("A", INT, get=lambda c: c.tick("A")),
+        var("SECRET", INT, get=lambda c: 42, rlevel=1), bind=lambda root: root)), counter)
+    await server.start("127.0.0.1", 0)
+    try:
+        admin, _ = await login(server.port, "admin", "admin-pw")
+        observer, _ = await login(server.port, "observer", "obs-pw")
+        line = "COUNT.A;COUNT.SECRET"
+        first = await admin.command(7, f"GET {line}")
+        second = await admin.command(7, f"GET {line}")
+        assert first[1] != second[1] and first[1].startswith("7 DATA INLINE COUNT.A=")
+        assert first[2] == second[2] == "7 DATA INLINE COUNT.SECRET=42"
+        denied = await observer.command(7, f"GET {line}")
+        assert denied[2] == "7 DATA INLINE COUNT.SECRET=DENIED"
+        over = await admin.command(8, "GET COUNT.A;COUNT.A;COUNT.A;COUNT.A")
+        assert [x.rpartition("=")[2] for x in over[1:5]][3] == "DIMENSION", over
+        assert over[-1] == "8 COMMAND COMPLETE"
+        for x in (admin, observer):
+            await x.close()
+    finally:
+        await server.stop()

@@ -121,6 +121,26 @@ async def load(port: int, tpl2: bool, clients: int, seconds: float) -> dict:
             "mean_ms": statistics.fmean(latencies) * 1e3, "requests": len(latencies)}
 
 
+def cpu_seconds(pid: int) -> float:
+    """CPU time (user + system) the process ``pid`` has used so far (its threads, not children)."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rpartition(")")[2].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def measured(port: int, tpl2: bool, clients: int, seconds: float, pid: int) -> dict:
+    """:func:`load`, plus the server process's CPU during the run: percent of one core and
+    microseconds of CPU per request (a cost figure that a shared machine's load disturbs less
+    than requests/s)."""
+    before = cpu_seconds(pid)
+    t0 = time.perf_counter()
+    result = asyncio.run(load(port, tpl2, clients, seconds))
+    cpu, wall = cpu_seconds(pid) - before, time.perf_counter() - t0
+    result["server_cpu_percent"] = 100 * cpu / wall
+    result["server_cpu_us_per_request"] = 1e6 * cpu / max(1, result["requests"])
+    return result
+
+
 def run_server(args: list[str], env: dict | None = None) -> subprocess.Popen:
     return subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
@@ -153,21 +173,24 @@ def main() -> None:
                               env)
             try:
                 wait_port(port)
-                results[name] = asyncio.run(load(port, tpl2, args.clients, args.seconds))
+                results[name] = measured(port, tpl2, args.clients, args.seconds, proc.pid)
             finally:
                 proc.terminate()
                 proc.wait(30)
     tcs, echo = results["tcs"], results["echo"]
     for name, r in results.items():
         print(f"{name:5s}: {r['requests_per_s']:9.0f} req/s {r['variables_per_s']:10.0f} var/s  "
-              f"latency p50 {r['p50_ms']:.2f} ms  p99 {r['p99_ms']:.2f} ms  max {r['max_ms']:.2f} ms")
+              f"latency p50 {r['p50_ms']:.2f} ms  p99 {r['p99_ms']:.2f} ms  max {r['max_ms']:.2f} ms  "
+              f"server CPU {r['server_cpu_percent']:.0f} % ({r['server_cpu_us_per_request']:.0f} us/request)")
     ratio = {"requests_ratio_tcs_to_echo": tcs["requests_per_s"] / echo["requests_per_s"],
              "p99_ratio_tcs_to_echo": tcs["p99_ms"] / echo["p99_ms"]}
     print(f"ratio tcs/echo: throughput {ratio['requests_ratio_tcs_to_echo']:.2f}, "
-          f"p99 latency {ratio['p99_ratio_tcs_to_echo']:.2f}  (goal: tcs p99 < 5 ms)")
+          f"p99 latency {ratio['p99_ratio_tcs_to_echo']:.2f}  (goal: >= 0.8 and <= 1.5)")
+    print(f"load average at the end: {os.getloadavg()} on {os.cpu_count()} CPUs (shared machine: noisy)")
     print(json.dumps({"benchmark": "tpl2_load", "clients": args.clients, "seconds": args.seconds,
                       "variables_per_get": len(VARIABLES), "tcs": tcs, "echo": echo, **ratio,
-                      "goal_p99_ms": 5.0, "goal_met": tcs["p99_ms"] < 5.0}))
+                      "load_average": os.getloadavg(),
+                      "goal_met": ratio["requests_ratio_tcs_to_echo"] >= 0.8 and ratio["p99_ratio_tcs_to_echo"] <= 1.5}))
 
 
 def compare_trees(args) -> None:
