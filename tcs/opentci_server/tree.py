@@ -599,6 +599,9 @@ def _fast_reader(spec: VarSpec, obj: Any) -> Callable[[], str] | None:
     get, vtype = spec.get, spec.type
     if vtype is FLOAT:
         fmt = _format_float_or_null
+    elif vtype is INT:
+        def fmt(v):  # a plain int is its decimal text (format_value's answer, without the checks)
+            return str(v) if type(v) is int else format_value(v, INT)
     else:
         def fmt(v):
             return format_value(v, vtype)
