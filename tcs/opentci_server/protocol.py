@@ -181,6 +181,8 @@ def _parse_command(line: str) -> ClientMessage:
 #: over). The parse is a pure function of the text and its result immutable, so a hit is
 #: exactly what parsing again would give; bounded: past the size nothing more is added.
 _GET_OBJECTS: dict[str, tuple] = {}
+#: The same for whole received GET lines (bytes as framed): the Get message itself.
+_GET_LINES: dict[bytes, "Get"] = {}
 _GET_CACHE_SIZE = 4096
 _GET_CACHE_TEXT = 8192  # longest argument text kept
 
@@ -680,11 +682,18 @@ class Tpl2Connection:
             cmd_id = _number(m.group(1).decode("ascii")) if m else None
             out.append(LineTooLong(cmd_id or 0))
             return
+        known = _GET_LINES.get(raw)
+        if known is not None:  # a poller's GET seen before: the message parsing gives (immutable)
+            out.append(known)
+            return
         text = _decode(raw).strip(_WS)
         if not text:
             return
         try:
-            out.append(parse_line(text))
+            msg = parse_line(text)
+            out.append(msg)
+            if type(msg) is Get and len(_GET_LINES) < _GET_CACHE_SIZE and len(raw) <= _GET_CACHE_TEXT:
+                _GET_LINES[raw] = msg
         except Exception:  # pragma: no cover - a parser bug must not kill the connection
             log.exception("TPL2 parser failed on %r", text[:200])
             out.append(BadSyntax(0, "internal parser error"))
