@@ -11,7 +11,29 @@ last line is one JSON object with the figures.
 values through their OpenTCI names on the OpenTCI port of the same server, one after the other
 in the same run (goal: OpenTSI within 20 % of OpenTCI's throughput).
 
-Goal (issue: TPL2 server): p99 latency of a 20-variable GET under 5 ms with 50 clients.
+Goal (issue 27): at 1 and at 50 clients the TCS's requests/s at least 0.8 of the echo server's
+and its p99 latency at most 1.5 times the echo's, measured in the same run. Each side's line
+also shows the server process's CPU (percent of a core, and microseconds per request: on a
+shared machine a steadier cost figure than requests/s). Figures: ``tools/bench/README.md``.
+
+Where the time goes (issue 27; py-spy ``record --gil`` of the service's main process at 50
+clients, shares of the samples that held the interpreter lock):
+
+* before: the scheduler's ``work_rest = 1.0`` rested as long as it worked, so the process held
+  the lock only ~40 % of the time while 50 clients waited. Of the work: reading + formatting
+  the 20 values 33 %, assembling and writing the reply (resolve, per-object dispatch, the reply
+  list) 22 %, decoding + parsing the line 16 %, session/scheduler bookkeeping 9 %, the
+  simulated PLCs serving their 10 Hz Modbus polls in the same process 9 % (+5 % the PLC
+  drivers), event loop + sockets 7 %, the readback thread 2 %;
+* after (rest 0 with a control process; a GET line or text seen before is not parsed again;
+  each distinct GET keeps its objects' fast readers — values are still read live per request;
+  an idle scheduler runs a lone client's line at once; the simulated PLC reuses the words of
+  an unchanged value): the process holds the lock whenever clients wait; reading + formatting
+  31 %, reply assembly + write 15 %, framing + line-cache lookup 14 %, simulated PLCs 13 % (a
+  fixed cost per second, so a larger share when fewer GETs ran in the sample, the machine being
+  at load 13), bookkeeping 11 %, event loop + sockets 9 %, PLC drivers 4 %, readback thread 3 %.
+  What is left is per-value Python work (a getter and a float's repr per variable) that an
+  echo server does not have.
 """
 
 from __future__ import annotations
