@@ -17,7 +17,7 @@ from tcs.config import HwConfig
 from tcs.model.telescope import Telescope
 from tcs.notify import Notifier, serving_status
 from tcs.opentci_server.opentci import build_tree
-from tcs.opentci_server.server import Tpl2Server
+from tcs.opentci_server.server import Tpl2Server, loop_shares_interpreter
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +52,8 @@ class Service:
         """
         self.telescope = Telescope(self.config)
         self.server = Tpl2Server(self.config.server, self.config.users, self.telescope.events,
-                                 manufacturer=self.config.cabinet.manufacturer)
+                                 manufacturer=self.config.cabinet.manufacturer,
+                                 shares_interpreter=loop_shares_interpreter(self.config))
         try:
             await self.server.start(self.host, self.port, serve=False)
             await self.telescope.start()  # its stop() on failure releases the state directory

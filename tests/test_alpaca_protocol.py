@@ -131,3 +131,46 @@ def test_parameter_tables_match_what_the_handlers_read():
                 continue
             table = cls.PARAMETERS.get(name) or COMMON_PARAMETERS.get(name, ())
             assert {n for n, _kind in table} == _reads(cls, name), (cls.__name__, name)
+
+
+async def test_state_reads_answer_at_once_and_a_waiting_call_still_times_out():
+    """A state read is answered without a task (issue 27: its cost); a member that waits is
+    still bounded by ``request_timeout``, and a TcsError of either kind becomes its ASCOM
+    error — over real HTTP."""
+    import aiohttp
+
+    from tcs.alpaca.device import Device
+
+    class Probe(Device):
+        TYPE, NAME, MEMBERS = "focuser", "Focuser", ("position", "temperature", "ismoving")
+
+        def get_position(self, r):
+            return 1234
+
+        def get_temperature(self, r):
+            raise RangeRefused("no sensor")
+
+        async def get_ismoving(self, r):
+            await asyncio.sleep(30)
+            return False
+
+    device = Probe(0, "probe", "a probe", None)
+    device.connected = True
+    server = AlpacaServer([device], request_timeout=0.3)
+    port = await server.start("127.0.0.1", 0, -1)
+    try:
+        async with aiohttp.ClientSession() as http:
+            async def get(member: str) -> dict:
+                async with http.get(f"http://127.0.0.1:{port}/api/v1/focuser/0/{member}",
+                                    params={"ClientTransactionID": "3"}) as resp:
+                    assert resp.status == 200
+                    return await resp.json()
+
+            assert (await get("position"))["Value"] == 1234
+            failed = await get("temperature")
+            assert failed["ErrorNumber"] == from_tcs_error(RangeRefused("no sensor")).code
+            slow = await get("ismoving")
+            assert slow["ErrorNumber"] != 0 and "did not finish within 0.3 s" in slow["ErrorMessage"]
+            assert (await get("position"))["ClientTransactionID"] == 3
+    finally:
+        await server.stop()

@@ -115,6 +115,22 @@ async def test_forced_rain_and_wind_reach_the_driver(dome):
     assert (await fresh(driver))["rain"] is False
 
 
+async def test_a_forced_value_and_its_return_reach_the_driver_each_time(dome):
+    """The simulated PLC reuses the register words of a value it stored before (issue 27: its
+    idle cost): a value that goes back and forth still reaches the driver every time."""
+    sim, driver, _ = dome
+    for wind in (31.5, 12.0, 31.5, 12.0):
+        sim.force("wind_speed", wind)
+        assert (await fresh(driver))["wind_speed"] == pytest.approx(wind)
+    sim.release("wind_speed")
+    sim.force("rain", True)
+    assert (await fresh(driver))["rain"] is True
+    sim.force("rain", 0)  # another type, the same register word
+    assert (await fresh(driver))["rain"] is False
+    sim.force("rain", 1)
+    assert (await fresh(driver))["rain"] is True
+
+
 # ------------------------------------------------------------------ writing
 
 

@@ -521,3 +521,77 @@ async def test_a_burst_of_logins_from_one_host_shares_one_password_check(make_se
 
 
 WAIT_S = 30.0
+
+
+# ------------------------------------------------------------------------------ issue 27, item 1
+async def _flood_rests(**server_kw) -> int:
+    """Rests the scheduler took while one client's 3000 pipelined GETs were handled."""
+    server, counter = await start_counting(**server_kw)
+    try:
+        a, _ = await login(server.port, "observer", "obs-pw")
+        n = 3000
+        a.writer.write(b"".join(b"%d GET COUNT.A\n" % (i + 1) for i in range(n)))
+        await a.writer.drain()
+        for _ in range(3 * n):  # every command answered
+            await a.readline()
+        assert counter.order.count("A") == n
+        assert server.scheduler.slices > 1  # the work ran in slices, taking turns
+        await a.close()
+        return server.scheduler.rests
+    finally:
+        await server.stop()
+
+
+async def test_the_server_does_not_rest_when_the_loop_has_its_own_process():
+    """By default (``work_rest = -1``) a flood is served without rests when the control loop
+    runs in its own process (old code rested as long as it worked: half the loop idle while
+    clients waited); with the loop in this interpreter it still rests, and an explicit
+    ``work_rest`` is kept."""
+    from tcs.config import DEFAULT_CONFIG, load_config
+    from tcs.opentci_server.server import loop_shares_interpreter
+
+    assert ServerSection().work_rest == -1
+    assert not loop_shares_interpreter(load_config(DEFAULT_CONFIG))  # control_process = true
+    assert await _flood_rests() == 0
+    assert await _flood_rests(work_rest=1.0) > 0
+
+
+def test_the_rest_protects_a_control_loop_in_the_same_interpreter():
+    from tcs.opentci_server.server import work_rest
+
+    assert work_rest(ServerSection(), shares_interpreter=True) == 1.0
+    assert work_rest(ServerSection(), shares_interpreter=False) == 0.0
+    assert work_rest(ServerSection(work_rest=0.5), shares_interpreter=False) == 0.5
+
+
+async def test_a_repeated_get_reads_live_values_with_the_levels_and_budget_of_each_connection():
+    """The same GET text is parsed and looked up once, then answered from its plan: every
+    answer still reads the value now, a connection's read level still denies, and
+    ``max_objects`` still cuts the reply (issue 27: the plan caches lookups, never values)."""
+    from tcs.opentci_server.tree import INT, module, var
+
+    hub = EventHub()
+    hub.bind_loop()
+    server = Tpl2Server(ServerSection(port=0, auth_fail_delay=0.01, max_objects=3), USERS, hub)
+    counter = _Counter(server)
+    server.tree = Tree.build((SERVER, module(
+        "COUNT", var("A", INT, get=lambda c: c.tick("A")),
+        var("SECRET", INT, get=lambda c: 42, rlevel=1), bind=lambda root: root)), counter)
+    await server.start("127.0.0.1", 0)
+    try:
+        admin, _ = await login(server.port, "admin", "admin-pw")
+        observer, _ = await login(server.port, "observer", "obs-pw")
+        line = "COUNT.A;COUNT.SECRET"
+        first = await admin.command(7, f"GET {line}")
+        second = await admin.command(7, f"GET {line}")
+        assert first[1] != second[1] and first[1].startswith("7 DATA INLINE COUNT.A=")
+        assert first[2] == second[2] == "7 DATA INLINE COUNT.SECRET=42"
+        denied = await observer.command(7, f"GET {line}")
+        assert denied[2] == "7 DATA INLINE COUNT.SECRET=DENIED"
+        over = await admin.command(8, "GET COUNT.A;COUNT.A;COUNT.A;COUNT.A")
+        assert [x.rpartition("=")[2] for x in over[1:5]][3] == "DIMENSION", over
+        assert over[-1] == "8 COMMAND COMPLETE"
+        for x in (admin, observer):
+            await x.close()
+    finally:
+        await server.stop()

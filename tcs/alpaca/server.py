@@ -177,7 +177,9 @@ class AlpacaServer:
             if member != member.lower():
                 raise BadRequest(f"member names are lower case in the URL: {member!r}")
             try:
-                value = await asyncio.wait_for(device.call(method, member, req), self.request_timeout)
+                done, value = device.begin(method, member, req)
+                if not done:  # only what needs awaiting gets a task and the time-out
+                    value = await asyncio.wait_for(device.finish(value), self.request_timeout)
                 body = reply(req, self.next_id(), value, has_value=(method == "GET" or value is not None))
             except AscomError as exc:
                 body = reply(req, self.next_id(), error=exc)

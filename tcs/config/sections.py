@@ -65,8 +65,10 @@ class ServerSection:
         30.0, min=0.1, max=3600.0, doc="seconds a connection may stay paused with unread replies before it is dropped")
     work_slice: float = setting(0.002, min=0.0001, max=1.0,
                                 doc="seconds of command work before the server yields to the event loop")
-    work_rest: float = setting(1.0, min=0.0, max=100.0, doc="after a full work slice under load, rest this "
-                               "many times as long (command work takes at most 1/(1+work_rest) of the loop)")
+    work_rest: float = setting(-1.0, min=-1.0, max=100.0, doc="after a full work slice under load, rest this "
+                               "many times as long (command work takes at most 1/(1+work_rest) of the loop); "
+                               "-1 (default): 0 when the control loop runs in its own process "
+                               "([can] control_process = true), 1.0 when it shares the service's interpreter")
     abort_timeout: float = setting(5.0, min=0.1, max=600.0, doc="seconds ABORT waits before COMMAND TIMEOUT")
     max_objects: int = setting(20000, min=1, max=10_000_000,
                                doc="objects (array elements count one each) one GET or SET may address")

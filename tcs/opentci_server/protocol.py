@@ -177,9 +177,22 @@ def _parse_command(line: str) -> ClientMessage:
     return parser(cmd_id, args)
 
 
+#: Parsed objects of GET argument texts seen before (a poller sends the same GET over and
+#: over). The parse is a pure function of the text and its result immutable, so a hit is
+#: exactly what parsing again would give; bounded: past the size nothing more is added.
+_GET_OBJECTS: dict[str, tuple] = {}
+#: The same for whole received GET lines (bytes as framed): the Get message itself.
+_GET_LINES: dict[bytes, "Get"] = {}
+_GET_CACHE_SIZE = 4096
+_GET_CACHE_TEXT = 8192  # longest argument text kept
+
+
 def _parse_get(cmd_id: int, args: str | None) -> ClientMessage:
     if not args:
         return BadSyntax(cmd_id, "GET without an object")
+    objects = _GET_OBJECTS.get(args)
+    if objects is not None:
+        return Get(cmd_id, objects)
     items = args.split(";")
     if len(items) > 1 and not items[-1].strip(_WS):
         items.pop()  # a trailing ';'
@@ -187,6 +200,8 @@ def _parse_get(cmd_id: int, args: str | None) -> ClientMessage:
         objects = tuple(parse_object(item.strip(_WS)) for item in items)
     except PathSyntaxError as e:
         return BadSyntax(cmd_id, str(e))
+    if len(_GET_OBJECTS) < _GET_CACHE_SIZE and len(args) <= _GET_CACHE_TEXT:
+        _GET_OBJECTS[args] = objects
     return Get(cmd_id, objects)
 
 
@@ -293,6 +308,11 @@ def _text(s: str) -> str:
     if s.isascii() and s.isprintable() and "\\" not in s:
         return s
     return escape_text(s)
+
+
+def wire_object(text: str) -> str:
+    """An object as a reply echoes it (escaped where not printable ASCII)."""
+    return _text(text)
 
 
 def _list(words: tuple[str, ...]) -> str:
@@ -595,7 +615,7 @@ class Tpl2Connection:
             raise ValueError(f"line_ending must be b'\\n' or b'\\r\\n', not {line_ending!r}")
         self.line_ending = line_ending
         self.max_line_length = max_line_length
-        self._le = line_ending.decode("ascii")
+        self._le = self.text_line_ending = line_ending.decode("ascii")
         self._framer = _LineFramer(max_line_length)
         self._last_was_disconnect = False
         self._ended = False
@@ -662,11 +682,18 @@ class Tpl2Connection:
             cmd_id = _number(m.group(1).decode("ascii")) if m else None
             out.append(LineTooLong(cmd_id or 0))
             return
+        known = _GET_LINES.get(raw)
+        if known is not None:  # a poller's GET seen before: the message parsing gives (immutable)
+            out.append(known)
+            return
         text = _decode(raw).strip(_WS)
         if not text:
             return
         try:
-            out.append(parse_line(text))
+            msg = parse_line(text)
+            out.append(msg)
+            if type(msg) is Get and len(_GET_LINES) < _GET_CACHE_SIZE and len(raw) <= _GET_CACHE_TEXT:
+                _GET_LINES[raw] = msg
         except Exception:  # pragma: no cover - a parser bug must not kill the connection
             log.exception("TPL2 parser failed on %r", text[:200])
             out.append(BadSyntax(0, "internal parser error"))

@@ -12,9 +12,11 @@ heavy clients are pipelining, and a heavy one gets its share and no more.
 
 Work runs in *slices* of at most ``slice`` seconds; after a slice that ran out of time the
 scheduler rests ``rest`` times as long before the next (``call_later``), so under a flood the
-event-loop thread spends at most ``1 / (1 + rest)`` of its time on command work, and the
-control-loop thread — which needs the interpreter lock for every cycle — never waits longer
-than about one slice. Without a flood the queue empties within the slice and nothing rests.
+event-loop thread spends at most ``1 / (1 + rest)`` of its time on command work, and a
+control-loop thread in the same interpreter — which needs its lock for every cycle — never
+waits longer than about one slice. Without a flood the queue empties within the slice and
+nothing rests. With the control loop in its own process the server passes ``rest = 0``
+(:func:`tcs.opentci_server.server.work_rest`): resting then only leaves clients waiting.
 
 Only :class:`~tcs.opentci_server.server.Tpl2Server` makes one (one per server instance, so a
 second listener has its own); sessions talk to it through :meth:`ready` and :meth:`forget`,
@@ -52,6 +54,7 @@ class FairScheduler:
         self._floor = 0.0
         self._seq = itertools.count()
         self._handle: asyncio.Handle | None = None
+        self._running = False
         self.slices = 0
         self.rests = 0
 
@@ -63,8 +66,16 @@ class FairScheduler:
         self._queued.add(key)
         v = max(self._vtime.get(key, 0.0), self._floor)
         heapq.heappush(self._heap, (v, next(self._seq), session))
+        if self._running:
+            return  # the running slice takes it, or schedules the next one
         if self._handle is None:
-            self._handle = asyncio.get_running_loop().call_soon(self._run)
+            if len(self._heap) == 1:
+                # Nobody else waits for a turn: start at once (one event-loop pass less per
+                # request; a lone client's latency). The slice bounds it as ever; the rest of a
+                # flood waits for the next pass like everyone else's work.
+                self._run()
+            else:
+                self._handle = asyncio.get_running_loop().call_soon(self._run)
 
     def forget(self, session) -> None:
         """The session is gone: drop its bookkeeping (it leaves the heap when reached)."""
@@ -79,6 +90,13 @@ class FairScheduler:
 
     def _run(self) -> None:
         self._handle = None
+        self._running = True
+        try:
+            self._slice()
+        finally:
+            self._running = False
+
+    def _slice(self) -> None:
         self.slices += 1
         start = time.perf_counter()
         now = start

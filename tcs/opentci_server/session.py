@@ -34,9 +34,9 @@ Fairness and back-pressure (``[server]`` limits, README "Security")
 Received bytes wait in an inbox and are parsed a little at a time (:data:`PARSE_CHUNK`) as
 work of their own; parsed lines wait in one queue per connection; the server's
 :class:`~tcs.opentci_server.scheduler.FairScheduler` handles them one at a time, least-served
-connection first, in short slices (``work_slice``, resting ``work_rest`` times as long after a
-full one), so pipelined commands of one client take turns with every other client and leave
-the interpreter to the control loop instead of running in one long burst. Reading from the
+connection first, in short slices (``work_slice``; after a full one it rests ``work_rest``
+times as long when the control loop shares this interpreter), so pipelined commands of one
+client take turns with every other client instead of running in one long burst. Reading from the
 socket pauses while more than :data:`QUEUE_HIGH` lines or :data:`INBOX_HIGH` bytes wait.
 Output: past ``max_output`` unsent bytes the transport calls ``pause_writing`` — the
 connection then neither handles commands nor reads until the client has read its replies;
@@ -58,9 +58,9 @@ from tcs.errors import TcsError
 from tcs.model.events import ERROR, LEVEL_BITS, Event, current_cause
 from tcs.opentci_server import messages as m
 from tcs.opentci_server.guard import host_of
-from tcs.opentci_server.protocol import Tpl2Connection
+from tcs.opentci_server.protocol import Tpl2Connection, wire_object
 from tcs.opentci_server.server_module import BLOCKED_HASH
-from tcs.opentci_server.tree import module_of
+from tcs.opentci_server.tree import allowed, module_of
 from tcs.opentci_server.values import ascii_text
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -122,6 +122,30 @@ class _Command:
                 tree.abort(target, self.cause, awaitable)
             except Exception:
                 log.exception("aborting the write of %s failed", getattr(target.node, "path", target))
+
+
+#: Most plans kept per tree (distinct GET texts); past it a GET is planned each time.
+PLAN_CACHE_SIZE = 4096
+
+
+def _get_plan(tree, objects: tuple) -> tuple:
+    """How to read each object of a GET: ``(ref, object as echoed, reader, rlevel)``, with
+    ``reader`` the variable's fast reader (:meth:`Tree.plain_reader`) or None for the general
+    path. Kept per tree and per parsed-objects tuple (the parser hands out the same tuple for
+    the same GET text); only lookups are kept, never a value."""
+    plans = tree.get_plans
+    entry = plans.get(id(objects))
+    if entry is not None and entry[0] is objects:  # (the tuple is held here: its id stays its own)
+        return entry[1]
+    plan = []
+    for ref in objects:
+        found = tree.plain_reader(ref)
+        reader, level = found if found is not None else (None, 0)
+        plan.append((ref, wire_object(ref.text), reader, level))
+    plan = tuple(plan)
+    if len(plans) < PLAN_CACHE_SIZE:
+        plans[id(objects)] = (objects, plan)
+    return plan
 
 
 class Session(asyncio.Protocol):
@@ -497,28 +521,49 @@ class Session(asyncio.Protocol):
     # -- GET -----------------------------------------------------------------------------------
     def _get(self, msg: m.Get) -> None:
         """Read every object; the command's work is bounded by ``[server] max_objects`` (elements
-        addressed) and ``max_reply_bytes`` (an object past either answers ``DIMENSION``)."""
+        addressed) and ``max_reply_bytes`` (an object past either answers ``DIMENSION``).
+
+        Plain variables are read through the GET's plan (:func:`_get_plan`: the objects' fast
+        readers, looked up once per distinct GET text), everything else through
+        :meth:`Tree.resolve` and :meth:`Tree.read`; both read the live value at this moment."""
         tree = self.server.tree
         settings = self.server.settings
         budget, room = settings.max_objects, settings.max_reply_bytes
-        items = []
-        for ref in msg.objects:
-            try:
-                targets = tree.resolve(ref, budget)
-                budget -= len(targets)
-                if ref.slice is not None or ref.slice_error is not None:  # X{a:b}
-                    value = ",".join([tree.read_slice(t, ref, self) for t in targets])
-                elif len(targets) == 1:
-                    value = tree.read(targets[0], ref.prop, self)
-                else:
-                    value = ",".join([tree.read(t, ref.prop, self) for t in targets])
-            except TcsError as exc:
-                value = exc.reply
+        rlevel = self.rlevel
+        le = self.proto.text_line_ending
+        head = f"{msg.cmd_id} DATA INLINE "
+        parts = [f"{msg.cmd_id} COMMAND OK{le}"]
+        for ref, wire, reader, level in _get_plan(tree, msg.objects):
+            if reader is not None and budget >= 1 and allowed(rlevel, level):
+                budget -= 1
+                try:
+                    value = reader()
+                except TcsError as exc:
+                    value = exc.reply
+                except Exception:
+                    log.exception("reading %s failed", ref.text)
+                    value = "FAILED 13"
+            else:
+                value, budget = self._get_one(tree, ref, budget)
             room -= len(value) + len(ref.text)
             if room < 0:
                 value = "DIMENSION"
-            items.append((ref.text, value))
-        self.write(self.proto.get_reply(msg.cmd_id, items))
+            parts.append(f"{head}{wire}={value}{le}")
+        parts.append(f"{msg.cmd_id} COMMAND COMPLETE{le}")
+        self.write("".join(parts).encode("ascii", "backslashreplace"))
+
+    def _get_one(self, tree, ref, budget: int) -> tuple[str, int]:
+        """The wire value of one object of a GET by the general path, and the budget left."""
+        try:
+            targets = tree.resolve(ref, budget)
+            budget -= len(targets)
+            if ref.slice is not None or ref.slice_error is not None:  # X{a:b}
+                return ",".join([tree.read_slice(t, ref, self) for t in targets]), budget
+            if len(targets) == 1:
+                return tree.read(targets[0], ref.prop, self), budget
+            return ",".join([tree.read(t, ref.prop, self) for t in targets]), budget
+        except TcsError as exc:
+            return exc.reply, budget
 
     # -- SET -----------------------------------------------------------------------------------
     def _set(self, msg: m.Set) -> None:

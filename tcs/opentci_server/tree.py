@@ -297,6 +297,8 @@ class Tree:
     def __init__(self, root: ModuleNode):
         self.root = root
         self._cache: dict[tuple, list[Target]] = {}
+        #: The TPL2 sessions' GET plans (tcs.opentci_server.session._get_plan): lookups only.
+        self.get_plans: dict[int, tuple] = {}
 
     @classmethod
     def build(cls, members: Sequence[ModuleSpec | VarSpec], obj: Any, info: str = "") -> "Tree":
@@ -355,6 +357,28 @@ class Tree:
             multi = multi or part.multi
             current = nxt
         return current
+
+    def plain_reader(self, ref: ObjectRef) -> tuple[Callable[[], str], int] | None:
+        """``(reader, rlevel)`` when ``ref`` names one plain variable that :meth:`read` answers
+        by its fast reader (no property, no slice, no element, no error), else None. The
+        reader is the very closure :meth:`read` calls, so a GET that uses it reads the same
+        live value (nothing is cached but the lookup); the caller checks ``rlevel`` with
+        :func:`allowed` and counts the object against its budget."""
+        if ref.prop is not None or ref.slice is not None or ref.slice_error is not None:
+            return None
+        try:
+            targets = self.resolve(ref)
+        except TcsError:
+            return None
+        if len(targets) != 1:
+            return None
+        target = targets[0]
+        if target.error is not None or target.element is not None:
+            return None
+        fast = getattr(target.node, "fast", None)
+        if fast is None or not isinstance(target.node, VarNode):
+            return None
+        return fast, target.node.spec.rlevel
 
     # -- walking (documentation, tests) ------------------------------------------------------
 
@@ -575,6 +599,9 @@ def _fast_reader(spec: VarSpec, obj: Any) -> Callable[[], str] | None:
     get, vtype = spec.get, spec.type
     if vtype is FLOAT:
         fmt = _format_float_or_null
+    elif vtype is INT:
+        def fmt(v):  # a plain int is its decimal text (format_value's answer, without the checks)
+            return str(v) if type(v) is int else format_value(v, INT)
     else:
         def fmt(v):
             return format_value(v, vtype)
@@ -691,14 +718,14 @@ def _format_property(target: Target, prop: str) -> str:
     node = target.node
     if target.element is not None and isinstance(node, ArrayNode):
         node = node.elements[target.element]
-    common = {
-        "INDEX": lambda: str(node.index),
-        "CLASS": lambda: str(node.cls_code),
-        "NAME": lambda: _q(node.name),
-        "INFO": lambda: _q(node.info),
-    }
-    if prop in common:
-        return common[prop]()
+    if prop == "INDEX":
+        return str(node.index)
+    if prop == "CLASS":
+        return str(node.cls_code)
+    if prop == "NAME":
+        return _q(node.name)
+    if prop == "INFO":
+        return _q(node.info)
     if isinstance(node, ModuleNode):
         if prop == "MEMBERS":  # the number of direct members: walk <0>!NAME … <n-1>!NAME
             return str(len(node.members))

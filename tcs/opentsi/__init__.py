@@ -14,10 +14,11 @@ from tcs.opentsi.views import event_source
 
 def build_opentsi_server(config, telescope):
     """The OpenTSI listener for ``telescope`` (not started)."""
-    from tcs.opentci_server.server import Tpl2Server
+    from tcs.opentci_server.server import Tpl2Server, loop_shares_interpreter
 
     server = Tpl2Server(config.server, config.users, telescope.events,
-                        manufacturer=config.cabinet.manufacturer, event_source=event_source)
+                        manufacturer=config.cabinet.manufacturer, event_source=event_source,
+                        shares_interpreter=loop_shares_interpreter(config))
     server.device = "OpenTSI telescope control system"
     server.tree = build_opentsi_tree(telescope, server)
     return server

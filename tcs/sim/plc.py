@@ -90,6 +90,7 @@ class SimPlc:
             url = urlparse(section.serial_port)
             default_port = (url.port or 0) if url.scheme == "socket" else 0
         self._image: dict[str, dict[int, int | bool]] = {k: {} for k in ("coil", "discrete", "holding", "input")}
+        self._encoded: dict[str, tuple] = {}  # point -> (value, its words): see _store
         self._by_kind: dict[str, list[RegisterPoint]] = {k: [] for k in self._image}
         for p in sorted(self.points.values(), key=lambda p: p.address):
             self._by_kind[p.kind].append(p)
@@ -218,10 +219,17 @@ class SimPlc:
     # ------------------------------------------------------------- the register handler
 
     def _store(self, p: RegisterPoint, value) -> None:
-        try:
-            raw = p.encode(value)
-        except ValueError:
-            return  # a model value the register cannot hold keeps the last one
+        # encode() is a pure function of the point and the value: the words of the value
+        # stored last are reused (the same type too: True and 1 encode alike, 1.0 and 1 may not)
+        last = self._encoded.get(p.name)
+        if last is not None and last[0] == value and type(last[0]) is type(value):
+            raw = last[1]
+        else:
+            try:
+                raw = p.encode(value)
+            except ValueError:
+                return  # a model value the register cannot hold keeps the last one
+            self._encoded[p.name] = (value, raw)
         table = self._image[p.kind]
         for i, word in enumerate(raw):
             table[p.address + i] = word

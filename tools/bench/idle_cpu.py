@@ -1,0 +1,271 @@
+"""Idle cost of the simulated telescope: CPU of every process of the service, nothing connected.
+
+Two set-ups, one after the other, each measured from ``/proc/<pid>/stat`` (user + system time
+of every process of the service: ``tcs-server`` and all its descendants, i.e. the control
+process; and ``tcs-sim`` where it runs) over a window of ``--seconds`` after ``--settle``
+seconds of start-up, with no client connected and nothing moving:
+
+* ``default`` — ``tcs-server`` with no arguments: the bundled simulated telescope (the seven
+  simulated drives in the control process beside the control loop, PLCs and GPS simulated in
+  the service). Goal: at most 10 % of one core, all processes together.
+* ``remote`` — ``hwconfig/sim-remote.toml``: the drives, PLCs and GPS in ``tcs-sim``, the
+  service talking to them over socketcand and Modbus TCP as to real hardware. Goal: the
+  service alone (main + control process) at most 5 % of one core; ``tcs-sim`` reported beside.
+
+The control loop's counters (``CABINET.CORE.CYCLE``, read by one short TPL2 login just before
+and after the window) give the cycles run: on a starved machine a loop that misses cycles also
+costs less, so the service's CPU per cycle is printed beside the percentages.
+
+Per thread figures are printed too (``/proc/<pid>/task``), so the thread that costs can be
+named. The machine may be shared: the load average is printed with the figures. The last line
+is one JSON object with every figure.
+
+    python3 tools/bench/idle_cpu.py [--seconds 20] [--settle 8] [--only default|remote]
+
+Where the idle time goes (issue 27; py-spy ``record --gil`` of the default simulated telescope,
+shares of the samples holding each process's interpreter lock):
+
+* main process (7 % of a core before): the two simulated PLCs and their drivers — pymodbus
+  server and client, 10 Hz polls each, every point re-encoded on every request — 75 %; the
+  control process's readbacks (100 pickled batches a second, applied to 7 axes) 14 %; the
+  rest timers and the event loop. The simulated PLC now reuses the words of an unchanged
+  value (one dome poll 567 -> 223 us of CPU): about 5.5 % of a core after.
+* control process (18-20 % of a core): the seven simulated drives beside the loop about half
+  (python-can's virtual bus deep-copies every frame for every other bus, the drives' PDO and
+  state-machine work per SYNC), the control loop's step of 7 axes ~20 %, the canopen
+  notifier ~9 %, sending the readbacks to the service ~10 %. Not changed here: the drives'
+  simulation and the loop (issue 27 item 4 is someone else's), and the readbacks stay one per
+  cycle (their age is the status's freshness).
+* ``remote``: the service's control process talks socketcand (python-can's client parses the
+  ASCII frames in Python): 7-13 % of a core for 7 drives at 10 ms; tcs-sim 13-24 %.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+TICK = os.sysconf("SC_CLK_TCK")
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_port(port: int, timeout: float = 90.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            return
+        except OSError:
+            time.sleep(0.1)
+    raise SystemExit(f"server on port {port} did not start")
+
+
+def _stat(path: str) -> tuple[str, int, float] | None:
+    """(name, parent pid, CPU seconds) of a /proc stat file, None when it is gone."""
+    try:
+        with open(path) as f:
+            text = f.read()
+    except OSError:
+        return None
+    name = text[text.index("(") + 1:text.rindex(")")]
+    fields = text.rpartition(")")[2].split()
+    return name, int(fields[1]), (int(fields[11]) + int(fields[12])) / TICK
+
+
+def descendants(pid: int) -> list[int]:
+    """``pid`` and every process below it."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            st = _stat(f"/proc/{entry}/stat")
+            if st is not None:
+                children.setdefault(st[1], []).append(int(entry))
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        todo.extend(children.get(p, []))
+    return out
+
+
+def cmdline(pid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return f.read().replace(b"\0", b" ").decode(errors="replace").strip()
+    except OSError:
+        return "?"
+
+
+def snapshot(pids: list[int]) -> dict:
+    """CPU seconds per process and per thread."""
+    out = {}
+    for pid in pids:
+        st = _stat(f"/proc/{pid}/stat")
+        if st is None:
+            continue
+        threads = {}
+        try:
+            for tid in os.listdir(f"/proc/{pid}/task"):
+                tst = _stat(f"/proc/{pid}/task/{tid}/stat")
+                if tst is not None:
+                    threads[int(tid)] = (tst[0], tst[2])
+        except OSError:
+            pass
+        out[pid] = (st[2], threads)
+    return out
+
+
+CYCLE = ("CABINET.CORE.CYCLE.CYCLES", "CABINET.CORE.CYCLE.MISSED", "CABINET.CORE.CYCLE.TPDO_TIMEOUTS")
+
+
+def loop_counters(port: int) -> list[int]:
+    """The control loop's cycle counters, by one short TPL2 login and GET (outside the window)."""
+    with socket.create_connection(("127.0.0.1", port), timeout=30) as s:
+        f = s.makefile("rwb")
+        f.readline()
+        f.write(b'AUTH PLAIN "admin" "admin"\n1 GET ' + ";".join(CYCLE).encode() + b"\n")
+        f.flush()
+        values = {}
+        while True:
+            line = f.readline().decode().strip()
+            if line.startswith("1 DATA INLINE "):
+                name, _, value = line[len("1 DATA INLINE "):].partition("=")
+                values[name] = int(value)
+            elif line.startswith("1 COMMAND COMPLETE") or not line:
+                break
+    return [values.get(n, -1) for n in CYCLE]
+
+
+def measure(roles: dict[str, int], seconds: float, port: int) -> dict:
+    """Percent of one core per role (a process and its descendants) and per process/thread,
+    and the control loop's cycles meanwhile (a starved loop runs fewer cycles and so costs less:
+    the CPU per cycle tells that apart)."""
+    pids = {role: descendants(pid) for role, pid in roles.items()}
+    every = [p for ps in pids.values() for p in ps]
+    c0 = loop_counters(port)
+    a, t0 = snapshot(every), time.monotonic()
+    time.sleep(seconds)
+    b, wall = snapshot(every), time.monotonic() - t0
+    c1 = loop_counters(port)
+    result: dict = {"roles": {}, "processes": []}
+    for role, ps in pids.items():
+        total = 0.0
+        for p in ps:
+            if p not in a or p not in b:
+                continue
+            cpu = b[p][0] - a[p][0]
+            total += cpu
+            threads = sorted(((b[p][1][t][0], 100 * (b[p][1][t][1] - a[p][1][t][1]) / wall)
+                              for t in b[p][1] if t in a[p][1]), key=lambda x: -x[1])
+            result["processes"].append({"role": role, "pid": p, "cmd": cmdline(p)[:90],
+                                        "percent": 100 * cpu / wall,
+                                        "threads": [(n, round(c, 2)) for n, c in threads if c > 0.05]})
+        result["roles"][role] = 100 * total / wall
+    result["seconds"] = wall
+    cycles, missed, timeouts = (y - x for x, y in zip(c0, c1))
+    result["loop"] = {"cycles": cycles, "missed": missed, "tpdo_timeouts": timeouts,
+                      "expected_cycles": round(wall / 0.01)}
+    service_cpu = result["roles"]["service"] * wall / 100
+    result["service_cpu_us_per_cycle"] = 1e6 * service_cpu / max(1, cycles)
+    return result
+
+
+def run_default(seconds: float, settle: float, state: str) -> dict:
+    port = free_port()
+    env = dict(os.environ, XDG_STATE_HOME=state)
+    server = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--log-level", "WARNING",
+                               "--port", str(port), "--opentsi-port", "-1", "--alpaca-port", "-1"],
+                              env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        wait_port(port)
+        time.sleep(settle)
+        return measure({"service": server.pid}, seconds, port)
+    finally:
+        server.terminate()
+        server.wait(60)
+
+
+def run_remote(seconds: float, settle: float, state: str) -> dict:
+    import tomlkit
+
+    doc = tomlkit.parse((ROOT / "hwconfig" / "sim-remote.toml").read_text())
+    port = free_port()
+    doc["can"]["port"] = free_port()
+    for plc in doc.get("plcs", {}).values():
+        plc["port"] = free_port()
+    if "gps" in doc:
+        doc["gps"]["url"] = f"socket://127.0.0.1:{free_port()}"
+    hwfile = Path(state) / "remote.toml"
+    hwfile.write_text(tomlkit.dumps(doc))
+    (Path(state) / "eds").symlink_to(ROOT / "hwconfig" / "eds")
+    env = dict(os.environ, XDG_STATE_HOME=state)
+    sim = subprocess.Popen([sys.executable, "-m", "tcs.cli.sim", "--config", str(hwfile)], env=env,
+                           cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    server = None
+    try:
+        line, deadline = "", time.monotonic() + 90
+        while "ready" not in line and time.monotonic() < deadline and sim.poll() is None:
+            line = sim.stderr.readline()
+        if "ready" not in line:
+            raise SystemExit(f"tcs-sim did not start: {line!r}")
+        server = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--log-level", "WARNING",
+                                   "--config", str(hwfile), "--port", str(port), "--opentsi-port", "-1",
+                                   "--alpaca-port", "-1"],
+                                  env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        wait_port(port)
+        time.sleep(settle)
+        return measure({"service": server.pid, "tcs-sim": sim.pid}, seconds, port)
+    finally:
+        for proc in (server, sim):
+            if proc is not None:
+                proc.terminate()
+                try:
+                    proc.wait(60)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=20.0, help="measuring window")
+    ap.add_argument("--settle", type=float, default=8.0, help="seconds after the port opens")
+    ap.add_argument("--only", choices=("default", "remote"))
+    args = ap.parse_args()
+    results = {}
+    for name, fn in (("default", run_default), ("remote", run_remote)):
+        if args.only and args.only != name:
+            continue
+        with tempfile.TemporaryDirectory() as state:
+            r = results[name] = fn(args.seconds, args.settle, state)
+        print(f"{name}: " + ", ".join(f"{role} {pct:.1f} %" for role, pct in r["roles"].items())
+              + f" of one core; loop: {r['loop']['cycles']} cycles of {r['loop']['expected_cycles']} "
+              f"(missed {r['loop']['missed']}, TPDO time-outs {r['loop']['tpdo_timeouts']}), "
+              f"service {r['service_cpu_us_per_cycle']:.0f} us CPU per cycle")
+        for p in r["processes"]:
+            print(f"    {p['role']:8s} {p['pid']:7d} {p['percent']:5.1f} %  {p['cmd']}")
+            print(f"             threads: {p['threads']}")
+    goals = {}
+    if "default" in results:
+        goals["default_total_le_10"] = sum(results["default"]["roles"].values()) <= 10.0
+    if "remote" in results:
+        goals["remote_service_le_5"] = results["remote"]["roles"]["service"] <= 5.0
+    load = os.getloadavg()
+    print(f"goals: {goals}; load average {load} on {os.cpu_count()} CPUs (shared machine: noisy)")
+    print(json.dumps({"benchmark": "idle_cpu", **results, "goals": goals, "load_average": load}))
+
+
+if __name__ == "__main__":
+    main()
