@@ -66,6 +66,7 @@ from tcs.model.events import current_cause
 from tcs.model.health import ModuleHealth
 from tcs.pointing.astrometry import Astrometry, Refraction, Site, TimeBase
 from tcs.pointing.demand import Pipeline, Place
+from tcs.pointing.envelope import Envelope
 from tcs.pointing.model import PointingModel, Sample
 from tcs.pointing.orientation import to_normal
 from tcs.pointing.pointing_params import PointingParams
@@ -311,6 +312,11 @@ class Pointing(ModuleHealth):
         self._astrometry: tuple[tuple, Astrometry] | None = None
         self._pipeline: tuple[tuple, Pipeline] | None = None
         self._place_cache: tuple[tuple, Place] | None = None
+        #: the safety envelope (Sun cone, horizon table, keep-outs) on every planned path
+        self.envelope = Envelope(telescope.config.envelope, self.mount,
+                                 floor=lambda: self.config.min_altitude, astrometry=self.astrometry,
+                                 utc=self.utc, ut1_utc=lambda: self.ut1_utc)
+        self.envelope.attach(axis1, axis2)
 
     # -- time, site, pipeline -------------------------------------------------------------------
     def utc(self) -> float:
@@ -417,7 +423,7 @@ class Pointing(ModuleHealth):
                           derotator=derotator, port=port, dome=dome, ut1=self.ut1(),
                           ut1_utc=self.ut1_utc,
                           zd_limit=self.zd_limit, plan_horizon=self.config.plan_horizon,
-                          keep_reverse=keep_reverse)
+                          keep_reverse=keep_reverse, envelope=self.envelope)
 
     def active_derotator(self):
         """(derotator axis, port) at the active port: MIRROR's position, else the first one."""

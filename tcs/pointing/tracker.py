@@ -138,6 +138,7 @@ class Plan:
     slew_time: float
     in_limits_until: float | None      # UT1 where the planning path leaves a limit, if it does
     dome: Any = None                   # DOME[0] to keep at the target's azimuth (flag 128)
+    route: Any = None                  # envelope detour (tcs.pointing.envelope.Route) before the intercept
 
     @property
     def value(self) -> int:
@@ -178,7 +179,7 @@ def _ready(axis, what: str) -> None:
 
 def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derotator=None,
                port: int | None = None, dome=None, ut1: float, ut1_utc: float, zd_limit: float,
-               plan_horizon: float, keep_reverse: bool | None = None) -> Plan:
+               plan_horizon: float, keep_reverse: bool | None = None, envelope=None) -> Plan:
     """Validate a TRACK request and choose orientation and turns (see the module docstring).
 
     Parameters
@@ -191,6 +192,8 @@ def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derot
     zd_limit : largest observed zenith distance allowed (90° − min_altitude).
     plan_horizon : seconds of path checked against the limits.
     keep_reverse : re-planning while tracking: keep this orientation whatever the mode says.
+    envelope : the safety envelope (:mod:`tcs.pointing.envelope`): the tracked path is cut
+        where it would enter it, the slew onto it is routed around it (or refused, 9).
 
     Raises
     ------
@@ -225,6 +228,12 @@ def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derot
              Lane(axis2, "axis2", start=float(chosen.axis2[0]))]
     in_limits = chosen.in_limits
     slew = chosen.slew_time
+    route = None
+    if envelope is not None:
+        in_limits, route = _envelope_plan(envelope, chosen, times, in_limits, slew, axis1, axis2,
+                                          ut1_utc)
+        slew = max(slew, route.duration) if route.waypoints else slew
+        route = route if route.waypoints else None
     if derotator is not None:
         angle = np.unwrap(field_angle(pipeline.mount, np.asarray(obs.pa)[:up], chosen.axis2,
                                       chosen.reverse, port) + request.pa, period=360.0)
@@ -241,7 +250,27 @@ def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derot
         in_limits = min(in_limits, n)
         slew = max(slew, abs(angle[0] - current) / sec.max_velocity)
     until = float(times[in_limits]) if in_limits < times.size else None
-    return Plan(request, chosen.reverse, lanes, slew, until, dome)
+    return Plan(request, chosen.reverse, lanes, slew, until, dome, route)
+
+
+def _envelope_plan(envelope, chosen, times, in_limits: int, slew: float, axis1, axis2, ut1_utc: float):
+    """The tracked path judged against the envelope (refused when it starts inside: 9), and
+    the route of the slew onto it (:func:`tcs.pointing.envelope.plan_route`)."""
+    from tcs.axes.profile import Setpoint
+    from tcs.pointing.envelope import plan_route
+    off1, off2 = axis1.offset, axis2.offset
+    j = envelope.judge(chosen.axis1 + off1, chosen.axis2 + off2, times - ut1_utc, escape=False)
+    if j.good == 0:
+        raise TcsError(f"the target is inside {j.text}", ErrorNumber.SOFTLIMIT)
+    arrive = float(times[0]) + slew
+    end = (float(np.interp(arrive, times, chosen.axis1)) + off1,
+           float(np.interp(arrive, times, chosen.axis2)) + off2)
+    starts = (Setpoint(float(axis1.real_position), float(axis1.current_speed)),
+              Setpoint(float(axis2.real_position), float(axis2.current_speed)))
+    route = plan_route(envelope, float(times[0]) - ut1_utc, starts, end,
+                       (axis1.dynamics, axis2.dynamics),
+                       ((axis1.section.min, axis1.section.max), (axis2.section.min, axis2.section.max)))
+    return min(in_limits, j.good), route
 
 
 # ------------------------------------------------------------------------------ the session
@@ -422,6 +451,8 @@ class TrackSession:
                 lane.future.remove_done_callback(self._lane_done)
         await self._run0([lane.axis for lane in old if id(lane.axis) not in new_axes])
         await self._run0([lane.axis for lane in plan.lanes])
+        if plan.route is not None:   # the envelope's detour, then the intercept from its end
+            await owner.envelope.run_route(plan.route, plan.lanes[0].axis, plan.lanes[1].axis)
         self._t_end, self._end_reason, self._last_t = None, "", None
         lanes = [Lane(lane.axis, lane.role, lane.port, lane.start) for lane in plan.lanes]
         points = self._points(plan, lanes, owner.ut1(), first=True)
@@ -500,11 +531,20 @@ class TrackSession:
             inside = (raw + off >= sec.min) & (raw + off <= sec.max)
             reason = np.where((reason == "") & ~inside, lane.axis.module_name, reason)
             ok &= inside
+        envelope = getattr(self.owner, "envelope", None)
+        if envelope is not None and "axis2" in out.values:   # the safety envelope: stop before it
+            j = envelope.judge(out.values["axis1"] + lanes[0].axis.offset,
+                               out.values["axis2"] + lanes[1].axis.offset,
+                               times - self.owner.ut1_utc, escape=False)
+            if not j.ok:
+                self._envelope_text = j.text
+                reason = np.where((reason == "") & (np.arange(times.size) >= j.good), "envelope", reason)
+                ok[j.good:] = False
         good = _leading(ok)
         if good < times.size:
             self._t_end = float(times[good - 1]) if good else float(now)
             bad = str(reason[good])
-            self._end_reason = "set" if bad == "set" else f"limit:{bad}"
+            self._end_reason = bad if bad in ("set", "envelope") else f"limit:{bad}"
             out.times = times[:good]
             for key in out.values:
                 out.values[key] = out.values[key][:good]
@@ -532,6 +572,9 @@ class TrackSession:
 
     # -- endings --------------------------------------------------------------------------------
     def _planned_end(self) -> TcsError:
+        if self._end_reason == "envelope":
+            return TcsError(f"stopped before {getattr(self, '_envelope_text', 'the envelope')}",
+                            ErrorNumber.SOFTLIMIT)
         if self._end_reason.startswith("limit:"):
             name = self._end_reason.split(":", 1)[1]
             return TcsError(f"{name} would leave its software limits", ErrorNumber.SOFTLIMIT)
