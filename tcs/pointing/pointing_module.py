@@ -414,6 +414,14 @@ class Pointing(ModuleHealth):
         self._session = TrackSession(self, plan, result, current_cause.get(), after=previous)
         return result
 
+    def plan_for(self, ra: float, dec: float, mode: int) -> Plan:
+        """The plan a TRACK of ``mode`` to (ra, dec) would run now (orientation, turn, the
+        envelope's route), without starting anything: what a client asks before a slew
+        (Alpaca DestinationSideOfPier). Raises as TRACK would (9, 5)."""
+        request = TrackRequest(float(ra), float(dec), int(mode), 0, 0.0, self.target.ra_v / 3600.0,
+                               self.target.dec_v / 3600.0, self.ut1())
+        return self._plan(request)
+
     def _plan(self, request: TrackRequest, keep_reverse: bool | None = None) -> Plan:
         derotator = port = None
         if request.flags & FLAG_DEROTATOR:
