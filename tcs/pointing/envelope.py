@@ -486,7 +486,20 @@ class Envelope:
         if j.good == 0:
             raise EnvelopeError(f"{axis.module_name}: moving {'up' if direction > 0 else 'down'} "
                                 f"would enter {j.text}")
-        return float(pos[j.good - 1])
+        good, bad = float(pos[j.good - 1]), float(pos[j.good])
+        first = axis is self.axes[0]
+        still = float(other.real_position)
+        floor = min(0.0, float(self.margins(*((here, still) if first else (still, here)),
+                                            ut1 - self.ut1_utc(), **which)[0][0]))
+        for _ in range(30):   # the border to ~1e-10 degrees (the move plans its stop there)
+            mid = 0.5 * (good + bad)
+            when = ut1 + abs(mid - here) / speed - self.ut1_utc()
+            m = self.margins(*((mid, still) if first else (still, mid)), when, **which)[0][0]
+            if m >= floor - _TOL and (floor < 0.0 or m >= 0.0):
+                good = mid
+            else:
+                bad = mid
+        return good
 
     async def run_route(self, route: Route, axis1, axis2) -> None:
         """Move through ``route.waypoints`` (each a TARGETPOS of both axes, awaited) — the

@@ -218,12 +218,22 @@ def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derot
     if keep_reverse is not None:
         mode = 3 if keep_reverse else 1
     off1, off2 = axis1.offset, axis2.offset
-    chosen = choose_path(
-        i1, i2, mode=mode, mount=pipeline.mount,
-        axis1_range=AxisRange(axis1.section.min - off1, axis1.section.max - off1),
-        axis2_range=AxisRange(axis2.section.min - off2, axis2.section.max - off2),
-        current=(axis1.real_position - off1, axis2.real_position - off2),
-        speed=(axis1.section.max_velocity, axis2.section.max_velocity))
+
+    def choose(mode):
+        return choose_path(
+            i1, i2, mode=mode, mount=pipeline.mount,
+            axis1_range=AxisRange(axis1.section.min - off1, axis1.section.max - off1),
+            axis2_range=AxisRange(axis2.section.min - off2, axis2.section.max - off2),
+            current=(axis1.real_position - off1, axis2.real_position - off2),
+            speed=(axis1.section.max_velocity, axis2.section.max_velocity))
+
+    chosen = choose(mode)
+    if envelope is not None and mode in (2, 4) and not envelope.judge(
+            chosen.axis1[:1] + off1, chosen.axis2[:1] + off2, times[:1] - ut1_utc, escape=False).ok:
+        try:   # the envelope (a keep-out: the pier) forbids this side: the other one, if it can
+            chosen = choose(1 if chosen.reverse else 3)
+        except TcsError:
+            pass
     lanes = [Lane(axis1, "axis1", start=float(chosen.axis1[0])),
              Lane(axis2, "axis2", start=float(chosen.axis2[0]))]
     in_limits = chosen.in_limits
