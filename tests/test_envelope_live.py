@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from support.live import LiveService
-from support.opentci_client import Client as SharedClient
+from support.opentci_client import Client as SharedClient, upload
 from tcs.pointing.envelope import sun_icrs
 
 HORIZON = ((0.0, 15.0), (180.0, 15.0), (270.0, 40.0))   # a hill in the west: 40° at az 270
@@ -133,6 +133,28 @@ async def test_targetpos_through_the_sun_is_refused_and_nothing_moves(live):
         assert any("DATA ERROR AZ.TARGETPOS FAILED 9" in x for x in lines), lines
         event = next(x for x in lines if " EVENT ERROR AZ:9 " in x)
         assert "Sun avoidance cone (30" in event, event
+        assert abs(await c.num("AZ.REALPOS") - az0) < 0.01
+    finally:
+        await c.close()
+
+
+async def test_a_client_trajectory_through_the_sun_is_refused(live):
+    """OpenTCI TRAJECTORY: AZ points sweeping through the Sun at its zenith distance (ZD
+    standing): RUN=1 is FAILED 9 with the event naming the cone, and AZ does not move."""
+    c = await Client.connect(live.port)
+    try:
+        await ready(c)
+        saz, szd = sun_now(live)
+        await place(c, live, saz - 70.0, szd)
+        az0 = await c.num("AZ.REALPOS")
+        ut1 = await c.num("LOCAL.UT1")
+        points = [(ut1 + 2.0 + i, az0 + 140.0 * i / 40.0) for i in range(41)]
+        lines = await upload(c, "AZ", points)
+        assert ok(lines, "AZ.TRAJECTORY.ADDPOINTS"), lines
+        lines = await c.set("AZ.TRAJECTORY.RUN=1")
+        assert any("DATA ERROR AZ.TRAJECTORY.RUN FAILED 9" in x for x in lines), lines
+        assert "Sun avoidance cone" in next(x for x in lines if " EVENT ERROR AZ:9 " in x)
+        await c.set("AZ.TRAJECTORY.RUN=0")
         assert abs(await c.num("AZ.REALPOS") - az0) < 0.01
     finally:
         await c.close()

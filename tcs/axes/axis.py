@@ -138,7 +138,13 @@ class AxisTrajectory:
         return self.axis.queue.free_points_at(self.axis.ut1())
 
     def set_addpoints(self, count: int) -> None:
-        """Move BUFFER[0..count-1] into the running queue (returns at once)."""
+        """Move BUFFER[0..count-1] into the running queue (returns at once); points added to
+        a running trajectory of a main axis are judged by the safety envelope first."""
+        axis = self.axis
+        if axis.envelope is not None and axis.trajectory_running and 0 < int(count) <= len(self.buffer):
+            slots = self.buffer[:int(count)]
+            if all(s.time is not None and s.targetpos is not None for s in slots):
+                axis.envelope(axis, "points", ([s.time for s in slots], [s.targetpos for s in slots]))
         self.addpoints = add_staged_points(self.axis, self.buffer, self.axis.queue, int(count),
                                            self.axis.ut1())
 

@@ -388,14 +388,16 @@ class Operations(ModuleHealth):
         except TcsError as exc:
             self._failed("goto", exc)
             raise
-        return self._start("goto", self._goto(p, d1, d2))
+        # the safety envelope routes the goto; an instrumental position (an engineering place,
+        # which may be below the horizon as before) keeps only the Sun cone and the keep-outs
+        return self._start("goto", self._goto(p, d1, d2, sky=obj.goto_frame != "instrumental"))
 
-    async def _goto(self, p, d1: float, d2: float) -> None:
+    async def _goto(self, p, d1: float, d2: float, sky: bool = True) -> None:
         if p.track:
             p.set_track(0)
             await self._until(lambda: not p.track)
         try:
-            await self._move_main([(p.axis1, d1), (p.axis2, d2)], sky=True)
+            await self._move_main([(p.axis1, d1), (p.axis2, d2)], sky=sky)
         except TcsError as exc:
             self._failed("goto", exc)
             raise

@@ -392,8 +392,8 @@ class Envelope:
         t = np.clip(times_ut1, start, end)
         out = np.array([q.sample(float(x))[0] for x in t]) + axis.offset
         follower = axis.follower
-        shift = getattr(follower, "_shift", 0.0) if follower is not None else 0.0
-        if axis.section.cyclic and not (axis.trajectory_running):
+        shift = getattr(follower, "shift", 0.0) if follower is not None else 0.0
+        if axis.section.cyclic and not axis.trajectory_running:
             # not yet running: the follower will take the turn nearest the axis
             c = axis.section.cyclic
             shift = c * round((axis.real_position - out[0]) / c)
@@ -405,13 +405,29 @@ class Envelope:
     def guard(self, axis, kind: str, value=None, **kw):
         """Judge a motion request of ``axis`` (one of the main axes) before it is taken;
         raises :class:`EnvelopeError`. ``kind``: "target" (TARGETPOS value, offset excluded),
-        "offset", "run" (the queued TRAJECTORY), "jog" (value: direction; returns the
+        "offset", "run" (the queued TRAJECTORY), "points" (value: (times, positions) added by
+        ADDPOINTS to a running trajectory), "jog" (value: direction; returns the
         (lo, hi) drive bound where the move must stop; ``sky=True``: the horizon too)."""
         a_first = axis is self.axes[0]
         other = self.axes[1] if a_first else self.axes[0]
         ut1 = self.utc() + self.ut1_utc()
         if kind == "jog":
             return self._jog_bound(axis, other, int(value), ut1, bool(kw.get("sky")), kw.get("speed"))
+        if kind == "points":   # ADDPOINTS while the trajectory runs: the new points
+            which = dict(horizon=True, sun=True, keepouts=True)
+            times = np.asarray(value[0], float)
+            follower = axis.follower
+            own = np.asarray(value[1], float) + axis.offset + (getattr(follower, "shift", 0.0) or 0.0)
+            keep = times >= ut1
+            times, own = times[keep], own[keep]
+            if not times.size:
+                return None
+            path = self._predict(other, times)
+            a1, a2 = (own, path) if a_first else (path, own)
+            j = self.judge(a1, a2, times - self.ut1_utc(), margin=0.0, escape=False, **which)
+            if not j.ok:
+                raise EnvelopeError(f"{axis.module_name}: trajectory point {j.good} would enter {j.text}")
+            return None
         if kind == "run":
             which = dict(horizon=True, sun=True, keepouts=True)
             what = "its trajectory"
