@@ -47,6 +47,7 @@ def live(tmp_path_factory):
     text = text.replace("latitude = 28.7606", f"latitude = {lat!r}").replace(
         "longitude = -17.8792", f"longitude = {lon!r}")
     hw = base / "hw_envelope.toml"
+    text = text.replace("port = 0\n", "port = 0\nopentsi_port = 0\n", 1)   # the OpenTSI tree too
     hw.write_text(text + "\n[alpaca]\nport = 0\n")
     service = LiveService(hw, base / "state",
                           envelope={"sun_avoidance": 30.0, "horizon": HORIZON, "margin": 0.5}).start()
@@ -265,6 +266,59 @@ def test_alpaca_slews_into_and_across_the_sun(live):
         assert abs(math.remainder(t.Azimuth - (saz + 70.0), 360.0)) < 1.0   # there: the far side
         t.Tracking = False
     finally:
+        t.Disconnect()
+
+
+async def test_opentsi_track_into_the_sun_is_refused_with_its_error(live):
+    """OpenTSI (pyobs, the UNAM and SONG clients): OBJECT.EQUATORIAL in the cone, TRACK=1: the
+    SET fails with 9 and an event naming the cone; tracking does not start."""
+    await _ready_over_tpl2(live)
+    c = await Client.connect(live.service.opentsi_port)
+    try:
+        saz, szd = sun_now(live)
+        p = live.telescope.pointing
+        ra, dec = p.astrometry().icrs_from_observed(saz - 15.0, szd, p.utc())
+        lines = await c.set(f"OBJECT.EQUATORIAL.RA={float(ra)!r};OBJECT.EQUATORIAL.DEC={float(dec)!r}")
+        assert lines[-1].endswith("COMMAND COMPLETE"), lines
+        lines = await c.set("POINTING.TRACK=1")
+        assert any("DATA ERROR POINTING.TRACK FAILED 9" in x for x in lines), lines
+        assert any("Sun avoidance cone" in x for x in lines if " EVENT ERROR " in x), lines
+        assert await c.num("CURRENT.TRACK") == 0
+    finally:
+        await c.close()
+
+
+def test_alpaca_moveaxis_stops_at_the_sun_cone(live):
+    """Alpaca MoveAxis of the azimuth towards the Sun at its zenith distance stops at the cone's
+    border (30° from the Sun, to the planning of the stop), a further move that way does not
+    enter it (InvalidValue at the border), away from it works."""
+    pytest.importorskip("alpaca", reason="alpyca (the 'dev' extra) is not installed")
+    from alpaca.exceptions import InvalidValueException
+    from alpaca.telescope import Telescope, TelescopeAxes
+
+    asyncio.run(_ready_over_tpl2(live))
+    t = Telescope(f"127.0.0.1:{live.service.alpaca_port}", 0)
+    t.Connect()
+    try:
+        until(lambda: not t.AtPark, "ready")
+        t.Tracking = False
+        az = live.telescope.axis("AZ")
+        t.MoveAxis(TelescopeAxes.axisPrimary, 5.0)
+        until(lambda: az.motion_state & 1, "moving")
+        until(lambda: not az.motion_state & 1, "stopped")
+        sep = sep_from_sun(live, t.Azimuth, 90.0 - t.Altitude)
+        assert 30.0 <= sep < 30.2, sep
+        try:   # further: refused, or (the Sun moved the border meanwhile) a hair, to the border
+            t.MoveAxis(TelescopeAxes.axisPrimary, 5.0)
+            until(lambda: not az.motion_state & 1, "stopped again")
+        except InvalidValueException as exc:
+            assert "border" in str(exc), exc
+        assert 30.0 <= sep_from_sun(live, t.Azimuth, 90.0 - t.Altitude) < 30.2
+        t.MoveAxis(TelescopeAxes.axisPrimary, -5.0)
+        until(lambda: sep_from_sun(live, t.Azimuth, 90.0 - t.Altitude) > 32.0, "away from the Sun")
+        t.MoveAxis(TelescopeAxes.axisPrimary, 0.0)
+    finally:
+        t.AbortSlew()
         t.Disconnect()
 
 

@@ -412,17 +412,21 @@ class Axis(ModuleHealth):
         speed = float(speed)
         if not 0 < speed <= self.section.max_velocity * (1 + 1e-12):
             raise RangeRefused(f"{self.module_name}: speed must be in (0, {self.section.max_velocity}]")
+        border = None
         if self.envelope is not None:   # stop at the envelope's border (sky: the horizon too)
-            bound = self.envelope(self, "jog", 1 if direction > 0 else -1, sky=sky, speed=speed)
-            if bound is not None and direction > 0:
-                hi = bound if hi is None else min(hi, bound)
-            elif bound is not None:
-                lo = bound if lo is None else max(lo, bound)
+            border = self.envelope(self, "jog", 1 if direction > 0 else -1, sky=sky, speed=speed)
+            if border is not None and direction > 0:
+                hi = border if hi is None else min(hi, border)
+            elif border is not None:
+                lo = border if lo is None else max(lo, border)
         if direction > 0:
             goal = self.section.max if hi is None else min(hi, self.section.max)
         else:
             goal = self.section.min if lo is None else max(lo, self.section.min)
         if (goal - self.real_position) * direction <= max(self.section.tolerance, 1e-9):
+            if border is not None and goal == border:
+                raise RangeRefused(f"{self.module_name}: at the safety envelope's border {goal:g} already "
+                                   "(Sun cone, horizon or keep-out)")
             raise RangeRefused(f"{self.module_name}: at the {'upper' if direction > 0 else 'lower'} "
                                f"limit {goal:g} already")
         future = self._future()

@@ -375,7 +375,9 @@ class Envelope:
         record = self._approved.get(id(axis))
         if record is not None:
             t0, traj, target = record
-            if t0 + traj.duration > times_ut1[0] - 1.0 and abs(axis.target_position + axis.offset - target) < 1e-6:
+            young = times_ut1[0] - t0 < 1.0    # (the loop may not have published the target yet)
+            if t0 + traj.duration > times_ut1[0] - 1.0 and (
+                    young or abs(axis.target_position + axis.offset - target) < 1e-6):
                 return _evaluate(traj, times_ut1 - t0)
             self._approved.pop(id(axis), None)
         if axis.trajectory_running and len(axis.queue):
