@@ -68,7 +68,7 @@ from typing import Any
 import numpy as np
 
 from tcs.errors import ErrorNumber, RequestRefused, TcsError
-from tcs.model.events import ERROR, INFO, WARN
+from tcs.model.events import ERROR, INFO, WARN, current_cause
 from tcs.model.health import WARNING
 from tcs.pointing.demand import Pipeline, field_angle
 from tcs.pointing.orientation import AxisRange, choose_path
@@ -461,8 +461,10 @@ class TrackSession:
                 lane.future.remove_done_callback(self._lane_done)
         await self._run0([lane.axis for lane in old if id(lane.axis) not in new_axes])
         await self._run0([lane.axis for lane in plan.lanes])
-        if plan.route is not None:   # the envelope's detour, then the intercept from its end
-            await owner.envelope.run_route(plan.route, plan.lanes[0].axis, plan.lanes[1].axis)
+        if getattr(owner, "envelope", None) is not None:
+            plan = await self._detour(plan)   # the envelope's detour, then the intercept from its end
+            if plan is None:
+                return                         # interrupted: TRACK=0, STOP or a newer plan
         self._t_end, self._end_reason, self._last_t = None, "", None
         lanes = [Lane(lane.axis, lane.role, lane.port, lane.start) for lane in plan.lanes]
         points = self._points(plan, lanes, owner.ut1(), first=True)
@@ -487,6 +489,35 @@ class TrackSession:
                    f"tracking {ra_text}, {'reverse' if plan.reverse else 'normal'} orientation"
                    + (f", {lanes[2].axis.module_name} follows the field" if len(lanes) > 2 else ""),
                    cause)
+
+    async def _detour(self, plan: Plan) -> Plan | None:
+        """Re-plan from where the axes stand now and run the safety envelope's detour, if the
+        plan has one (TARGETPOS moves through its waypoints); again from its end, until the
+        slew onto the path is direct. TRACK=0, STOP or a newer plan meanwhile stop the axes
+        (the normal controlled stop, as an ABORT of the moves) and return None."""
+        owner = self.owner
+        for _ in range(3):
+            plan = owner._plan(plan.request, keep_reverse=plan.reverse)
+            if self._pending is None:
+                self.plan = plan
+            if plan.route is None:
+                return plan
+            axes = (plan.lanes[0].axis, plan.lanes[1].axis)
+            route = asyncio.ensure_future(owner.envelope.run_route(plan.route, *axes))
+            while not route.done():
+                self._wake.clear()
+                waiter = asyncio.ensure_future(self._wake.wait())
+                await asyncio.wait([route, waiter], return_when=asyncio.FIRST_COMPLETED)
+                waiter.cancel()
+                if not route.done() and (self._stop is not False or self._pending is not None):
+                    route.cancel()
+                    for axis in axes:   # the moves this task started: the normal controlled stop
+                        axis.abort_request(current_cause.get())
+                    await asyncio.wait([route])
+                    self._wake.set()
+                    return None
+            route.result()    # (a failed move ends the tracking with its error)
+        return plan
 
     @staticmethod
     async def _taken(lanes: list[Lane]) -> None:
