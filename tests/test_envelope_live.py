@@ -26,7 +26,7 @@ from support.live import LiveService
 from support.opentci_client import Client as SharedClient, upload
 from tcs.pointing.envelope import sun_icrs
 
-HORIZON = ((0.0, 15.0), (180.0, 15.0), (270.0, 40.0))   # a hill in the west: 40° at az 270
+HORIZON = ((0.0, 15.0), (160.0, 15.0), (250.0, 40.0))   # a hill in the west: 40° at az 250
 WAIT = 60.0
 
 
@@ -48,14 +48,14 @@ def live(tmp_path_factory):
         "longitude = -17.8792", f"longitude = {lon!r}")
     hw = base / "hw_envelope.toml"
     text = text.replace("port = 0\n", "port = 0\nopentsi_port = 0\n", 1)   # the OpenTSI tree too
-    # slower main axes (20 and 15 deg/s): a stalled loop on a loaded machine must not make a
-    # 20-degree following error at 60 deg/s (the slews here are long)
+    # slower main axes (40 and 30 deg/s): a stalled loop on a loaded machine makes a 20-degree
+    # following error at 60 deg/s more easily (the slews here are long; faults are recovered)
     az, zd = text.index("[axes.az]"), text.index("[axes.zd]")
     end = text.index("[axes.", zd + 5)
-    text = (text[:az] + text[az:zd].replace("max_velocity = 60.0", "max_velocity = 20.0")
-            .replace("max_acceleration = 120.0", "max_acceleration = 20.0")
-            + text[zd:end].replace("max_velocity = 40.0", "max_velocity = 15.0")
-            .replace("max_acceleration = 80.0", "max_acceleration = 15.0") + text[end:])
+    text = (text[:az] + text[az:zd].replace("max_velocity = 60.0", "max_velocity = 40.0")
+            .replace("max_acceleration = 120.0", "max_acceleration = 60.0")
+            + text[zd:end].replace("max_velocity = 40.0", "max_velocity = 30.0")
+            .replace("max_acceleration = 80.0", "max_acceleration = 40.0") + text[end:])
     hw.write_text(text + "\n[alpaca]\nport = 0\n")
     service = LiveService(hw, base / "state",
                           envelope={"sun_avoidance": 30.0, "horizon": HORIZON, "margin": 0.5}).start()
@@ -119,11 +119,13 @@ async def ready(c: Client) -> None:
     await c.wait("POINTING.TRACK", lambda v: v == 0)
 
 
-async def place(c: Client, live, az: float, zd: float) -> None:
-    """Engineering moves to (az, zd) on the turn nearest AZ: ZD up to 5° first (away from
-    the Sun 40° off the zenith), AZ, then ZD (each judged by the envelope too)."""
+async def place(c: Client, live, az: float, zd: float, turn: bool = True) -> None:
+    """Engineering moves to (az, zd) on the turn nearest AZ (``turn`` False: az as given): ZD
+    up to 5° first (away from the Sun 40° off the zenith), AZ, then ZD (each judged by the
+    envelope too)."""
     here = await c.num("AZ.REALPOS")
-    az = here + math.remainder(az - here, 360.0)
+    if turn:
+        az = here + math.remainder(az - here, 360.0)
     for text, obj in (("ZD.TARGETPOS=5", "ZD.TARGETPOS"), (f"AZ.TARGETPOS={az!r}", "AZ.TARGETPOS"),
                       (f"ZD.TARGETPOS={zd!r}", "ZD.TARGETPOS")):
         for _attempt in range(3):
@@ -233,14 +235,14 @@ async def test_a_track_into_the_sun_cone_is_refused(live):
 
 
 async def test_tracking_stops_before_the_horizon_table_with_the_event(live):
-    """A star setting in the west 0.04° above the table's 40° there: tracking ends by itself
+    """A star setting in the west 0.05° above the table's 40° there: tracking ends by itself
     in a controlled stop before the table (the axes stand above it), with ERROR POINTING:9
     naming the horizon limit and FAILED 9 for the TRACK SET."""
     c = await Client.connect(live.port)
     try:
         await ready(c)
-        await place(c, live, 265.0, 45.0)
-        await star_at(c, live, 270.0, 90.0 - 40.04, ahead=0.0)
+        await place(c, live, 245.0, 45.0)
+        await star_at(c, live, 250.0, 90.0 - 40.05, ahead=0.0)
         c.forget()
         cmd = await c.start("POINTING.TRACK=1")
         await c.event(rf"^(?:0|{cmd}) EVENT INFO POINTING:1014 ")
@@ -263,7 +265,7 @@ def test_alpaca_slews_into_and_across_the_sun(live):
     it, the slew completes and the telescope (its own Azimuth/Altitude over HTTP) never came
     within 30° of the Sun."""
     pytest.importorskip("alpaca", reason="alpyca (the 'dev' extra) is not installed")
-    from alpaca.exceptions import InvalidValueException
+    from alpaca.exceptions import DriverException, InvalidValueException
     from alpaca.telescope import Telescope
 
     asyncio.run(_ready_over_tpl2(live))
@@ -279,13 +281,21 @@ def test_alpaca_slews_into_and_across_the_sun(live):
         with pytest.raises(InvalidValueException) as err:
             t.SlewToCoordinatesAsync(float(ra), float(dec))
         assert "Sun" in str(err.value), err.value
-        ra, dec = p.astrometry().icrs_from_observed((saz + 70.0) % 360.0, szd, p.utc() + 2.0)
-        t.SlewToCoordinatesAsync(float(ra), float(dec))
-        closest = 180.0
-        deadline = time.monotonic() + WAIT
-        while t.Slewing:
-            closest = min(closest, sep_from_sun(live, t.Azimuth, 90.0 - t.Altitude))
-            assert time.monotonic() < deadline, "the slew did not end"
+        for attempt in range(3):
+            ra, dec = p.astrometry().icrs_from_observed((saz + 70.0) % 360.0, szd, p.utc() + 2.0)
+            t.SlewToCoordinatesAsync(float(ra), float(dec))
+            closest = 180.0
+            deadline = time.monotonic() + WAIT
+            try:
+                while t.Slewing:
+                    closest = min(closest, sep_from_sun(live, t.Azimuth, 90.0 - t.Altitude))
+                    assert time.monotonic() < deadline, "the slew did not end"
+                break
+            except DriverException as exc:   # a drive fault of a loaded machine: recover, again
+                assert any(w in str(exc) for w in ("faulted", "stale", "following error")), exc
+                asyncio.run(_ready_over_tpl2(live))
+                t.Tracking = True
+                until(lambda: not t.Slewing, "tracking where it points")
         closest = min(closest, sep_from_sun(live, t.Azimuth, 90.0 - t.Altitude))
         assert closest >= 30.0, closest
         assert abs(math.remainder(t.Azimuth - (saz + 70.0), 360.0)) < 1.0   # there: the far side
@@ -297,7 +307,7 @@ def test_alpaca_slews_into_and_across_the_sun(live):
 async def test_opentsi_track_into_the_sun_is_refused_with_its_error(live):
     """OpenTSI (pyobs, the UNAM and SONG clients): OBJECT.EQUATORIAL in the cone, TRACK=1: the
     SET fails with 9 and an event naming the cone; tracking does not start."""
-    await _ready_over_tpl2(live)
+    await _ready_over_tpl2(live, east=False)
     c = await Client.connect(live.service.opentsi_port)
     try:
         saz, szd = sun_now(live)
@@ -328,18 +338,18 @@ def test_alpaca_moveaxis_stops_at_the_sun_cone(live):
         until(lambda: not t.AtPark, "ready")
         t.Tracking = False
         az = live.telescope.axis("AZ")
-        t.MoveAxis(TelescopeAxes.axisPrimary, 5.0)
+        t.MoveAxis(TelescopeAxes.axisPrimary, 10.0)
         until(lambda: az.motion_state & 1, "moving")
         until(lambda: not az.motion_state & 1, "stopped")
         sep = sep_from_sun(live, t.Azimuth, 90.0 - t.Altitude)
         assert 30.0 <= sep < 30.2, sep
         try:   # further: refused, or (the Sun moved the border meanwhile) a hair, to the border
-            t.MoveAxis(TelescopeAxes.axisPrimary, 5.0)
+            t.MoveAxis(TelescopeAxes.axisPrimary, 10.0)
             until(lambda: not az.motion_state & 1, "stopped again")
         except InvalidValueException as exc:
             assert "border" in str(exc), exc
         assert 30.0 <= sep_from_sun(live, t.Azimuth, 90.0 - t.Altitude) < 30.2
-        t.MoveAxis(TelescopeAxes.axisPrimary, -5.0)
+        t.MoveAxis(TelescopeAxes.axisPrimary, -10.0)
         until(lambda: sep_from_sun(live, t.Azimuth, 90.0 - t.Altitude) > 32.0, "away from the Sun")
         t.MoveAxis(TelescopeAxes.axisPrimary, 0.0)
     finally:
@@ -354,12 +364,13 @@ def until(condition, what: str, timeout: float = WAIT):
         time.sleep(0.05)
 
 
-async def _ready_over_tpl2(live) -> None:
+async def _ready_over_tpl2(live, east: bool = True) -> None:
     c = await Client.connect(live.port)
     try:
         await ready(c)
-        saz, szd = sun_now(live)
-        await place(c, live, saz - 70.0, szd)
+        if east:   # 70° east of the Sun, at its zenith distance
+            saz, szd = sun_now(live)
+            await place(c, live, saz - 70.0, szd)
     finally:
         await c.close()
 
