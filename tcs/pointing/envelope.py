@@ -146,8 +146,7 @@ def _evaluate(traj, times: np.ndarray) -> np.ndarray:
     tt = np.clip(times, 0.0, cum[-1])
     k = np.clip(np.searchsorted(cum, tt, side="right") - 1, 0, 6)
     d = tt - cum[k]
-    out = p[k] + v[k] * d + a[k] * d * d / 2.0 + j[k] * d ** 3 / 6.0
-    return np.where(times >= cum[-1], prof.pf, out)
+    return p[k] + v[k] * d + a[k] * d * d / 2.0 + j[k] * d ** 3 / 6.0
 
 
 _SOLVER = ProfileSolver(0.01)
@@ -571,6 +570,16 @@ def plan_route(env: Envelope, t0_utc: float, starts, end, dynamics, ranges, *, h
     if m_end[0] < 0.0:
         raise EnvelopeError(f"the target is inside {env.describe(env.reason(why_end[0]), *end)}")
     margin = min(margin, float(m_end[0]))   # (a target near a border: the path keeps its distance)
+    first = margin
+    if any(abs(st.velocity) > 1e-9 or abs(st.acceleration) > 1e-9 for st in starts):
+        # the axes are moving (a slew superseded): their braking happens whatever comes next;
+        # the first leg may go as deep as that brake would (it was judged when it was planned)
+        brake = [_SOLVER.stop(st, max_velocity=max(d.max_velocity, abs(st.velocity)),
+                              max_acceleration=d.max_acceleration, max_jerk=d.max_jerk, discrete=False)
+                 for st, d in zip(starts, dynamics)]
+        bt = np.linspace(0.0, max(b.duration for b in brake), 50)
+        mb, _w = env.margins(_evaluate(brake[0], bt), _evaluate(brake[1], bt), t0_utc + bt, **which)
+        first = min(margin, float(mb.min()))
     (lo1, hi1), (lo2, hi2) = ranges
     candidates: list[tuple[str, tuple]] = [("direct", ()), ("axis 2 first", ((here[0], end[1]),)),
                                            ("axis 1 first", ((end[0], here[1]),))]
@@ -600,7 +609,7 @@ def plan_route(env: Envelope, t0_utc: float, starts, end, dynamics, ranges, *, h
                 ok = False
                 break
             times, p1, p2, duration = move_samples(start, goal, dynamics)
-            j = env.judge(p1, p2, t + times, margin=margin, escape=(i == 0), **which)
+            j = env.judge(p1, p2, t + times, margin=first if i == 0 else margin, escape=(i == 0), **which)
             if not j.ok:
                 if first_failure is None:
                     first_failure = j
