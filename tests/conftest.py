@@ -24,7 +24,7 @@ import pytest
 SLOW_FIRST = (
     "test_pointing_module.py", "test_alpaca.py", "test_motion_safety.py",
     "test_control_process.py", "test_motion.py", "test_systemd.py", "test_two_processes.py",
-    "test_axes.py", "test_busy_host.py", "test_commission.py", "test_vendor_drives.py",
+    "test_axes.py", "test_envelope_live.py", "test_envelope.py", "test_busy_host.py", "test_commission.py", "test_vendor_drives.py",
     "test_opentsi.py", "test_server.py", "test_drive_recovery.py", "test_wheel.py",
     "test_enclosure.py", "test_cli_server.py", "test_driver_modes.py",
     "test_conformance_server.py", "test_client.py",

@@ -2,7 +2,8 @@
 terms IH/ID, pulse guiding east, driven by alpyca against ``tests/hw_pointing_eq.toml``.
 
 The hardware file is the pointing tests' fast equatorial telescope with an ``[alpaca]`` section
-added (written next to the state directory: the file has no relative paths).
+and a keep-out zone (a "pier": HA 4-8 h west, Dec 50-89° in the normal orientation) added
+(written next to the state directory: the file has no relative paths).
 """
 
 from __future__ import annotations
@@ -23,7 +24,8 @@ ARCSEC = 1.0 / 3600.0
 
 def _equatorial_with_alpaca(base: Path) -> Path:
     hw = base / "hw_alpaca_eq.toml"
-    hw.write_text(Path(__file__).with_name("hw_pointing_eq.toml").read_text() + "\n[alpaca]\nport = 0\n")
+    hw.write_text(Path(__file__).with_name("hw_pointing_eq.toml").read_text() + "\n[alpaca]\nport = 0\n"
+                  + "\n[[envelope.keepout]]\nname = \"pier\"\naxis1 = [60.0, 120.0]\naxis2 = [50.0, 89.0]\n")
     return hw
 
 
@@ -125,4 +127,44 @@ def test_moveaxis_on_an_equatorial_mount_stops_at_the_horizon_limit(live):
             until(lambda: not t.Slewing and not lowered.motion_state & 1, "stopped")
     finally:
         t.AbortSlew()
+        t.Disconnect()
+
+
+def test_destination_side_of_pier_is_the_side_the_slew_ends_on(live):
+    """The pier side is the TCS's (POINTING.TRACK mode 2: the orientation that stays inside the
+    limits longest, normal preferred, and out of the envelope's keep-outs): DestinationSideOfPier
+    answers from that same plan and SideOfPier reads it once the slew ended — also for a star
+    whose normal orientation would put the tube into the pier keep-out, where the slew goes
+    through the pole (pierWest). The old answer (the first orientation inside the axis limits
+    and above the horizon) said pierEast there."""
+    from alpaca.exceptions import DriverException
+
+    t = Telescope(f"127.0.0.1:{live.service.alpaca_port}", 0)
+    t.Connect()
+    t.Unpark()
+    until(lambda: live.telescope.operations.ready_state == 1.0, "READY_STATE 1")
+    try:
+        t.Tracking = True
+        until(lambda: not t.Slewing, "tracking where it points")
+        sides = []
+        for ha_hours, dec in ((-2.0, 10.0), (2.0, 30.0), (5.0, 70.0), (-1.0, 60.0)):
+            ra = (t.SiderealTime - ha_hours) % 24.0
+            expected = t.DestinationSideOfPier(ra, dec)
+            for _attempt in range(3):
+                t.SlewToCoordinatesAsync(ra, dec)
+                try:
+                    until(lambda: not t.Slewing, "on the star")
+                    break
+                except DriverException as exc:   # a drive fault of a loaded machine: recover
+                    assert any(w in str(exc) for w in ("following error", "stale", "faulted")), exc
+                    t.Action("AcknowledgeFaults", "")
+                    t.Unpark()
+                    until(lambda: live.telescope.operations.ready_state == 1.0, "READY_STATE 1")
+                    t.Tracking = True
+                    until(lambda: not t.Slewing, "tracking where it points")
+            assert t.SideOfPier == expected, (ha_hours, dec, t.SideOfPier, expected)
+            sides.append(int(getattr(expected, "value", expected)))
+        assert sides == [0, 0, 1, 0], sides   # HA 5 h, Dec 70: the normal side is in the pier
+    finally:
+        t.Tracking = False
         t.Disconnect()

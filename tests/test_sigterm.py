@@ -115,6 +115,7 @@ def test_clean_stop_leaves_no_drive_faults(tmp_path):
         plc["port"] = free_port()
     if "gps" in doc:
         doc["gps"]["url"] = f"socket://127.0.0.1:{free_port()}"
+    doc["envelope"]["sun_avoidance"] = 0.0   # slews at any hour CI runs (tests/support/service.py)
     hwfile = tmp_path / "remote.toml"
     hwfile.write_text(tomlkit.dumps(doc))
     (tmp_path / "eds").symlink_to(PACKAGE_ROOT / "hwconfig" / "eds")

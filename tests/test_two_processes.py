@@ -54,6 +54,7 @@ def _remote(tmp_path, heartbeat_period: float = 1.0):
     for drive in doc["drives"].values():
         drive["heartbeat_period"] = heartbeat_period
         drive["heartbeat_consumer_timeout"] = 5.0
+    doc["envelope"]["sun_avoidance"] = 0.0   # slews at any hour CI runs (tests/support/service.py)
     hwfile = tmp_path / "remote.toml"
     hwfile.write_text(tomlkit.dumps(doc))
     (tmp_path / "eds").symlink_to(PACKAGE_ROOT / "hwconfig" / "eds")
@@ -246,6 +247,7 @@ def test_killed_control_process_drives_stop_at_the_stop_deceleration(tmp_path):
     for drive in doc["drives"].values():
         drive["heartbeat_period"] = 1.0
         drive["heartbeat_consumer_timeout"] = 5.0
+    doc["envelope"]["sun_avoidance"] = 0.0   # slews at any hour CI runs (tests/support/service.py)
     hwfile = tmp_path / "remote.toml"
     hwfile.write_text(tomlkit.dumps(doc))
     (tmp_path / "eds").symlink_to(PACKAGE_ROOT / "hwconfig" / "eds")

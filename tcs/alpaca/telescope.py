@@ -68,7 +68,7 @@ import numpy as np
 from tcs.alpaca.device import Device, axis_ready, need, utc_iso
 from tcs.alpaca.protocol import AlpacaRequest, AscomError, Code, not_implemented
 from tcs.pointing.orientation import to_normal
-from tcs.errors import RangeRefused
+from tcs.errors import ErrorNumber, RangeRefused, TcsError
 from tcs.pointing.targets import body_rates
 
 SIDEREAL_DEG_S = 360.0 / 86164.0905   # degrees per SI second
@@ -325,8 +325,19 @@ class TelescopeDevice(Device):
         raise not_implemented("setting SideOfPier")
 
     def get_destinationsideofpier(self, r) -> int:
+        """The side the slew to (ra, dec) will end on: the tracker's own plan (the pier-side
+        policy of POINTING.TRACK mode 2, the envelope) when the axes are ready — so that
+        SideOfPier reads the same once the slew ended; pierUnknown (-1) for a slew that would
+        be refused. Axes not ready: the first orientation inside the limits."""
         ra, dec = self._radec(r, "RightAscension", "Declination")
         p = self.p
+        try:
+            plan = p.plan_for(ra, dec, TRACK_INSIDE_LIMITS)
+        except TcsError as exc:
+            if exc.number != ErrorNumber.INVMODE:
+                return -1   # pierUnknown: the slew would be refused
+        else:
+            return 1 if plan.reverse else 0
         d_utc = p.utc()
         pipe = p.pipeline()
         for reverse in (False, True):
@@ -653,7 +664,7 @@ class TelescopeDevice(Device):
         axis_ready(axis, "MoveAxis")
         direction, lo, hi = self._move_bounds(n, axis, rate)
         try:
-            fut = axis.move_toward(direction, abs(rate), lo=lo, hi=hi)
+            fut = axis.move_toward(direction, abs(rate), lo=lo, hi=hi, sky=True)   # (+ the envelope)
         except RangeRefused as exc:
             raise AscomError(Code.INVALID_VALUE, f"MoveAxis({n}, {rate:g}): {exc.message}") from None
         self._moving_axes.add(axis)

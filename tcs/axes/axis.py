@@ -139,7 +139,13 @@ class AxisTrajectory:
         return self.axis.queue.free_points_at(self.axis.ut1())
 
     def set_addpoints(self, count: int) -> None:
-        """Move BUFFER[0..count-1] into the running queue (returns at once)."""
+        """Move BUFFER[0..count-1] into the running queue (returns at once); points added to
+        a running trajectory of a main axis are judged by the safety envelope first."""
+        axis = self.axis
+        if axis.envelope is not None and axis.trajectory_running and 0 < int(count) <= len(self.buffer):
+            slots = self.buffer[:int(count)]
+            if all(s.time is not None and s.targetpos is not None for s in slots):
+                axis.envelope(axis, "points", ([s.time for s in slots], [s.targetpos for s in slots]))
         self.addpoints = add_staged_points(self.axis, self.buffer, self.axis.queue, int(count),
                                            self.axis.ut1())
 
@@ -272,6 +278,10 @@ class Axis(ModuleHealth):
         self._pending: dict[str, tuple[asyncio.Future, Any]] = {}
         self._joined: dict[str, list[asyncio.Future]] = {}  # later requests ending with _pending's
         self._completions: list[tuple[asyncio.Future, TcsError | None]] = []
+        #: the safety envelope's guard of a main axis (tcs.pointing.envelope.Envelope.guard),
+        #: installed by the POINTING module: judges TARGETPOS, OFFSET, RUN and moves
+        #: (``guard(axis, kind, value, **kw)``, raises TcsError 9); None: software limits only
+        self.envelope: Callable[..., Any] | None = None
 
     # ================================================================ asyncio side
 
@@ -339,8 +349,9 @@ class Axis(ModuleHealth):
         self._send("power", on, future)
         return future
 
-    def set_target(self, value: float):
-        """``TARGETPOS`` (long-running; a newer target supersedes this one with 10)."""
+    def set_target(self, value: float, *, checked: bool = False):
+        """``TARGETPOS`` (long-running; a newer target supersedes this one with 10).
+        ``checked``: the caller planned the path against the envelope already (routes)."""
         self._require(what="move")
         value = float(value)
         if self.discrete:
@@ -350,6 +361,8 @@ class Axis(ModuleHealth):
         elif not self.limits.contains(value + self.offset):
             raise RangeRefused(f"{self.module_name}: {value} (+ offset {self.offset}) is outside "
                                f"[{self.section.min}, {self.section.max}]")
+        elif self.envelope is not None and not checked:
+            self.envelope(self, "target", value)
         future = self._future()
         self._send("target", value, future)
         return future
@@ -373,6 +386,8 @@ class Axis(ModuleHealth):
             raise RangeRefused(f"{self.module_name}: offset {value} puts the target outside the limits")
         # while a trajectory runs, the loop side checks path + OFFSET over the queued path
         # before it takes the offset (RANGE, the offset keeps its value)
+        if self.envelope is not None:
+            self.envelope(self, "offset", value)
         future = self._future()
         self._send("offset", value, future)
         return future
@@ -385,7 +400,7 @@ class Axis(ModuleHealth):
         self._send("abort", cause)
 
     def move_toward(self, direction: int, speed: float, lo: float | None = None,
-                    hi: float | None = None):
+                    hi: float | None = None, *, sky: bool = False):
         """Move at ``speed`` (axis units/s, at most the axis maximum; CURRSPEED is neither
         used nor changed) in ``direction`` (+1: increasing position) until the software
         limit on that side, or ``hi``/``lo`` (drive frame) when those are nearer — never
@@ -403,11 +418,21 @@ class Axis(ModuleHealth):
         speed = float(speed)
         if not 0 < speed <= self.section.max_velocity * (1 + 1e-12):
             raise RangeRefused(f"{self.module_name}: speed must be in (0, {self.section.max_velocity}]")
+        border = None
+        if self.envelope is not None:   # stop at the envelope's border (sky: the horizon too)
+            border = self.envelope(self, "jog", 1 if direction > 0 else -1, sky=sky, speed=speed)
+            if border is not None and direction > 0:
+                hi = border if hi is None else min(hi, border)
+            elif border is not None:
+                lo = border if lo is None else max(lo, border)
         if direction > 0:
             goal = self.section.max if hi is None else min(hi, self.section.max)
         else:
             goal = self.section.min if lo is None else max(lo, self.section.min)
         if (goal - self.real_position) * direction <= max(self.section.tolerance, 1e-9):
+            if border is not None and goal == border:
+                raise RangeRefused(f"{self.module_name}: at the safety envelope's border {goal:g} already "
+                                   "(Sun cone, horizon or keep-out)")
             raise RangeRefused(f"{self.module_name}: at the {'upper' if direction > 0 else 'lower'} "
                                f"limit {goal:g} already")
         future = self._future()
@@ -468,6 +493,8 @@ class Axis(ModuleHealth):
             self._send("run", False, future)
             return future
         self._require(what="run a trajectory")
+        if self.envelope is not None and shift is None:   # a client's trajectory (POINTING
+            self.envelope(self, "run")                    # passes its cable-wrap shift)
         future = self._future()
         self._send("run", True if shift is None else (True, float(shift)), future)
         return future

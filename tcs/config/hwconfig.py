@@ -26,6 +26,7 @@ from tcs.config.modules import (CoverSection, DomeSection, InterlockSection, Sen
 from tcs.config.opentsi import OpenTsiSection
 from tcs.config.plc import PlcSection
 from tcs.config.pointing import PointingSection
+from tcs.config.envelope import EnvelopeSection
 from tcs.config.sections import (CabinetSection, MountSection, ServerSection, SiteSection,
                                  StateSection, TimeSection, UserSection)
 from tcs.config.axes import AxisSection, SimulationSection, check_axes
@@ -56,6 +57,8 @@ class HwConfig:
     axes: dict[str, AxisSection] = setting(factory=dict, doc="OpenTCI axes by name (tcs.config.axes)")
     simulation: SimulationSection | None = setting(None, doc="drives simulated in-process (tcs.config.axes)")
     pointing: PointingSection = setting(factory=PointingSection, doc="the POINTING module (tcs.config.pointing)")
+    envelope: EnvelopeSection = setting(factory=EnvelopeSection, doc="the safety envelope: Sun cone, "
+                                        "horizon table, keep-out zones (tcs.config.envelope)")
     dome: DomeSection | None = setting(None, doc="DOME[] and CONFIG.DOME on PLC axes (tcs.config.modules)")
     covers: list[CoverSection] = setting(factory=tuple, doc="COVER / COVER[] on PLC axes (tcs.config.modules)")
     sensors: list[SensorSection] = setting(factory=tuple, doc="SENSOR[] on PLC points (tcs.config.modules)")

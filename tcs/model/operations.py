@@ -242,11 +242,11 @@ class Operations(ModuleHealth):
         moves, moved = [], []
         for axis, park in self.park_positions():
             if axis.power_state == 1.0 and axis.referenced >= 1.0:
-                moves.append(axis.set_target(park - axis.offset))
+                moves.append((axis, park - axis.offset))
                 moved.append(axis)
         if moves:
             try:
-                await gather_all(*moves)
+                await self._move_main(moves)
             except asyncio.CancelledError:
                 # ended before the park position: the moves stop (normal deceleration) and
                 # the power stays on (no power-off of a telescope that is not parked)
@@ -421,14 +421,16 @@ class Operations(ModuleHealth):
         except TcsError as exc:
             self._failed("goto", exc)
             raise
-        return self._start("goto", self._goto(p, d1, d2))
+        # the safety envelope routes the goto; an instrumental position (an engineering place,
+        # which may be below the horizon as before) keeps only the Sun cone and the keep-outs
+        return self._start("goto", self._goto(p, d1, d2, sky=obj.goto_frame != "instrumental"))
 
-    async def _goto(self, p, d1: float, d2: float) -> None:
+    async def _goto(self, p, d1: float, d2: float, sky: bool = True) -> None:
         if p.track:
             p.set_track(0)
             await self._until(lambda: not p.track)
         try:
-            await gather_all(p.axis1.set_target(d1), p.axis2.set_target(d2))
+            await self._move_main([(p.axis1, d1), (p.axis2, d2)], sky=sky)
         except TcsError as exc:
             self._failed("goto", exc)
             raise
@@ -573,7 +575,7 @@ class Operations(ModuleHealth):
         if p is not None and p.track:
             p.set_track(0)
             await self._until(lambda: not p.track)
-        await gather_all(*(axis.set_target(park - axis.offset) for axis, park in parks))
+        await self._move_main([(axis, park - axis.offset) for axis, park in parks])
         self._parked = True
 
     def unpark(self):
@@ -630,8 +632,25 @@ class Operations(ModuleHealth):
                 p.set_track(0)
                 await self._until(lambda: not p.track)
             await gather_all(*(a.reference(False) for a, _h in homes))
-            await gather_all(*(a.set_target(home - a.offset) for a, home in homes))
+            await self._move_main([(a, home - a.offset) for a, home in homes])
         return self._start("home", run())
+
+    async def _move_main(self, targets, sky: bool = False) -> None:
+        """TARGETPOS of several axes at once; the two main axes together on the route the safety
+        envelope plans (:meth:`tcs.pointing.envelope.Envelope.goto`: around the Sun cone and the
+        keep-outs; ``sky``: above the horizon table too), the others as they are."""
+        p = self.pointing
+        env = getattr(p, "envelope", None) if p is not None else None
+        main = {id(p.axis1): None, id(p.axis2): None} if env is not None else {}
+        for axis, value in targets:
+            if id(axis) in main:
+                main[id(axis)] = value
+        if env is None or any(v is None for v in main.values()):
+            await gather_all(*(axis.set_target(value) for axis, value in targets))
+            return
+        others = [axis.set_target(value) for axis, value in targets if id(axis) not in main]
+        await gather_all(env.goto(p.axis1, p.axis2, main[id(p.axis1)], main[id(p.axis2)], horizon=sky),
+                         *others)
 
     @property
     def pulse_guiding(self) -> bool:

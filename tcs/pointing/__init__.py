@@ -9,7 +9,8 @@
 Nothing above knows the OpenTCI tree or the axes. The POINTING module is built on top:
 :mod:`~tcs.pointing.pointing_module` (the domain object), :mod:`~tcs.pointing.tracker`
 (tracking by streaming trajectories into the axes), :mod:`~tcs.pointing.pointing_params`
-(POINTINGPARAMS); import those from their modules.
+(POINTINGPARAMS), :mod:`~tcs.pointing.envelope` (the safety envelope: Sun cone, horizon table,
+keep-outs on every planned path); import those from their modules.
 """
 
 from tcs.pointing.astrometry import Astrometry, Observed, Refraction, Site, TimeBase

@@ -66,6 +66,7 @@ from tcs.model.events import current_cause
 from tcs.model.health import ModuleHealth
 from tcs.pointing.astrometry import Astrometry, Refraction, Site, TimeBase
 from tcs.pointing.demand import Pipeline, Place
+from tcs.pointing.envelope import Envelope
 from tcs.pointing.model import PointingModel, Sample
 from tcs.pointing.orientation import to_normal
 from tcs.pointing.pointing_params import PointingParams
@@ -311,6 +312,11 @@ class Pointing(ModuleHealth):
         self._astrometry: tuple[tuple, Astrometry] | None = None
         self._pipeline: tuple[tuple, Pipeline] | None = None
         self._place_cache: tuple[tuple, Place] | None = None
+        #: the safety envelope (Sun cone, horizon table, keep-outs) on every planned path
+        self.envelope = Envelope(telescope.config.envelope, self.mount,
+                                 floor=lambda: self.config.min_altitude, astrometry=self.astrometry,
+                                 utc=self.utc, ut1_utc=lambda: self.ut1_utc)
+        self.envelope.attach(axis1, axis2)
 
     # -- time, site, pipeline -------------------------------------------------------------------
     def utc(self) -> float:
@@ -436,6 +442,14 @@ class Pointing(ModuleHealth):
                               az_limits=lim1, zd_limits=lim2,
                               az_current=a1.real_position - a1.offset)
 
+    def plan_for(self, ra: float, dec: float, mode: int) -> Plan:
+        """The plan a TRACK of ``mode`` to (ra, dec) would run now (orientation, turn, the
+        envelope's route), without starting anything: what a client asks before a slew
+        (Alpaca DestinationSideOfPier). Raises as TRACK would (9, 5)."""
+        request = TrackRequest(float(ra), float(dec), int(mode), 0, 0.0, self.target.ra_v / 3600.0,
+                               self.target.dec_v / 3600.0, self.ut1())
+        return self._plan(request)
+
     def _plan(self, request: TrackRequest, keep_reverse: bool | None = None) -> Plan:
         derotator = port = None
         if request.flags & FLAG_DEROTATOR:
@@ -445,7 +459,7 @@ class Pointing(ModuleHealth):
                           derotator=derotator, port=port, dome=dome, ut1=self.ut1(),
                           ut1_utc=self.ut1_utc,
                           zd_limit=self.zd_limit, plan_horizon=self.config.plan_horizon,
-                          keep_reverse=keep_reverse)
+                          keep_reverse=keep_reverse, envelope=self.envelope)
 
     def active_derotator(self):
         """(derotator axis, port) at the active port: MIRROR's position, else the first one."""

@@ -75,7 +75,7 @@ from typing import Any
 import numpy as np
 
 from tcs.errors import ErrorNumber, RequestRefused, TcsError
-from tcs.model.events import ERROR, INFO, WARN
+from tcs.model.events import ERROR, INFO, WARN, current_cause
 from tcs.model.health import WARNING
 from tcs.pointing.demand import Pipeline, field_angle
 from tcs.pointing.orientation import AxisRange, choose_path
@@ -159,6 +159,7 @@ class Plan:
     slew_time: float
     in_limits_until: float | None      # UT1 where the planning path leaves a limit, if it does
     dome: Any = None                   # DOME[0] to keep at the target's azimuth (flag 128)
+    route: Any = None                  # envelope detour (tcs.pointing.envelope.Route) before the intercept
 
     @property
     def value(self) -> int:
@@ -199,7 +200,7 @@ def _ready(axis, what: str) -> None:
 
 def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derotator=None,
                port: int | None = None, dome=None, ut1: float, ut1_utc: float, zd_limit: float,
-               plan_horizon: float, keep_reverse: bool | None = None) -> Plan:
+               plan_horizon: float, keep_reverse: bool | None = None, envelope=None) -> Plan:
     """Validate a TRACK request and choose orientation and turns (see the module docstring).
 
     Parameters
@@ -212,6 +213,8 @@ def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derot
     zd_limit : largest observed zenith distance allowed (90° − min_altitude).
     plan_horizon : seconds of path checked against the limits.
     keep_reverse : re-planning while tracking: keep this orientation whatever the mode says.
+    envelope : the safety envelope (:mod:`tcs.pointing.envelope`): the tracked path is cut
+        where it would enter it, the slew onto it is routed around it (or refused, 9).
 
     Raises
     ------
@@ -242,16 +245,32 @@ def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derot
     if keep_reverse is not None:
         mode = 3 if keep_reverse else 1
     off1, off2 = axis1.offset, axis2.offset
-    chosen = choose_path(
-        i1, i2, mode=mode, mount=pipeline.mount,
-        axis1_range=AxisRange(axis1.section.min - off1, axis1.section.max - off1),
-        axis2_range=AxisRange(axis2.section.min - off2, axis2.section.max - off2),
-        current=(axis1.real_position - off1, axis2.real_position - off2),
-        speed=(axis1.section.max_velocity, axis2.section.max_velocity))
+
+    def choose(mode):
+        return choose_path(
+            i1, i2, mode=mode, mount=pipeline.mount,
+            axis1_range=AxisRange(axis1.section.min - off1, axis1.section.max - off1),
+            axis2_range=AxisRange(axis2.section.min - off2, axis2.section.max - off2),
+            current=(axis1.real_position - off1, axis2.real_position - off2),
+            speed=(axis1.section.max_velocity, axis2.section.max_velocity))
+
+    chosen = choose(mode)
+    if envelope is not None and mode in (2, 4) and not envelope.judge(
+            chosen.axis1[:1] + off1, chosen.axis2[:1] + off2, times[:1] - ut1_utc, escape=False).ok:
+        try:   # the envelope (a keep-out: the pier) forbids this side: the other one, if it can
+            chosen = choose(1 if chosen.reverse else 3)
+        except TcsError:
+            pass
     lanes = [Lane(axis1, "axis1", start=float(chosen.axis1[0])),
              Lane(axis2, "axis2", start=float(chosen.axis2[0]))]
     in_limits = chosen.in_limits
     slew = chosen.slew_time
+    route = None
+    if envelope is not None:
+        in_limits, route = _envelope_plan(envelope, chosen, times, in_limits, slew, axis1, axis2,
+                                          ut1_utc)
+        slew = max(slew, route.duration) if route.waypoints else slew
+        route = route if route.waypoints else None
     if derotator is not None:
         angle = np.unwrap(field_angle(pipeline.mount, np.asarray(obs.pa)[:up], chosen.axis2,
                                       chosen.reverse, port) + request.pa, period=360.0)
@@ -268,7 +287,27 @@ def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derot
         in_limits = min(in_limits, n)
         slew = max(slew, abs(angle[0] - current) / sec.max_velocity)
     until = float(times[in_limits]) if in_limits < times.size else None
-    return Plan(request, chosen.reverse, lanes, slew, until, dome)
+    return Plan(request, chosen.reverse, lanes, slew, until, dome, route)
+
+
+def _envelope_plan(envelope, chosen, times, in_limits: int, slew: float, axis1, axis2, ut1_utc: float):
+    """The tracked path judged against the envelope (refused when it starts inside: 9), and
+    the route of the slew onto it (:func:`tcs.pointing.envelope.plan_route`)."""
+    from tcs.axes.profile import Setpoint
+    from tcs.pointing.envelope import plan_route
+    off1, off2 = axis1.offset, axis2.offset
+    j = envelope.judge(chosen.axis1 + off1, chosen.axis2 + off2, times - ut1_utc, escape=False)
+    if j.good == 0:
+        raise TcsError(f"the target is inside {j.text}", ErrorNumber.SOFTLIMIT)
+    arrive = float(times[0]) + slew
+    end = (float(np.interp(arrive, times, chosen.axis1)) + off1,
+           float(np.interp(arrive, times, chosen.axis2)) + off2)
+    starts = (Setpoint(float(axis1.real_position), float(axis1.current_speed)),
+              Setpoint(float(axis2.real_position), float(axis2.current_speed)))
+    route = plan_route(envelope, float(times[0]) - ut1_utc, starts, end,
+                       (axis1.dynamics, axis2.dynamics),
+                       ((axis1.section.min, axis1.section.max), (axis2.section.min, axis2.section.max)))
+    return min(in_limits, j.good), route
 
 
 # ------------------------------------------------------------------------------ the session
@@ -449,6 +488,10 @@ class TrackSession:
                 lane.future.remove_done_callback(self._lane_done)
         await self._run0([lane.axis for lane in old if id(lane.axis) not in new_axes])
         await self._run0([lane.axis for lane in plan.lanes])
+        if getattr(owner, "envelope", None) is not None:
+            plan = await self._detour(plan)   # the envelope's detour, then the intercept from its end
+            if plan is None:
+                return                         # interrupted: TRACK=0, STOP or a newer plan
         self._t_end, self._end_reason, self._last_t = None, "", None
         lanes = [Lane(lane.axis, lane.role, lane.port, lane.start) for lane in plan.lanes]
         points = self._points(plan, lanes, owner.ut1(), first=True)
@@ -475,6 +518,35 @@ class TrackSession:
                    f"tracking {ra_text}, {'reverse' if plan.reverse else 'normal'} orientation"
                    + (f", {lanes[2].axis.module_name} follows the field" if len(lanes) > 2 else ""),
                    cause)
+
+    async def _detour(self, plan: Plan) -> Plan | None:
+        """Re-plan from where the axes stand now and run the safety envelope's detour, if the
+        plan has one (TARGETPOS moves through its waypoints); again from its end, until the
+        slew onto the path is direct. TRACK=0, STOP or a newer plan meanwhile stop the axes
+        (the normal controlled stop, as an ABORT of the moves) and return None."""
+        owner = self.owner
+        for _ in range(3):
+            plan = owner._plan(plan.request, keep_reverse=plan.reverse)
+            if self._pending is None:
+                self.plan = plan
+            if plan.route is None:
+                return plan
+            axes = (plan.lanes[0].axis, plan.lanes[1].axis)
+            route = asyncio.ensure_future(owner.envelope.run_route(plan.route, *axes))
+            while not route.done():
+                self._wake.clear()
+                waiter = asyncio.ensure_future(self._wake.wait())
+                await asyncio.wait([route, waiter], return_when=asyncio.FIRST_COMPLETED)
+                waiter.cancel()
+                if not route.done() and (self._stop is not False or self._pending is not None):
+                    route.cancel()
+                    for axis in axes:   # the moves this task started: the normal controlled stop
+                        axis.abort_request(current_cause.get())
+                    await asyncio.wait([route])
+                    self._wake.set()
+                    return None
+            route.result()    # (a failed move ends the tracking with its error)
+        return plan
 
     @staticmethod
     async def _taken(lanes: list[Lane]) -> None:
@@ -531,11 +603,20 @@ class TrackSession:
             inside = (raw + off >= sec.min) & (raw + off <= sec.max)
             reason = np.where((reason == "") & ~inside, lane.axis.module_name, reason)
             ok &= inside
+        envelope = getattr(self.owner, "envelope", None)
+        if envelope is not None and "axis2" in out.values:   # the safety envelope: stop before it
+            j = envelope.judge(out.values["axis1"] + lanes[0].axis.offset,
+                               out.values["axis2"] + lanes[1].axis.offset,
+                               times - self.owner.ut1_utc, escape=False)
+            if not j.ok:
+                self._envelope_text = j.text
+                reason = np.where((reason == "") & (np.arange(times.size) >= j.good), "envelope", reason)
+                ok[j.good:] = False
         good = _leading(ok)
         if good < times.size:
             self._t_end = float(times[good - 1]) if good else float(now)
             bad = str(reason[good])
-            self._end_reason = "set" if bad == "set" else f"limit:{bad}"
+            self._end_reason = bad if bad in ("set", "envelope") else f"limit:{bad}"
             out.times = times[:good]
             for key in out.values:
                 out.values[key] = out.values[key][:good]
@@ -565,6 +646,9 @@ class TrackSession:
     def _planned_end(self) -> TcsError | None:
         if self._end_reason == "set" and getattr(self.plan.request.target, "ends_normally", False):
             return None          # a satellite pass that set as planned: tracking ended as asked
+        if self._end_reason == "envelope":
+            return TcsError(f"stopped before {getattr(self, '_envelope_text', 'the envelope')}",
+                            ErrorNumber.SOFTLIMIT)
         if self._end_reason.startswith("limit:"):
             name = self._end_reason.split(":", 1)[1]
             return TcsError(f"{name} would leave its software limits", ErrorNumber.SOFTLIMIT)

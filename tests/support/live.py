@@ -27,9 +27,10 @@ from support.service import start_service
 
 
 class LiveService:
-    def __init__(self, path: Path, state_dir: Path):
+    def __init__(self, path: Path, state_dir: Path, envelope: dict | None = None):
         self.path = path
         self.state_dir = state_dir
+        self.envelope = envelope   # [envelope] keys (default: the Sun cone off, see make_config)
         self.loop = asyncio.new_event_loop()
         self.service = None
         self.port = 0
@@ -51,7 +52,8 @@ class LiveService:
 
             async def main():
                 try:
-                    self.service, self.port = await start_service(self.state_dir, self.path)
+                    self.service, self.port = await start_service(self.state_dir, self.path,
+                                                                     envelope=self.envelope)
                 except BaseException as exc:  # handed to the starting thread
                     box["error"] = exc
                     ready.set()

@@ -12,17 +12,24 @@ from tcs.config import DEFAULT_CONFIG, HwConfig, load_config
 from tcs.config.sections import StateSection
 
 
-def make_config(state_dir: Path, path: Path = DEFAULT_CONFIG, **server) -> HwConfig:
+def make_config(state_dir: Path, path: Path = DEFAULT_CONFIG, *, envelope: dict | None = None,
+                **server) -> HwConfig:
     """The hardware file at ``path`` with state in ``state_dir`` and server settings overridden
     (port 0 = a free port, for the OpenTSI tree too where the file serves it; a short
-    login-failure delay)."""
+    login-failure delay).
+
+    The Sun cone of the safety envelope is switched off (``sun_avoidance = 0``): the real Sun
+    stands wherever the hour CI runs at puts it, and a test that slews to an arbitrary place
+    must not fail because the Sun is there. ``envelope``: ``[envelope]`` keys to use instead
+    (the envelope tests: ``envelope={"sun_avoidance": 30.0, ...}``)."""
     config = load_config(path)
     settings = dict(port=0, auth_fail_delay=0.05)
     if config.server.opentsi_port >= 0:
         settings["opentsi_port"] = 0   # the OpenTSI tree too: a free port
     settings.update(server)
     changes = dict(server=dataclasses.replace(config.server, **settings),
-                   state=StateSection(path=str(state_dir)))
+                   state=StateSection(path=str(state_dir)),
+                   envelope=dataclasses.replace(config.envelope, **(envelope or {"sun_avoidance": 0.0})))
     if config.alpaca.port >= 0:   # the Alpaca devices too: a free port, discovery on a free UDP port
         changes["alpaca"] = dataclasses.replace(config.alpaca, port=0, discovery_port=free_udp_port())
     if config.web.port >= 0:      # the status page and /metrics too: a free port
@@ -53,7 +60,8 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-async def start_service(state_dir: Path, path: Path = DEFAULT_CONFIG, **server) -> tuple[Service, int]:
-    service = Service(make_config(state_dir, path, **server))
+async def start_service(state_dir: Path, path: Path = DEFAULT_CONFIG, *, envelope: dict | None = None,
+                        **server) -> tuple[Service, int]:
+    service = Service(make_config(state_dir, path, envelope=envelope, **server))
     port = await service.start()
     return service, port
