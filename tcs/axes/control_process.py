@@ -38,6 +38,7 @@ connected:
 from __future__ import annotations
 
 import asyncio
+import bisect
 import itertools
 import logging
 import socket
@@ -487,9 +488,27 @@ class RemoteQueue:
         self.index = index
         self.capacity = capacity
         self.summary = (0, None, None, capacity)  # len, start, end, free points
+        #: the points sent since the child's queue was last empty, for :meth:`sample`
+        self._mirror_t: list[float] = []
+        self._mirror_p: list[float] = []
 
     def __len__(self) -> int:
         return self.summary[0]
+
+    def sample(self, t: float, freeze: bool = False) -> tuple[float, float, float]:
+        """The queued path at ``t`` from the points sent (what the safety envelope judges before
+        RUN=1): linear between the points, held outside them; the child's queue itself
+        interpolates more smoothly, which the envelope's margin covers. No points: NOPOINTS."""
+        ts, ps = self._mirror_t, self._mirror_p
+        if not ts or not self.summary[0]:
+            raise TcsError("trajectory queue is empty", ErrorNumber.NOPOINTS)
+        if t <= ts[0]:
+            return ps[0], 0.0, 0.0
+        if t >= ts[-1]:
+            return ps[-1], 0.0, 0.0
+        i = bisect.bisect_right(ts, t) - 1
+        v = (ps[i + 1] - ps[i]) / (ts[i + 1] - ts[i])
+        return ps[i] + v * (t - ts[i]), v, 0.0
 
     @property
     def start_time(self):
@@ -511,10 +530,18 @@ class RemoteQueue:
         return max(0.0, end - now) if end is not None and self.summary[0] else 0.0
 
     def add_points(self, times, positions, now: float | None = None) -> AddResult:
-        result, summary = self.process.call("add", self.index, [float(x) for x in times],
-                                            [float(x) for x in positions], now)
+        times, positions = [float(x) for x in times], [float(x) for x in positions]
+        was_empty = not self.summary[0]
+        result, summary = self.process.call("add", self.index, times, positions, now)
         self.summary = summary
-        return AddResult(*result)
+        added = AddResult(*result)
+        if was_empty:
+            self._mirror_t, self._mirror_p = [], []
+        if added.accepted:
+            # (the accepted ones are the batch's last: points already past are dropped first)
+            self._mirror_t += times[len(times) - added.accepted:]
+            self._mirror_p += positions[len(positions) - added.accepted:]
+        return added
 
 
 class RemoteFollower:
