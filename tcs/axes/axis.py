@@ -722,6 +722,14 @@ class Axis(ModuleHealth):
             self._stop_motion(TcsError(f"{self.module_name}: stopped", ErrorNumber.TARGETCHANGE))
             if self._homing:  # STOP ends referencing too (CABINET.STOP during a REINIT)
                 self.drive.halt()
+                if not self._homing_started:
+                    # the drive may never show this run in progress now: end it here, or a
+                    # new request (Alpaca Halt, then Move) would join the stopped run and fail
+                    # with it after HOMING_START_TIMEOUT ("homing did not start")
+                    self._homing, self._after_homing, self.referenced = False, True, 0.0
+                    error = TcsError(f"{self.module_name}: referencing stopped", ErrorNumber.TARGETCHANGE)
+                    self._resolve("reference", error)
+                    self.emit(ERROR, ErrorNumber.REFERENCE_BAD, error.message, self._reference_cause)
         elif kind == "give up":
             self._stop_motion(value)
             if self._powered or self._want_power:
