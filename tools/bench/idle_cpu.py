@@ -52,25 +52,12 @@ import tempfile
 import time
 from pathlib import Path
 
+from tpl2_load import free_port, wait_port  # tools/bench/tpl2_load.py
+
 ROOT = Path(__file__).resolve().parents[2]
 TICK = os.sysconf("SC_CLK_TCK")
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_port(port: int, timeout: float = 90.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            socket.create_connection(("127.0.0.1", port), timeout=1).close()
-            return
-        except OSError:
-            time.sleep(0.1)
-    raise SystemExit(f"server on port {port} did not start")
 
 
 def _stat(path: str) -> tuple[str, int, float] | None:
@@ -190,7 +177,7 @@ def run_default(seconds: float, settle: float, state: str) -> dict:
                                "--port", str(port), "--opentsi-port", "-1", "--alpaca-port", "-1"],
                               env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        wait_port(port)
+        wait_port(port, 90.0)
         time.sleep(settle)
         return measure({"service": server.pid}, seconds, port)
     finally:
@@ -225,7 +212,7 @@ def run_remote(seconds: float, settle: float, state: str) -> dict:
                                    "--config", str(hwfile), "--port", str(port), "--opentsi-port", "-1",
                                    "--alpaca-port", "-1"],
                                   env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        wait_port(port)
+        wait_port(port, 90.0)
         time.sleep(settle)
         return measure({"service": server.pid, "tcs-sim": sim.pid}, seconds, port)
     finally:
