@@ -11,6 +11,7 @@ Sky positions are checked against the telescope's astrometry computed here for t
 from __future__ import annotations
 
 import asyncio
+import functools
 import math
 import time
 from pathlib import Path
@@ -25,10 +26,12 @@ from alpaca.exceptions import (InvalidOperationException, InvalidValueException,
 from alpaca.telescope import GuideDirections, Telescope  # noqa: E402
 
 from support.live import live_service  # noqa: E402
+from support.waits import alpaca_address as address, until as wait_until  # noqa: E402
 from support.opentci_client import Client  # noqa: E402
 
 HW = Path(__file__).with_name("hw_alpaca.toml")
 WAIT = 60.0
+until = functools.partial(wait_until, timeout=WAIT)
 ARCSEC = 1.0 / 3600.0
 
 
@@ -38,20 +41,6 @@ live = live_service(HW)
 @pytest.fixture(autouse=True)
 def _no_leaked_threads():  # the module's service thread is expected; LiveService.stop checks
     yield
-
-
-def address(live) -> str:
-    return f"127.0.0.1:{live.service.alpaca_port}"
-
-
-def until(condition, what: str, timeout: float = WAIT, period: float = 0.1):
-    deadline = time.monotonic() + timeout
-    while True:
-        value = condition()
-        if value:
-            return value
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(period)
 
 
 def connected_telescope(live) -> Telescope:

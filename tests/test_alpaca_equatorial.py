@@ -8,8 +8,8 @@ and a keep-out zone (a "pier": HA 4-8 h west, Dec 50-89° in the normal orientat
 
 from __future__ import annotations
 
+import functools
 import math
-import time
 from pathlib import Path
 
 import pytest
@@ -18,6 +18,9 @@ pytest.importorskip("alpaca", reason="alpyca (the 'dev' extra) is not installed"
 from alpaca.telescope import GuideDirections, Telescope  # noqa: E402
 
 from support.live import live_service  # noqa: E402
+from support.waits import until as wait_until  # noqa: E402
+
+until = functools.partial(wait_until, timeout=60.0)
 
 ARCSEC = 1.0 / 3600.0
 
@@ -35,13 +38,6 @@ live = live_service(_equatorial_with_alpaca)
 @pytest.fixture(autouse=True)
 def _no_leaked_threads():  # the module's service thread is expected; LiveService.stop checks
     yield
-
-
-def until(condition, what: str, timeout: float = 60.0):
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.1)
 
 
 def test_equatorial_slew_altaz_sync_and_guiding(live):

@@ -10,6 +10,7 @@ before it changes it). The others make the telescope ready themselves.
 from __future__ import annotations
 
 import asyncio
+import functools
 import time
 from pathlib import Path
 
@@ -20,9 +21,11 @@ from alpaca.exceptions import DriverException, ParkedException  # noqa: E402
 from alpaca.telescope import Telescope  # noqa: E402
 
 from support.live import live_service  # noqa: E402
+from support.waits import alpaca_address as address, until as wait_until  # noqa: E402
 
 HW = Path(__file__).with_name("hw_alpaca.toml")
 WAIT = 90.0
+until = functools.partial(wait_until, timeout=WAIT)
 
 live = live_service(HW)
 
@@ -30,20 +33,6 @@ live = live_service(HW)
 @pytest.fixture(autouse=True)
 def _no_leaked_threads():  # the module's service thread is expected; LiveService.stop checks
     yield
-
-
-def address(live) -> str:
-    return f"127.0.0.1:{live.service.alpaca_port}"
-
-
-def until(condition, what: str, timeout: float = WAIT, period: float = 0.05):
-    deadline = time.monotonic() + timeout
-    while True:
-        value = condition()
-        if value:
-            return value
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(period)
 
 
 def make_ready(live, t: Telescope) -> None:

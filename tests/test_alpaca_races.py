@@ -23,6 +23,7 @@ once.
 
 from __future__ import annotations
 
+import functools
 import http.client
 import json
 import os
@@ -33,9 +34,11 @@ from urllib.parse import urlencode
 import pytest
 
 from support.live import live_service
+from support.waits import until as wait_until
 
 HW = Path(__file__).with_name("hw_alpaca.toml")
 WAIT = 90.0
+until = functools.partial(wait_until, timeout=WAIT)
 N = int(os.environ.get("ALPACA_RACE_ITERATIONS", "25"))
 
 live = live_service(HW)
@@ -88,13 +91,6 @@ class Conn:
 
     def close(self) -> None:
         self.c.close()
-
-
-def until(condition, what: str, timeout: float = WAIT):
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.05)
 
 
 @pytest.fixture(scope="module")

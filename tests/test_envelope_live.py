@@ -14,6 +14,7 @@ from ``erfa.epv00`` and the service's own astrometry settings (site, time).
 from __future__ import annotations
 
 import asyncio
+import functools
 import math
 import time
 from pathlib import Path
@@ -23,11 +24,13 @@ import numpy as np
 import pytest
 
 from support.live import LiveService
+from support.waits import until as wait_until
 from support.opentci_client import Client as SharedClient, upload
 from tcs.pointing.envelope import sun_icrs
 
 HORIZON = ((0.0, 15.0), (160.0, 15.0), (250.0, 40.0))   # a hill in the west: 40° at az 250
 WAIT = 60.0
+until = functools.partial(wait_until, timeout=WAIT)
 
 
 def _site(utc: float) -> tuple[float, float]:
@@ -355,13 +358,6 @@ def test_alpaca_moveaxis_stops_at_the_sun_cone(live):
     finally:
         t.AbortSlew()
         t.Disconnect()
-
-
-def until(condition, what: str, timeout: float = WAIT):
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.05)
 
 
 async def _ready_over_tpl2(live, east: bool = True) -> None:
