@@ -541,6 +541,11 @@ class RemoteQueue:
             # (the accepted ones are the batch's last: points already past are dropped first)
             self._mirror_t += times[len(times) - added.accepted:]
             self._mirror_p += positions[len(positions) - added.accepted:]
+        start = self.summary[1]
+        if start is not None:  # what the child's queue already dropped (a night of tracking)
+            drop = max(0, bisect.bisect_left(self._mirror_t, start) - 1)
+            if drop:
+                del self._mirror_t[:drop], self._mirror_p[:drop]
         return added
 
 
