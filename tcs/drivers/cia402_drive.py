@@ -467,6 +467,10 @@ class Cia402Drive:
         if not self._booted:
             return DriveState.OFFLINE, self._boot_error, False
         hb = self._hb
+        last = self._last_step
+        if last is not None and now - last > HOST_STALL and last > self._stall_mark:
+            # the process stalled inside a cycle (after note_cycle): the same rule, once per gap
+            self._stall_mark = now
         hb_ok = hb.time is not None and now - max(hb.time, self._stall_mark) <= self._hb_timeout
         if not hb_ok:
             silent = now - hb.time if hb.time is not None else float("inf")
