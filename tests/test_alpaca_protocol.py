@@ -172,5 +172,13 @@ async def test_state_reads_answer_at_once_and_a_waiting_call_still_times_out():
             slow = await get("ismoving")
             assert slow["ErrorNumber"] != 0 and "did not finish within 0.3 s" in slow["ErrorMessage"]
             assert (await get("position"))["ClientTransactionID"] == 3
+            async with http.get(f"http://127.0.0.1:{port}/api/v1/focuser/9/position") as resp:
+                assert resp.status == 400  # no such device
+            assert server.connections >= 1  # (this session's keep-alive connection)
+        # what /metrics shows of this front end: requests by method and result, and their times
+        figures = server.command_stats.figures()
+        assert sorted(figures["counts"]) == [["GET", "bad_request", 1], ["GET", "error", 2], ["GET", "ok", 2]]
+        counts, total = figures["latency"]["GET"]
+        assert sum(counts) == 5 and total >= 0.3  # (the one that timed out took 0.3 s)
     finally:
         await server.stop()

@@ -123,6 +123,42 @@ async def test_metrics_parse_and_match_tpl2(live):
     assert ("tcs_weather_interlock_active", ()) in m
 
 
+async def test_metrics_count_commands_by_verb_and_result_and_the_bus_load(live):
+    """Front-end command counters and latency histograms move with what a client did, on its
+    own front end only; the CAN traffic counters and the bus load come from the control process."""
+    key = lambda verb, result: ("tcs_frontend_commands_total",  # noqa: E731
+                                (("front_end", "opentci"), ("result", result), ("verb", verb)))
+    before = await metrics(live)
+    c = await Client.connect(live.port)
+    try:
+        await c.nums("AZ.REALPOS", "ZD.REALPOS")
+        await c.set("ZD.OFFSET=0", WAIT)
+        await c.send("7 FROB AZ")  # an unknown verb: refused, counted as OTHER
+        assert any("COMMAND FAILED" in line for line in await c.until(7))
+        await asyncio.sleep(live.service.web_server.interval * 2)
+        after = await metrics(live)
+    finally:
+        await c.close()
+    grew = lambda k: after.get(k, 0) - before.get(k, 0)  # noqa: E731
+    assert grew(key("GET", "complete")) >= 1
+    assert grew(key("SET", "complete")) >= 1
+    assert grew(key("OTHER", "refused")) >= 1
+    assert grew(key("AUTH", "complete")) >= 1
+    get = (("front_end", "opentci"), ("verb", "GET"))
+    assert after[("tcs_frontend_command_latency_seconds_count", get)] >= after[key("GET", "complete")]
+    assert after[("tcs_frontend_command_latency_seconds_bucket", (*get[:1], ("le", "+Inf"), get[1]))] == \
+        after[("tcs_frontend_command_latency_seconds_count", get)]
+    assert not any(name == "tcs_frontend_commands_total" and dict(labels)["front_end"] == "alpaca"
+                   and value for (name, labels), value in after.items())  # (nobody used Alpaca)
+    # the CAN bus: frames both ways, their bits, a load between 0 and 1 (7 drives at 100 Hz)
+    assert after[("tcs_can_frames_total", (("direction", "received"),))] > \
+        before.get(("tcs_can_frames_total", (("direction", "received"),)), 0)
+    assert after[("tcs_can_frames_total", (("direction", "sent"),))] > 0
+    assert after[("tcs_can_frame_bits_total", ())] > 0
+    assert after[("tcs_can_bitrate_bits_per_second", ())] == 1_000_000
+    assert 0.0 < after[("tcs_can_bus_load_ratio", ())] < 1.0
+
+
 async def test_status_json_matches_the_tree(live):
     c = await Client.connect(live.port)
     try:

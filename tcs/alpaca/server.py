@@ -32,6 +32,7 @@ import ipaddress
 import json
 import logging
 import socket
+from time import perf_counter
 from typing import Any
 
 from aiohttp import web
@@ -39,6 +40,7 @@ from aiohttp import web
 from tcs import __version__ as TCS_VERSION
 from tcs.alpaca.device import Device
 from tcs.alpaca.protocol import AlpacaRequest, AscomError, BadRequest, Code, TransactionCounter, reply
+from tcs.model.command_stats import CommandStats
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +64,8 @@ class AlpacaServer:
         self.port = 0
         self.discovery_port = -1
         self.host = "127.0.0.1"
+        #: the requests answered, by HTTP method and result, and their latency (``/metrics``)
+        self.command_stats = CommandStats()
         self._runner: web.AppRunner | None = None
         self._discovery: asyncio.DatagramTransport | None = None
 
@@ -154,10 +158,25 @@ class AlpacaServer:
             raise BadRequest(f"no {kind} device number {number}")
         return device
 
+    @property
+    def connections(self) -> int:
+        """The HTTP connections open now."""
+        server = self._runner.server if self._runner is not None else None
+        return len(server.connections) if server is not None else 0
+
     async def _device(self, request: web.Request) -> web.Response:
+        started = perf_counter()
         method = request.method
         if method not in ("GET", "PUT"):
+            self.command_stats.record("OTHER", "bad_request")
             return self._bad(f"method {method} is not allowed (GET or PUT)")
+        response, result = await self._answer(request, method)
+        self.command_stats.record(method, result, perf_counter() - started)
+        return response
+
+    async def _answer(self, request: web.Request, method: str) -> tuple[web.Response, str]:
+        """The reply to a device request and its result for the metrics (ok, error, bad_request)."""
+        result = "ok"
         try:
             device = self._find(request)
             if method == "GET":
@@ -182,19 +201,22 @@ class AlpacaServer:
                     value = await asyncio.wait_for(device.finish(value), self.request_timeout)
                 body = reply(req, self.next_id(), value, has_value=(method == "GET" or value is not None))
             except AscomError as exc:
+                result = "error"
                 body = reply(req, self.next_id(), error=exc)
             except asyncio.TimeoutError:
+                result = "error"
                 body = reply(req, self.next_id(), error=AscomError(
                     Code.DRIVER_ERROR, f"{member} did not finish within {self.request_timeout:g} s"))
         except BadRequest as exc:
-            return self._bad(str(exc))
+            return self._bad(str(exc)), "bad_request"
         except web.HTTPException:
             raise
         except Exception as exc:  # never a 500: a driver error the client can read
             log.exception("Alpaca %s %s failed", method, request.path)
+            result = "error"
             req = AlpacaRequest(method, dict(request.query))
             body = reply(req, self.next_id(), error=AscomError(Code.DRIVER_ERROR, f"internal error: {exc}"))
-        return self._json(body)
+        return self._json(body), result
 
     # -- setup pages -----------------------------------------------------------------------------
     async def _setup_index(self, request: web.Request) -> web.Response:

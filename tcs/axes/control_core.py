@@ -69,13 +69,17 @@ def drive_tuple(st) -> tuple | None:
 
 
 def bus_figures(can) -> dict | None:
-    """The CAN bus's health as plain data (for ``/metrics``): state and error counters."""
+    """The CAN bus's health as plain data (for ``/metrics``): state, error counters, traffic and
+    load."""
     bus = getattr(can, "bus", None)
     if bus is None or not hasattr(bus, "health"):
         return None
     h = bus.health()
+    traffic = bus.traffic
     return {"state": h.state, "error_frames": h.error_frames, "bus_off": h.bus_off_count,
-            "send_failures": h.send_failures, "receive_failures": h.receive_failures}
+            "send_failures": h.send_failures, "receive_failures": h.receive_failures,
+            "rx_frames": traffic.rx_frames, "tx_frames": traffic.tx_frames, "bits": traffic.bits,
+            "bitrate": bus.section.bitrate, "load": bus.bus_load()}
 
 
 #: s added to the stopping time an orphaned control process waits for (late cycles, jerk).

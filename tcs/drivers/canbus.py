@@ -17,7 +17,12 @@
   bus-off, restarted) and receive failures are counted and kept as :class:`BusHealth`; the
   latest problem is a :class:`~tcs.errors.CommunicationError`; callbacks registered with
   :meth:`add_error_callback` hear each one. Nothing is swallowed: a failed ``send`` raises to
-  its caller and is recorded here too.
+  its caller and is recorded here too;
+* the **traffic** (:class:`Traffic`): frames received (the same listener) and sent (every
+  ``send`` of the python-can bus is counted, ours and canopen's) and their bits, from which
+  :meth:`bus_load` is the share of the bit rate used over the last second or more. Frames
+  the kernel sends for us (socketcan ``send_periodic``: SYNC) come back to our socket and are
+  counted as received.
 
 **Reconnect.** A bus whose link broke (sends fail: the socketcand peer went away, the
 interface is down) is reopened by a thread of its own (``tcs-can-reconnect``) with back-off
@@ -121,15 +126,64 @@ class BusHealth:
     last_error: TcsError | None = None
 
 
+def frame_bits(msg: can.Message) -> int:
+    """The bits of a classic data frame on the wire without stuff bits (SOF, identifier, control,
+    data, CRC, ACK, EOF and the 3-bit interframe space): 47 + 8·n for an 11-bit identifier, 67 + 8·n
+    for a 29-bit one. Bit stuffing adds up to about a fifth more."""
+    return (67 if msg.is_extended_id else 47) + 8 * len(msg.data)
+
+
+class Traffic:
+    """Frames and bits counted on one bus (counts of several threads: a lost increment under a
+    race only makes a statistic a frame short)."""
+
+    __slots__ = ("rx_frames", "tx_frames", "bits", "_mark", "load")
+
+    def __init__(self) -> None:
+        self.rx_frames = 0
+        self.tx_frames = 0
+        self.bits = 0
+        self._mark = (time.monotonic(), 0)
+        self.load: float | None = None  # share of the bit rate over the last window (None: not yet)
+
+    def window(self, bitrate: int, now: float, span: float = 1.0) -> float | None:
+        """The bus load over the last completed window of at least ``span`` seconds."""
+        t0, bits0 = self._mark
+        if now - t0 >= span:
+            bits = self.bits
+            self.load = (bits - bits0) / (bitrate * (now - t0))
+            self._mark = (now, bits)
+        return self.load
+
+
+def count_sends(bus: can.BusABC, traffic: Traffic) -> can.BusABC:
+    """Make ``bus.send`` count each frame it sent in ``traffic``; returns ``bus``."""
+    send = bus.send
+
+    def counted_send(msg: can.Message, timeout: float | None = None) -> None:
+        send(msg, timeout)
+        traffic.tx_frames += 1
+        traffic.bits += frame_bits(msg)
+
+    bus.send = counted_send  # type: ignore[method-assign]
+    return bus
+
+
 class _HealthListener(can.Listener):
-    """Notifier listener that turns error frames and receive errors into BusHealth."""
+    """Notifier listener that turns error frames and receive errors into BusHealth and counts
+    the frames received."""
 
     def __init__(self, bus: CanBus):
         self._bus = bus
+        self._traffic = bus.traffic
 
     def on_message_received(self, msg: can.Message) -> None:
         if msg.is_error_frame:
             self._bus._on_error_frame(msg)
+            return
+        traffic = self._traffic
+        traffic.rx_frames += 1
+        traffic.bits += frame_bits(msg)
 
     def on_error(self, exc: Exception) -> None:
         self._bus._on_receive_error(exc)
@@ -159,6 +213,7 @@ class CanBus:
         self._heartbeat_msg = None
         self._lock = threading.Lock()
         self._health = BusHealth()
+        self.traffic = Traffic()
         self._callbacks: list[Callable[[TcsError], None]] = []
         self._reconnect_callbacks: list[Callable[[], None]] = []
         self._last_receive_error = 0.0
@@ -207,7 +262,7 @@ class CanBus:
     def _new_bus(self) -> can.BusABC:
         if self.section.interface == "socketcand":
             probe_socketcand(self.section.host, self.section.port)
-        bus = can.Bus(**self.section.bus_kwargs())
+        bus = count_sends(can.Bus(**self.section.bus_kwargs()), self.traffic)
         return serialize_sends(bus) if self.section.interface in SERIALIZED_INTERFACES else bus
 
     # ---------------------------------------------------------------- reconnect
@@ -369,6 +424,11 @@ class CanBus:
     def health(self) -> BusHealth:
         """The bus state now (any thread)."""
         return self._health
+
+    def bus_load(self) -> float | None:
+        """The share of the bit rate (``[can] bitrate``) the frames seen used over the last
+        second or more (without stuff bits); None before the first second."""
+        return self.traffic.window(self.section.bitrate, time.monotonic())
 
     def add_error_callback(self, callback: Callable[[TcsError], None]) -> None:
         """``callback(error)`` for every bus problem; runs in the thread that saw it."""

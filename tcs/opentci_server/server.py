@@ -36,6 +36,7 @@ import tcs
 from tcs.config.passwords import DEFAULT_ITERATIONS, SCHEME, verify_password
 from tcs.config.sections import ServerSection, UserSection
 from tcs.errors import ConfigError
+from tcs.model.command_stats import CommandStats
 from tcs.model.events import Event, EventHub
 from tcs.opentci_server.guard import ConnectionGuard
 from tcs.opentci_server.scheduler import FairScheduler
@@ -82,6 +83,8 @@ class Tpl2Server:
         self.starttime = time.time()
         self._start_mono = time.monotonic()
         self.sessions: dict[int, Session] = {}
+        #: the commands handled, by verb and result, and their latency (``/metrics``)
+        self.command_stats = CommandStats()
         self._next_conn = 1
         self._server: asyncio.base_events.Server | None = None
         self._tls_server: asyncio.base_events.Server | None = None

@@ -52,6 +52,7 @@ import itertools
 import logging
 import time
 from collections import deque
+from time import perf_counter
 from typing import TYPE_CHECKING, Any, Protocol
 
 from tcs.errors import TcsError
@@ -103,13 +104,18 @@ NO_ACCESS = 99
 _SERIALS = itertools.count(1)  # tells a command from a later one that reuses its id
 
 
+#: The verb label of a message in the command metrics (:mod:`tcs.model.command_stats`).
+_VERBS = {m.Get: "GET", m.Set: "SET", m.Abort: "ABORT", m.Auth: "AUTH", m.Disconnect: "DISCONNECT"}
+
+
 class _Command:
     """A running long command: its task and how it was ended from outside."""
 
-    __slots__ = ("cmd_id", "task", "aborted_by", "cause", "moves")
+    __slots__ = ("cmd_id", "task", "aborted_by", "cause", "moves", "started")
 
-    def __init__(self, cmd_id: int, cause=None):
+    def __init__(self, cmd_id: int, cause=None, started: float = 0.0):
         self.cmd_id = cmd_id
+        self.started = started  # perf_counter() when it was handled (the latency metric)
         self.task: asyncio.Task | None = None
         self.aborted_by: int | None = None
         self.cause = cause  # (connection, id, serial): what the domain records as the cause
@@ -374,22 +380,24 @@ class Session(asyncio.Protocol):
             cmd_id = getattr(msg, "cmd_id", 0)
             if cmd_id and cmd_id not in self.commands:
                 self.send(m.CommandFailed(cmd_id))
+                self.server.command_stats.record(_VERBS.get(type(msg), "OTHER"), "failed")
 
     def _handle(self, msg) -> None:
         kind = type(msg)
         if kind is m.Get:
-            if self._admit_command(msg.cmd_id):
+            if self._admit_command(msg.cmd_id, "GET"):
                 self._get(msg)
         elif kind is m.Set:
-            if self._admit_command(msg.cmd_id):
+            if self._admit_command(msg.cmd_id, "SET"):
                 self._set(msg)
         elif kind is m.Abort:
-            if self._admit_command(msg.cmd_id):
+            if self._admit_command(msg.cmd_id, "ABORT"):
                 self._abort(msg)
         elif kind is m.Auth:
             self._auth(msg)
         elif kind is m.Disconnect:
             self.send(m.DisconnectOk())
+            self.server.command_stats.record("DISCONNECT", "complete")
             self._closed = True
             if self.abort_on_disconnect:
                 for cmd in list(self.commands.values()):
@@ -399,11 +407,14 @@ class Session(asyncio.Protocol):
                 self.transport.close()
         elif kind is m.Enc:
             self.send(m.EncUnsupported())
+            self.server.command_stats.record("OTHER", "refused")
         elif kind is m.AuthSyntaxError:
             self.send(m.AuthError())
+            self.server.command_stats.record("AUTH", "refused")
         elif kind is m.BadId:
             self.send(m.CommandError.idrange(msg.text))
             self.send(m.CommandFailed(0))  # every refused command ends with a final line
+            self.server.command_stats.record("OTHER", "refused")
         elif kind is m.BadSyntax or kind is m.LineTooLong:
             self._refuse(msg.cmd_id, "SYNTAX")
         elif kind is m.UnknownCommand:
@@ -411,20 +422,22 @@ class Session(asyncio.Protocol):
         else:  # pragma: no cover - every parser message is handled above
             log.error("unhandled message %r", msg)
 
-    def _refuse(self, cmd_id: int, code: str, detail: str | None = None) -> None:
+    def _refuse(self, cmd_id: int, code: str, detail: str | None = None, verb: str = "OTHER") -> None:
         self.send(m.CommandError(cmd_id, code, detail))
         self.send(m.CommandFailed(cmd_id))  # id 0 too: the final line of the refused command
+        self.server.command_stats.record(verb, "refused")
 
-    def _admit_command(self, cmd_id: int) -> bool:
+    def _admit_command(self, cmd_id: int, verb: str) -> bool:
         if not self.authenticated:
-            self._refuse(cmd_id, "UNAUTHENTICATED")
+            self._refuse(cmd_id, "UNAUTHENTICATED", verb=verb)
             return False
         if cmd_id in self.commands:
             self.send(m.CommandError.idbusy(cmd_id))
             self.send(m.CommandFailed(0))  # ends the refused line; the running command goes on
+            self.server.command_stats.record(verb, "refused")
             return False
         if len(self.commands) >= self.server.settings.max_in_flight:
-            self._refuse(cmd_id, "TOOMANY")
+            self._refuse(cmd_id, "TOOMANY", verb=verb)
             return False
         self.command_times.append(time.monotonic())
         return True
@@ -433,9 +446,11 @@ class Session(asyncio.Protocol):
     def _auth(self, msg: m.Auth) -> None:
         if msg.method != "PLAIN":
             self.send(m.AuthUnsupported())
+            self.server.command_stats.record("AUTH", "refused")
             return
         if msg.user is None or msg.password is None:
             self.send(m.AuthError())
+            self.server.command_stats.record("AUTH", "refused")
             return
         self._auth_task = asyncio.get_running_loop().create_task(self._verify(msg))
 
@@ -443,6 +458,7 @@ class Session(asyncio.Protocol):
         """Check a login; failures slow the attacker, never the user with the password
         (``guard.py``: per-connection delay, per-name back-off before the check)."""
         logins = self.server.guard.logins
+        started = perf_counter()
         try:
             backoff = logins.wait_before_check(msg.user)
             if backoff > 0:  # right and wrong passwords alike: no early answer to read
@@ -456,6 +472,7 @@ class Session(asyncio.Protocol):
                             self.server.settings.auth_backoff_window)
                 await asyncio.sleep(logins.fail_delay(self._auth_failures))
                 self.send(m.AuthFailed())
+                self.server.command_stats.record("AUTH", "failed", perf_counter() - started)
                 if self._auth_failures >= self.server.settings.auth_max_failures:
                     log.warning("connection %d (%s): %d failed logins, dropping it",
                                 self.id, self.address, self._auth_failures)
@@ -467,6 +484,8 @@ class Session(asyncio.Protocol):
             rlevel = max(user.rlevel, msg.rlevel if msg.rlevel is not None else getattr(user, "default_rlevel", 0))
             wlevel = max(user.wlevel, msg.wlevel if msg.wlevel is not None else getattr(user, "default_wlevel", 0))
             self._login(user.name, rlevel, wlevel)
+            self.server.command_stats.record("AUTH", "complete" if self.authenticated else "failed",
+                                             perf_counter() - started)
         finally:
             self._auth_task = None
             self._drain_queue()
@@ -526,6 +545,7 @@ class Session(asyncio.Protocol):
         Plain variables are read through the GET's plan (:func:`_get_plan`: the objects' fast
         readers, looked up once per distinct GET text), everything else through
         :meth:`Tree.resolve` and :meth:`Tree.read`; both read the live value at this moment."""
+        started = perf_counter()
         tree = self.server.tree
         settings = self.server.settings
         budget, room = settings.max_objects, settings.max_reply_bytes
@@ -551,6 +571,7 @@ class Session(asyncio.Protocol):
             parts.append(f"{head}{wire}={value}{le}")
         parts.append(f"{msg.cmd_id} COMMAND COMPLETE{le}")
         self.write("".join(parts).encode("ascii", "backslashreplace"))
+        self.server.command_stats.record("GET", "complete", perf_counter() - started)
 
     def _get_one(self, tree, ref, budget: int) -> tuple[str, int]:
         """The wire value of one object of a GET by the general path, and the budget left."""
@@ -568,6 +589,7 @@ class Session(asyncio.Protocol):
     # -- SET -----------------------------------------------------------------------------------
     def _set(self, msg: m.Set) -> None:
         cmd_id = msg.cmd_id
+        started = perf_counter()
         self.send(m.CommandOk(cmd_id))
         serial = self._running[cmd_id] = next(_SERIALS)
         token = current_cause.set((self.id, cmd_id, serial))
@@ -575,7 +597,7 @@ class Session(asyncio.Protocol):
             for i, assignment in enumerate(msg.assignments):
                 pending = self._assign(cmd_id, assignment)
                 if pending is not None:
-                    cmd = _Command(cmd_id, (self.id, cmd_id, serial))
+                    cmd = _Command(cmd_id, (self.id, cmd_id, serial), started)
                     cmd.moves = [(self.server.tree, w[3], w[1]) for w in pending[1]]
                     self.commands[cmd_id] = cmd
                     cmd.task = self.server.spawn(
@@ -587,6 +609,7 @@ class Session(asyncio.Protocol):
         finally:
             current_cause.reset(token)
         self.send(m.CommandComplete(cmd_id))
+        self.server.command_stats.record("SET", "complete", perf_counter() - started)
         self._running.pop(cmd_id, None)
         self._announced.pop(cmd_id, None)
 
@@ -648,6 +671,7 @@ class Session(asyncio.Protocol):
 
     async def _finish_set(self, cmd: _Command, assignment, pending, rest) -> None:
         cmd_id = cmd.cmd_id
+        result = "failed"
         try:
             await self._await_assignment(cmd_id, assignment.obj.text, pending)
             for a in rest:
@@ -656,12 +680,16 @@ class Session(asyncio.Protocol):
                     cmd.moves += [(self.server.tree, w[3], w[1]) for w in more[1]]
                     await self._await_assignment(cmd_id, a.obj.text, more)
             self.send(m.CommandComplete(cmd_id))
+            result = "complete"
         except asyncio.CancelledError:
             if cmd.aborted_by is not None:
                 self.send(m.CommandAbortedBy(cmd_id, cmd.aborted_by))
+                result = "aborted"
             else:
                 self.send(m.CommandFailed(cmd_id))
+                result = "failed"
         finally:
+            self.server.command_stats.record("SET", result, perf_counter() - cmd.started)
             self.commands.pop(cmd_id, None)
             self._running.pop(cmd_id, None)
             self._announced.pop(cmd_id, None)
@@ -685,6 +713,7 @@ class Session(asyncio.Protocol):
     def _abort(self, msg: m.Abort) -> None:
         cmd_id, target = msg.cmd_id, msg.target
         by = cmd_id
+        started = perf_counter()
         if target >> 32:  # an extended id (conn << 32) | id
             conn, target = target >> 32, target & 0xFFFFFFFF
             if conn != self.id:
@@ -695,9 +724,9 @@ class Session(asyncio.Protocol):
         elif target in self.commands:
             victims = [self.commands[target]]
         else:
-            self._refuse(cmd_id, "NOTRUNNING")
+            self._refuse(cmd_id, "NOTRUNNING", verb="ABORT")
             return
-        self._abort_victims(cmd_id, victims, by)
+        self._abort_victims(cmd_id, victims, by, started)
 
     def _abort_other(self, cmd_id: int, conn: int, target: int) -> None:
         """ABORT of another connection's command: allowed to a connection whose write level is
@@ -706,13 +735,13 @@ class Session(asyncio.Protocol):
         other = self.server.sessions.get(conn)
         victim = other.commands.get(target) if other is not None else None
         if victim is None or victim.task is None:
-            self._refuse(cmd_id, "NOTRUNNING")
+            self._refuse(cmd_id, "NOTRUNNING", verb="ABORT")
         elif self.wlevel > other.wlevel:
-            self._refuse(cmd_id, "DENIED")
+            self._refuse(cmd_id, "DENIED", verb="ABORT")
         else:
-            self._abort_victims(cmd_id, [victim], (self.id << 32) | cmd_id)
+            self._abort_victims(cmd_id, [victim], (self.id << 32) | cmd_id, perf_counter())
 
-    def _abort_victims(self, cmd_id: int, victims: list, by: int) -> None:
+    def _abort_victims(self, cmd_id: int, victims: list, by: int, started: float) -> None:
         self.send(m.CommandOk(cmd_id))
         for victim in victims:
             victim.aborted_by = by
@@ -722,18 +751,23 @@ class Session(asyncio.Protocol):
         tasks = [v.task for v in victims if v.task is not None]
         if not tasks:
             self.send(m.CommandComplete(cmd_id))
+            self.server.command_stats.record("ABORT", "complete", perf_counter() - started)
             return
-        cmd = _Command(cmd_id)
+        cmd = _Command(cmd_id, started=started)
         self.commands[cmd_id] = cmd
         cmd.task = self.server.spawn(self._finish_abort(cmd, tasks))
 
     async def _finish_abort(self, cmd: _Command, tasks) -> None:
+        result = "failed"
         try:
             _, still = await asyncio.wait(tasks, timeout=self.server.settings.abort_timeout)
             self.send(m.CommandTimeout(cmd.cmd_id) if still else m.CommandComplete(cmd.cmd_id))
+            result = "timeout" if still else "complete"
         except asyncio.CancelledError:
             self.send(m.CommandFailed(cmd.cmd_id))
+            result = "failed"
         finally:
+            self.server.command_stats.record("ABORT", result, perf_counter() - cmd.started)
             self.commands.pop(cmd.cmd_id, None)
 
     def fail_all(self) -> None:

@@ -23,6 +23,7 @@ from prometheus_client.core import (CounterMetricFamily, GaugeMetricFamily, Hist
                                     InfoMetricFamily)
 
 from tcs.axes.control_loop import HISTOGRAM_BOUNDS
+from tcs.model.command_stats import LATENCY_BOUNDS
 
 CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
 #: The CAN controller states of :class:`tcs.drivers.canbus.BusHealth`.
@@ -58,16 +59,21 @@ def _gauge(name: str, doc: str, labels: list[str] | None = None) -> GaugeMetricF
     return GaugeMetricFamily(name, doc, labels=labels or [])
 
 
+def _buckets(bounds, counts) -> list[tuple[str, int]]:
+    """Cumulative Prometheus buckets of per-bucket ``counts`` (the last one past every bound)."""
+    buckets, running = [], 0
+    for bound, count in zip((*bounds, float("inf")), counts):
+        running += count
+        buckets.append(("+Inf" if bound == float("inf") else repr(bound), running))
+    return buckets
+
+
 def _histogram(name: str, doc: str, data) -> HistogramMetricFamily | None:
     if not data:
         return None
     counts, total = data
     family = HistogramMetricFamily(name, doc)
-    buckets, running = [], 0
-    for bound, count in zip((*HISTOGRAM_BOUNDS, float("inf")), counts):
-        running += count
-        buckets.append(("+Inf" if bound == float("inf") else repr(bound), running))
-    family.add_metric([], buckets, total)
+    family.add_metric([], _buckets(HISTOGRAM_BOUNDS, counts), total)
     return family
 
 
@@ -232,6 +238,25 @@ class SnapshotCollector:
             c = CounterMetricFamily(name, doc)
             c.add_metric([], bus[key])
             yield c
+        if "bits" not in bus:
+            return
+        c = CounterMetricFamily("tcs_can_frames", "CAN data frames seen by the TCS (received: the drives' "
+                                "and the kernel's; sent: its own)", labels=["direction"])
+        c.add_metric(["received"], bus["rx_frames"])
+        c.add_metric(["sent"], bus["tx_frames"])
+        yield c
+        c = CounterMetricFamily("tcs_can_frame_bits", "bits of those frames on the wire, without stuff bits "
+                                "(rate / tcs_can_bitrate_bits_per_second = bus load)")
+        c.add_metric([], bus["bits"])
+        yield c
+        g = _gauge("tcs_can_bitrate_bits_per_second", "the bus's bit rate ([can] bitrate)")
+        g.add_metric([], bus["bitrate"])
+        yield g
+        if bus["load"] is not None:
+            g = _gauge("tcs_can_bus_load_ratio", "share of the bit rate used over the last second "
+                                                 "(0..1, without stuff bits: up to ~20 % more on the wire)")
+            g.add_metric([], bus["load"])
+            yield g
 
     @staticmethod
     def _tracking(snap):
@@ -317,13 +342,24 @@ class SnapshotCollector:
 
     @staticmethod
     def _front_ends(snap):
-        g = _gauge("tcs_frontend_connections", "open TPL2 connections per front end", ["front_end"])
-        counts = {"opentci": 0, "opentsi": 0}
-        for c in snap["clients"]:
-            counts[c["front_end"]] = counts.get(c["front_end"], 0) + 1
-        for name, n in counts.items():
-            g.add_metric([name], n)
+        ends = snap.get("front_ends") or {}
+        g = _gauge("tcs_frontend_connections", "open connections per front end (TPL2 sessions, Alpaca "
+                                               "HTTP connections)", ["front_end"])
+        for name, end in ends.items():
+            g.add_metric([name], end["connections"])
         yield g
+        c = CounterMetricFamily("tcs_frontend_commands", "commands answered, by verb (TPL2 command, "
+                                "Alpaca HTTP method) and result", labels=["front_end", "verb", "result"])
+        h = HistogramMetricFamily("tcs_frontend_command_latency_seconds", "time from handling a command "
+                                  "to its final answer (a SET that moves: until the move ended)",
+                                  labels=["front_end", "verb"])
+        for name, end in ends.items():
+            for verb, result, n in end["counts"]:
+                c.add_metric([name, verb, result], n)
+            for verb, (counts, total) in end["latency"].items():
+                h.add_metric([name, verb], _buckets(LATENCY_BOUNDS, counts), total)
+        yield c
+        yield h
 
 
 def make_registry(source, counters: Counters) -> CollectorRegistry:

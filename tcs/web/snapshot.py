@@ -159,6 +159,20 @@ def _sessions(server, front_end: str) -> list[dict[str, Any]]:
             for s in list(server.sessions.values())]
 
 
+def _front_ends(service) -> dict[str, Any]:
+    """Per front end that runs: open connections and its command counts and latencies
+    (:class:`tcs.model.command_stats.CommandStats`)."""
+    out = {}
+    for name, server in (("opentci", service.server), ("opentsi", getattr(service, "opentsi_server", None)),
+                         ("alpaca", getattr(service, "alpaca_server", None))):
+        stats = getattr(server, "command_stats", None)
+        if stats is None:
+            continue
+        connections = server.connections if name == "alpaca" else len(server.sessions)
+        out[name] = {"connections": connections, **stats.figures()}
+    return out
+
+
 def take(service) -> dict[str, Any]:
     """The snapshot of ``service`` (call on its event loop)."""
     tel = service.telescope
@@ -225,6 +239,7 @@ def take(service) -> dict[str, Any]:
                        "longitude": _num(_safe(lambda: gps.longitude))}
     snap["clients"] = (_sessions(service.server, "opentci")
                        + _sessions(getattr(service, "opentsi_server", None), "opentsi"))
+    snap["front_ends"] = _front_ends(service)
     snap["site"] = {"latitude": local.latitude, "longitude": local.served_longitude, "height": local.height}
     snap["horizon"] = _horizon(tel)
     snap["build"] = {"version": str(tcs.__version__), "python": platform.python_version(),

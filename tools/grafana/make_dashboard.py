@@ -108,6 +108,13 @@ series("CAN bus errors (per minute)",
 series("CAN controller state", [(f"tcs_can_bus_state{{{SEL}}} == 1", "{{state}}")], 12,
        desc="the controller's state: ok, warning, passive, bus-off or failed")
 _y[0] += 8
+series("CAN bus load", [(f"tcs_can_bus_load_ratio{{{SEL}}}", "load (last second)"),
+                        (f"rate(tcs_can_frame_bits_total{{{SEL}}}[1m]) / tcs_can_bitrate_bits_per_second{{{SEL}}}",
+                         "load (1 min)")], 0, unit="percentunit",
+       desc="share of the bit rate the frames use (without stuff bits: up to ~20 % more on the wire)")
+series("CAN frames (per second)", [(f"rate(tcs_can_frames_total{{{SEL}}}[1m])", "{{direction}}")], 12,
+       desc="data frames received (drives, kernel SYNC) and sent by the TCS")
+_y[0] += 8
 
 row("Dome, weather, links")
 series("Dome and covers", [(f"tcs_enclosure_position{{{SEL}}}", "{{module}}")], 0, w=8,
@@ -123,7 +130,17 @@ series("GPS", [(f"tcs_gps_position_fix{{{SEL}}}", "fix"), (f"tcs_gps_time_good{{
                (f"tcs_gps_time_offset_seconds{{{SEL}}}", "time offset (s)")], 8, w=8,
        desc="position fix, time good, GPS time minus the system's UTC")
 series("Clients", [(f"tcs_frontend_connections{{{SEL}}}", "{{front_end}}")], 16, w=8,
-       desc="open TPL2 connections per front end")
+       desc="open connections per front end (TPL2 sessions, Alpaca HTTP connections)")
+_y[0] += 8
+
+row("Front ends")
+series("Commands (per second)", [(f"sum by (front_end, verb, result) (rate(tcs_frontend_commands_total{{{SEL}}}[1m]))",
+                                  "{{front_end}} {{verb}} {{result}}")], 0, w=12,
+       desc="commands answered by front end, verb (TPL2 command, Alpaca HTTP method) and result")
+series("Command latency p99 (5 min)",
+       [(f"histogram_quantile(0.99, sum by (front_end, verb, le) "
+         f"(rate(tcs_frontend_command_latency_seconds_bucket{{{SEL}}}[5m])))", "{{front_end}} {{verb}}")],
+       12, w=12, unit="s", desc="from handling a command to its final answer (a SET that moves: until the move ended)")
 _y[0] += 8
 
 dashboard = {

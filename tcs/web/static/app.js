@@ -196,6 +196,9 @@ function render(snap) {
   const l = snap.loop;
   setText($("loop"), l.running ? `${(l.period * 1000).toFixed(0)} ms, ${l.missed ?? 0} missed, ${l.late ?? 0} late`
                                : "not running", l.running ? "ok" : "bad");
+  const bus = snap.can;
+  setText($("can"), !bus ? "–" : `${bus.state}${bus.load == null ? "" : `, load ${(bus.load * 100).toFixed(0)} %`}` +
+          `${bus.error_frames ? `, ${bus.error_frames} error frames` : ""}`, !bus ? "muted" : bus.state === "ok" ? "ok" : "bad");
   setText($("seq"), String(snap.seq));
   axes(snap);
   tracking(snap);
@@ -208,8 +211,10 @@ function render(snap) {
   list($("errors"), c.errors.length ? c.errors.map((e) => ({
     text: `${e.active ? "ACTIVE " : ""}${e.device}: ${e.error} (${e.total}×, last ${iso(e.last)})`,
     cls: e.active ? "bad" : "muted" })) : [{ text: "none", cls: "muted" }]);
-  list($("clients"), snap.clients.length ? snap.clients.map((s) => ({
-    text: `${s.front_end} #${s.id} ${s.user || "(not logged in)"} from ${s.address}` })) : [{ text: "none", cls: "muted" }]);
+  const alpaca = (snap.front_ends || {}).alpaca;
+  const rows = snap.clients.map((s) => ({ text: `${s.front_end} #${s.id} ${s.user || "(not logged in)"} from ${s.address}` }));
+  if (alpaca && alpaca.connections) rows.push({ text: `alpaca: ${alpaca.connections} HTTP connection${alpaca.connections > 1 ? "s" : ""}` });
+  list($("clients"), rows.length ? rows : [{ text: "none", cls: "muted" }]);
   document.body.dataset.seq = snap.seq;
 }
 
