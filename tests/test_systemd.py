@@ -104,6 +104,9 @@ def test_unit_settings():
     assert {"AF_CAN", "AF_INET", "AF_INET6", "AF_UNIX"} <= set(families.split("=")[1].split())
     assert "LimitRTPRIO=50" in settings and "SupplementaryGroups=dialout" in settings
     assert "DeviceAllow=char-ttyUSB rw" in settings
+    # a dead server's orphaned control process must have time to stop the axes: "mixed" SIGKILLs
+    # it the moment the main process dies (tools/ci/vm/checks/systemd.sh, kill -9 during a slew)
+    assert "KillMode=control-group" in settings and "TimeoutStopSec=60" in settings
 
 
 @pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze not installed")
