@@ -51,3 +51,16 @@ def test_ci_installs_chromium_for_the_status_page_browser_test():
     install = ci.index("apt-get install -y -qq --no-install-recommends chromium")
     assert install < ci.index("\npython -m pytest\n")
     assert "SKIPPED" in ci and 'id -u' in ci
+
+
+def test_ci_runs_the_vm_stage_after_the_suite_and_says_when_it_cannot():
+    """Issue 23: .ci/run runs tools/ci/vm/stage.sh (kernel vcan, the stack over kernel CAN,
+    real systemd) after the README's test command; a stage that failed fails CI, one that cannot
+    run here (exit 3: not root, no QEMU) has said so loudly and leaves the suite's result;
+    stage.sh says why in a line of its own."""
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert ci.index("\npython -m pytest\n") < ci.index("bash tools/ci/vm/stage.sh")
+    assert '[ "$vrc" -eq 0 ] || [ "$vrc" -eq 3 ] || rc=1' in ci
+    assert "TCS_CI_VM=0" in ci and "NOT run" in ci
+    stage = (ROOT / "tools" / "ci" / "vm" / "stage.sh").read_text()
+    assert "VM STAGE NOT RUN" in stage and "exit 3" in stage

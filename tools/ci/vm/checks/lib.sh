@@ -7,10 +7,11 @@ check() {
   results+=("CHECK $name: $([ "$ok" = 0 ] && echo PASS || echo FAIL) $*")
   echo "${results[-1]}"
 }
+# (the status is the word after the check's name: a detail may itself say "FAILED")
 summary() {
-  echo; echo "=== $1: $(printf '%s\n' "${results[@]}" | grep -c ': PASS') passed, $(printf '%s\n' "${results[@]}" | grep -c ': FAIL') failed"
+  echo; echo "=== $1: $(printf '%s\n' "${results[@]}" | grep -c '^CHECK [^ ]*: PASS') passed, $(printf '%s\n' "${results[@]}" | grep -c '^CHECK [^ ]*: FAIL') failed"
   printf '%s\n' "${results[@]}"
-  ! printf '%s\n' "${results[@]}" | grep -q ': FAIL'
+  ! printf '%s\n' "${results[@]}" | grep -q '^CHECK [^ ]*: FAIL'
 }
 step() { echo; echo "=== $* (guest up $(cut -d' ' -f1 /proc/uptime) s)"; }
 since() { awk -v a="$1" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }'; }
