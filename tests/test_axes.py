@@ -322,7 +322,9 @@ async def test_cable_wrap_goes_the_allowed_way(live):
         assert abs(await c.num("AZ.REALPOS") + 80) <= 0.0005
         # (measured positions: an encoder increment of settling, 1e-4°, is no wrong way)
         assert max(seen) <= 260.0 + 0.0005, max(seen)
-        assert min(seen) >= -80.0 - 0.0005, min(seen)
+        # past the target only by the arrival's settling (this file's fast dynamics: 1.1 mdeg
+        # measured once in CI), nowhere near the -270 limit
+        assert min(seen) >= -80.0 - 0.01, min(seen)
         assert any(-10 < x < 250 for x in seen), "did not go the long way"
         assert await c.num("AZ.LIMIT_STATE") == 0
         # a direction the axis already points to is reached without moving (the nearest

@@ -513,6 +513,10 @@ class TelescopeDevice(Device):
         self.ops.check_fresh()
         p = self.telescope.pointing
         ops = self.ops
+        if self.running("slew") and not (p is not None and p.track):
+            # the slew ended (a fault stops the tracking) but its operation has not yet: its
+            # failure reaches the next read — never a False that reads as "arrived" before it
+            return True
         if p is not None and p.track:
             # on target: every main axis in its window on the current path (the axes' bits can
             # lag a re-plan by a cycle, so the distance to the demand is checked too)
