@@ -458,7 +458,7 @@ class Cabinet(ModuleHealth):
         self.status_list.acknowledged(None)
         self._publish("acknowledged")
         if resets:  # complete when every reset ended; fail (why) when one did not reset
-            return _all_reset(resets)
+            return all_reset(resets)
         return None
 
     def _changed(self, before: int, text: str) -> None:  # ModuleHealth hook
@@ -575,7 +575,7 @@ def _as_tcs_error(exc: BaseException, member: Any, what: str) -> TcsError:
 __all__ = ["Cabinet", "ManualControl", "MAIN_AXES_ORDER"]
 
 
-async def _all_reset(resets: list) -> None:
+async def all_reset(resets: list) -> None:
     """``CABINET.ERROR_STATE=0``'s wait for the axes' fault resets: done when all ended; a reset
     that failed fails the acknowledge with its reason (it used to answer done while an
     ``AZ.ERROR_STATE`` stayed 2)."""

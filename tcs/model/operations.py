@@ -35,6 +35,7 @@ What may touch it: the event loop.
 from __future__ import annotations
 
 import asyncio
+import inspect
 import logging
 import math
 
@@ -42,6 +43,7 @@ import erfa
 
 from tcs.errors import ErrorNumber, RangeRefused, TcsError, gather_all
 from tcs.model.health import ERROR, PANIC, ModuleHealth
+from tcs.model.cabinet import all_reset
 from tcs.model.events import current_cause
 from tcs.pointing.sky_object import SkyObject
 from tcs.pointing.targets import BodyTarget
@@ -490,18 +492,24 @@ class Operations(ModuleHealth):
         return axis.section.names.get(key, key)
 
     # -- errors ----------------------------------------------------------------------------------
-    def acknowledge_mask(self, mask: int, levels: int = 0xF) -> None:
-        """Acknowledge the modules whose ERROR_STATE has a bit of ``mask & levels``."""
+    def acknowledge_mask(self, mask: int, levels: int = 0xF):
+        """Acknowledge the modules whose ERROR_STATE has a bit of ``mask & levels``. Returns
+        None, or — when drive faults are being reset — an awaitable that ends when every reset
+        ended and fails naming one that did not (as ``CABINET.ERROR_STATE=0``): the client's SET
+        completes once the errors are really gone."""
         mask = int(mask) & levels
         if not mask:
-            return
+            return None
         cab = self.cabinet
         if not (cab.error_state & 0xF & ~mask):
-            cab.acknowledge_errors(0)
-            return
+            return cab.acknowledge_errors(0)
+        resets = []
         for member in cab.members():
             if int(getattr(member, "error_state", 0) or 0) & mask:
-                member.acknowledge_errors(0)
+                result = member.acknowledge_errors(0)
+                if inspect.isawaitable(result):
+                    resets.append(result)
+        return all_reset(resets) if resets else None
 
     def _failed(self, what: str, exc: TcsError) -> None:
         """A verb failed: a latched ERROR (gone, kept until acknowledged)."""

@@ -85,20 +85,20 @@ class StatusView:
             parts.append(f"{group}|{level}:{comps}:{errors}")
         return ",".join(parts)
 
-    def clear(self, value: int) -> None:
-        self.ops.acknowledge_mask(value)
+    def clear(self, value: int):
+        return self.ops.acknowledge_mask(value)
 
-    def clear_panic(self, value: int) -> None:
-        self.ops.acknowledge_mask(value, 0x1)
+    def clear_panic(self, value: int):
+        return self.ops.acknowledge_mask(value, 0x1)
 
-    def clear_error(self, value: int) -> None:
-        self.ops.acknowledge_mask(value, 0x2)
+    def clear_error(self, value: int):
+        return self.ops.acknowledge_mask(value, 0x2)
 
-    def clear_warning(self, value: int) -> None:
-        self.ops.acknowledge_mask(value, 0x4)
+    def clear_warning(self, value: int):
+        return self.ops.acknowledge_mask(value, 0x4)
 
-    def clear_info(self, value: int) -> None:
-        self.ops.acknowledge_mask(value, 0x8)
+    def clear_info(self, value: int):
+        return self.ops.acknowledge_mask(value, 0x8)
 
 
 _GROUPS = {"AZ": "AZIMUTH", "HA": "AZIMUTH", "ZD": "ELEVATION", "DEC": "ELEVATION", "CABINET": "CABINET",
@@ -273,7 +273,6 @@ class DomeShutters:
         return sum(1 << i for i, f in self.parts.items() if f.targetpos)
 
     def set_targetpos(self, value: int):
-        import asyncio
         value = int(value)
         waits = []
         for i, f in self.parts.items():
