@@ -59,6 +59,13 @@ def _gauge(name: str, doc: str, labels: list[str] | None = None) -> GaugeMetricF
     return GaugeMetricFamily(name, doc, labels=labels or [])
 
 
+def _one(name: str, doc: str, value: float, counter: bool = False):
+    """A family of one unlabelled sample (a gauge, or a counter)."""
+    family = CounterMetricFamily(name, doc) if counter else GaugeMetricFamily(name, doc)
+    family.add_metric([], value)
+    return family
+
+
 def _buckets(bounds, counts) -> list[tuple[str, int]]:
     """Cumulative Prometheus buckets of per-bucket ``counts`` (the last one past every bound)."""
     buckets, running = [], 0
@@ -106,21 +113,13 @@ class SnapshotCollector:
         info.add_metric([], {"version": b["version"], "python": b["python"], "config": b["config"]})
         yield info
         t = snap["time"]
-        g = _gauge("tcs_snapshot_timestamp_seconds", "UTC (Unix seconds) when the snapshot shown was taken")
-        g.add_metric([], t["utc"])
-        yield g
+        yield _one("tcs_snapshot_timestamp_seconds", "UTC (Unix seconds) when the snapshot shown was taken", t["utc"])
         sync = snap.get("sync") or {}
         if sync.get("utc") is not None:
-            g = _gauge("tcs_sync_timestamp_seconds",
-                       "UTC of the newest control cycle's SYNC in the snapshot (Unix seconds)")
-            g.add_metric([], sync["utc"])
-            yield g
-        g = _gauge("tcs_tai_utc_seconds", "TAI - UTC in use (LOCAL.TAI-UTC)")
-        g.add_metric([], t["tai_utc"])
-        yield g
-        g = _gauge("tcs_ut1_utc_seconds", "UT1 - UTC in use (LOCAL.UT1-UTC)")
-        g.add_metric([], t["ut1_utc"])
-        yield g
+            yield _one("tcs_sync_timestamp_seconds",
+                       "UTC of the newest control cycle's SYNC in the snapshot (Unix seconds)", sync["utc"])
+        yield _one("tcs_tai_utc_seconds", "TAI - UTC in use (LOCAL.TAI-UTC)", t["tai_utc"])
+        yield _one("tcs_ut1_utc_seconds", "UT1 - UTC in use (LOCAL.UT1-UTC)", t["ut1_utc"])
 
     @staticmethod
     def _cabinet(snap):
@@ -129,9 +128,7 @@ class SnapshotCollector:
                                ("referenced", "tcs_cabinet_referenced", "CABINET.REFERENCED (0 … 1)"),
                                ("error_state", "tcs_cabinet_error_state", "CABINET.ERROR_STATE bits")):
             if c[key] is not None:
-                g = _gauge(name, doc)
-                g.add_metric([], c[key])
-                yield g
+                yield _one(name, doc, c[key])
         g = _gauge("tcs_cabinet_status_entries", "entries of CABINET.STATUS.LIST", ["active"])
         errors = c["errors"]
         g.add_metric(["1"], sum(1 for e in errors if e["active"]))
@@ -191,30 +188,22 @@ class SnapshotCollector:
     @staticmethod
     def _loop(snap):
         loop = snap["loop"]
-        g = _gauge("tcs_control_loop_running", "1 while the control loop runs (healthy)")
-        g.add_metric([], 1.0 if loop["running"] else 0.0)
-        yield g
+        yield _one("tcs_control_loop_running", "1 while the control loop runs (healthy)",
+                   1.0 if loop["running"] else 0.0)
         if loop["period"] is not None:
-            g = _gauge("tcs_control_loop_sync_period_seconds", "the SYNC period ([can] sync_period)")
-            g.add_metric([], loop["period"])
-            yield g
+            yield _one("tcs_control_loop_sync_period_seconds", "the SYNC period ([can] sync_period)", loop["period"])
         for key, name, doc in (("cycles", "tcs_control_loop_cycles", "control cycles run"),
                                ("late", "tcs_control_loop_late_cycles", "cycles whose work ended after the next SYNC was due"),
                                ("missed", "tcs_control_loop_missed_cycles", "SYNC slots skipped (the loop was still busy)"),
                                ("tpdo_timeouts", "tcs_control_loop_tpdo_timeouts", "cycles run without every synchronous TPDO"),
                                ("errors", "tcs_control_loop_errors", "axis steps that raised")):
             if loop[key] is not None:
-                c = CounterMetricFamily(name, doc)
-                c.add_metric([], loop[key])
-                yield c
+                yield _one(name, doc, loop[key], counter=True)
         if loop["max_lateness"] is not None:
-            g = _gauge("tcs_control_loop_max_lateness_seconds", "worst SYNC lateness since start")
-            g.add_metric([], loop["max_lateness"])
-            yield g
+            yield _one("tcs_control_loop_max_lateness_seconds", "worst SYNC lateness since start",
+                       loop["max_lateness"])
         if loop["realtime"] is not None:
-            g = _gauge("tcs_control_loop_realtime", "1 when the loop runs with real-time priority")
-            g.add_metric([], loop["realtime"])
-            yield g
+            yield _one("tcs_control_loop_realtime", "1 when the loop runs with real-time priority", loop["realtime"])
         for fam in (_histogram("tcs_control_loop_lateness_seconds", "SYNC lateness of each cycle",
                                loop["lateness_hist"]),
                     _histogram("tcs_control_loop_time_seconds", "time of each control loop step",
@@ -235,9 +224,7 @@ class SnapshotCollector:
                                ("bus_off", "tcs_can_bus_off", "times the controller went bus-off"),
                                ("send_failures", "tcs_can_send_failures", "frames that could not be sent"),
                                ("receive_failures", "tcs_can_receive_failures", "receive errors of the bus")):
-            c = CounterMetricFamily(name, doc)
-            c.add_metric([], bus[key])
-            yield c
+            yield _one(name, doc, bus[key], counter=True)
         if "bits" not in bus:
             return
         c = CounterMetricFamily("tcs_can_frames", "CAN data frames seen by the TCS (received: the drives' "
@@ -245,40 +232,28 @@ class SnapshotCollector:
         c.add_metric(["received"], bus["rx_frames"])
         c.add_metric(["sent"], bus["tx_frames"])
         yield c
-        c = CounterMetricFamily("tcs_can_frame_bits", "bits of those frames on the wire, without stuff bits "
-                                "(rate / tcs_can_bitrate_bits_per_second = bus load)")
-        c.add_metric([], bus["bits"])
-        yield c
-        g = _gauge("tcs_can_bitrate_bits_per_second", "the bus's bit rate ([can] bitrate)")
-        g.add_metric([], bus["bitrate"])
-        yield g
+        yield _one("tcs_can_frame_bits", "bits of those frames on the wire, without stuff bits "
+                   "(rate / tcs_can_bitrate_bits_per_second = bus load)", bus["bits"], counter=True)
+        yield _one("tcs_can_bitrate_bits_per_second", "the bus's bit rate ([can] bitrate)", bus["bitrate"])
         if bus["load"] is not None:
-            g = _gauge("tcs_can_bus_load_ratio", "share of the bit rate used over the last second "
-                                                 "(0..1, without stuff bits: up to ~20 % more on the wire)")
-            g.add_metric([], bus["load"])
-            yield g
+            yield _one("tcs_can_bus_load_ratio", "share of the bit rate used over the last second (0..1, "
+                       "without stuff bits: up to ~20 % more on the wire)", bus["load"])
 
     @staticmethod
     def _tracking(snap):
         t = snap["tracking"]
         if t is None:
             return
-        g = _gauge("tcs_tracking_active", "1 while POINTING tracks (POINTING.TRACK != 0)")
-        g.add_metric([], 1.0 if t["tracking"] else 0.0)
-        yield g
-        g = _gauge("tcs_tracking_on_target", "1 while tracking with every controlled axis on target")
-        g.add_metric([], 1.0 if t["on_target"] else 0.0)
-        yield g
+        yield _one("tcs_tracking_active", "1 while POINTING tracks (POINTING.TRACK != 0)",
+                   1.0 if t["tracking"] else 0.0)
+        yield _one("tcs_tracking_on_target", "1 while tracking with every controlled axis on target",
+                   1.0 if t["on_target"] else 0.0)
         if t["distance_arcsec"] is not None:
-            g = _gauge("tcs_tracking_error_arcsec", "POINTING.TARGETDISTANCE while tracking: largest distance "
-                                                    "of the controlled axes from their demand on the sky")
-            g.add_metric([], t["distance_arcsec"])
-            yield g
+            yield _one("tcs_tracking_error_arcsec", "POINTING.TARGETDISTANCE while tracking: largest distance "
+                       "of the controlled axes from their demand on the sky", t["distance_arcsec"])
         if t["target_distance"] is not None:
-            g = _gauge("tcs_tracking_target_distance_degrees",
-                       "angle on the sky between POINTING.CURRENT and POINTING.TARGET")
-            g.add_metric([], t["target_distance"])
-            yield g
+            yield _one("tcs_tracking_target_distance_degrees",
+                       "angle on the sky between POINTING.CURRENT and POINTING.TARGET", t["target_distance"])
 
     @staticmethod
     def _enclosure(snap):
@@ -297,9 +272,8 @@ class SnapshotCollector:
                 err.add_metric(labels, m["error_state"])
             yield from (pos, mov, err)
         if snap["interlock"] is not None:
-            g = _gauge("tcs_weather_interlock_active", "1 while the weather interlock holds dome and covers closed")
-            g.add_metric([], 1.0 if snap["interlock"]["active"] else 0.0)
-            yield g
+            yield _one("tcs_weather_interlock_active", "1 while the weather interlock holds dome and covers closed",
+                       1.0 if snap["interlock"]["active"] else 0.0)
         if snap["sensors"]:
             g = _gauge("tcs_sensor_value", "SENSOR[].VALUE (the unit is the sensor's)", ["module", "name"])
             for s in snap["sensors"]:
@@ -329,16 +303,11 @@ class SnapshotCollector:
             yield from (up, rtt, fails, connects)
         gps = snap["gps"]
         if gps is not None:
-            g = _gauge("tcs_gps_position_fix", "1 while the GPS has a good position fix")
-            g.add_metric([], 1.0 if gps["position_good"] else 0.0)
-            yield g
-            g = _gauge("tcs_gps_time_good", "1 while the GPS time is good")
-            g.add_metric([], 1.0 if gps["time_good"] else 0.0)
-            yield g
+            yield _one("tcs_gps_position_fix", "1 while the GPS has a good position fix",
+                       1.0 if gps["position_good"] else 0.0)
+            yield _one("tcs_gps_time_good", "1 while the GPS time is good", 1.0 if gps["time_good"] else 0.0)
             if gps["time_offset"] is not None:
-                g = _gauge("tcs_gps_time_offset_seconds", "GPS time minus the system's UTC")
-                g.add_metric([], gps["time_offset"])
-                yield g
+                yield _one("tcs_gps_time_offset_seconds", "GPS time minus the system's UTC", gps["time_offset"])
 
     @staticmethod
     def _front_ends(snap):
