@@ -850,11 +850,11 @@ def test_quote_string_round_trip_simple():
 
 def test_get_reply_is_the_same_bytes_as_its_messages():
     from tcs.opentci_server.messages import CommandComplete, CommandOk, DataInline
-    from tcs.opentci_server.protocol import Tpl2Connection
+    from tcs.opentci_server.protocol import Tpl2Connection, wire_object
 
     for le in (b"\n", b"\r\n"):
         conn = Tpl2Connection(line_ending=le)
         items = [("AZ.REALPOS", "1.0"), ("x\u00e9y!TYPE", "2"), ("NO.SUCH", "UNKNOWN")]
         expected = conn.send_all([CommandOk(7)] + [DataInline(7, o, (v,)) for o, v in items]
                                  + [CommandComplete(7)])
-        assert conn.get_reply(7, items) == expected
+        assert conn.get_reply(7, [(wire_object(o), v) for o, v in items]) == expected

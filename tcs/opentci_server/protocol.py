@@ -615,7 +615,7 @@ class Tpl2Connection:
             raise ValueError(f"line_ending must be b'\\n' or b'\\r\\n', not {line_ending!r}")
         self.line_ending = line_ending
         self.max_line_length = max_line_length
-        self._le = self.text_line_ending = line_ending.decode("ascii")
+        self._le = line_ending.decode("ascii")
         self._framer = _LineFramer(max_line_length)
         self._last_was_disconnect = False
         self._ended = False
@@ -667,12 +667,14 @@ class Tpl2Connection:
         return "".join([format_message(m) + le for m in msgs]).encode("ascii", "backslashreplace")
 
     def get_reply(self, cmd_id: int, items: Iterable[tuple[str, str]]) -> bytes:
-        """A whole GET reply in one go: ``COMMAND OK``, one ``DATA INLINE`` per (object as sent,
-        wire value), ``COMMAND COMPLETE`` — the same bytes as :meth:`send_all` of those
-        messages, without building them (the server's hot path)."""
+        """A whole GET reply in one go: ``COMMAND OK``, one ``DATA INLINE`` per (object as
+        echoed — :func:`wire_object` of the object as sent —, wire value), ``COMMAND COMPLETE``:
+        the same bytes as :meth:`send_all` of those messages, without building them (the
+        server's hot path; the session escapes each object of a GET once, in its plan)."""
         le = self._le
+        head = f"{cmd_id} DATA INLINE "
         parts = [f"{cmd_id} COMMAND OK{le}"]
-        parts += [f"{cmd_id} DATA INLINE {_text(obj)}={value}{le}" for obj, value in items]
+        parts += [f"{head}{wire}={value}{le}" for wire, value in items]
         parts.append(f"{cmd_id} COMMAND COMPLETE{le}")
         return "".join(parts).encode("ascii", "backslashreplace")
 

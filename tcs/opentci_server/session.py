@@ -550,9 +550,7 @@ class Session(asyncio.Protocol):
         settings = self.server.settings
         budget, room = settings.max_objects, settings.max_reply_bytes
         rlevel = self.rlevel
-        le = self.proto.text_line_ending
-        head = f"{msg.cmd_id} DATA INLINE "
-        parts = [f"{msg.cmd_id} COMMAND OK{le}"]
+        items = []
         for ref, wire, reader, level in _get_plan(tree, msg.objects):
             if reader is not None and budget >= 1 and allowed(rlevel, level):
                 budget -= 1
@@ -568,9 +566,8 @@ class Session(asyncio.Protocol):
             room -= len(value) + len(ref.text)
             if room < 0:
                 value = "DIMENSION"
-            parts.append(f"{head}{wire}={value}{le}")
-        parts.append(f"{msg.cmd_id} COMMAND COMPLETE{le}")
-        self.write("".join(parts).encode("ascii", "backslashreplace"))
+            items.append((wire, value))
+        self.write(self.proto.get_reply(msg.cmd_id, items))
         self.server.command_stats.record("GET", "complete", perf_counter() - started)
 
     def _get_one(self, tree, ref, budget: int) -> tuple[str, int]:
