@@ -43,16 +43,19 @@ HISTOGRAM_BOUNDS = (0.0002, 0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1)
 
 
 class Histogram:
-    """Counts per bucket of :data:`HISTOGRAM_BOUNDS` and the sum (s); written by the loop thread only."""
+    """Counts per bucket of ``bounds`` (default :data:`HISTOGRAM_BOUNDS`; one more bucket past
+    the last bound) and the sum; written by one thread only (the loop's: the control loop;
+    the event loop's: a front end's command latencies)."""
 
-    __slots__ = ("counts", "sum")
+    __slots__ = ("bounds", "counts", "sum")
 
-    def __init__(self) -> None:
-        self.counts = [0] * (len(HISTOGRAM_BOUNDS) + 1)
+    def __init__(self, bounds: tuple[float, ...] = HISTOGRAM_BOUNDS) -> None:
+        self.bounds = bounds
+        self.counts = [0] * (len(bounds) + 1)
         self.sum = 0.0
 
     def observe(self, value: float) -> None:
-        self.counts[bisect.bisect_left(HISTOGRAM_BOUNDS, value)] += 1
+        self.counts[bisect.bisect_left(self.bounds, value)] += 1
         self.sum += value
 
     def export(self) -> tuple[list[int], float]:

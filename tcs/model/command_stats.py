@@ -17,7 +17,7 @@ buckets of :data:`LATENCY_BOUNDS` (seconds); refused commands are counted, not t
 
 from __future__ import annotations
 
-from bisect import bisect_left
+from tcs.axes.control_loop import Histogram
 
 #: Upper bounds (s) of the latency histogram's buckets; a last bucket holds the rest (+Inf).
 LATENCY_BOUNDS = (0.0001, 0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25,
@@ -25,14 +25,14 @@ LATENCY_BOUNDS = (0.0001, 0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.
 
 
 class CommandStats:
-    """The commands of one front end: ``counts[(verb, result)]`` and a latency histogram per
-    verb (``latency[verb] = [bucket counts..., sum of seconds]``)."""
+    """The commands of one front end: ``counts[(verb, result)]`` and a latency
+    :class:`~tcs.axes.control_loop.Histogram` per verb (buckets :data:`LATENCY_BOUNDS`)."""
 
     __slots__ = ("counts", "latency")
 
     def __init__(self) -> None:
         self.counts: dict[tuple[str, str], int] = {}
-        self.latency: dict[str, list] = {}
+        self.latency: dict[str, Histogram] = {}
 
     def record(self, verb: str, result: str, seconds: float | None = None) -> None:
         """One command ended with ``result``; ``seconds`` from handling to the final line (None:
@@ -43,12 +43,11 @@ class CommandStats:
         if seconds is not None:
             hist = self.latency.get(verb)
             if hist is None:
-                hist = self.latency[verb] = [0] * (len(LATENCY_BOUNDS) + 2)
-            hist[bisect_left(LATENCY_BOUNDS, seconds)] += 1
-            hist[-1] += seconds
+                hist = self.latency[verb] = Histogram(LATENCY_BOUNDS)
+            hist.observe(seconds)
 
     def figures(self) -> dict:
         """Plain data for the snapshot: ``{"counts": [[verb, result, n], ...], "latency":
-        {verb: [[bucket counts...], sum]}}``."""
+        {verb: ([bucket counts...], sum)}}``."""
         return {"counts": [[v, r, n] for (v, r), n in sorted(self.counts.items())],
-                "latency": {v: [h[:-1], h[-1]] for v, h in sorted(self.latency.items())}}
+                "latency": {v: h.export() for v, h in sorted(self.latency.items())}}
