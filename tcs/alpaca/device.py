@@ -129,11 +129,6 @@ class Device:
     def knows(self, member: str) -> bool:
         return member in COMMON_GET or member in COMMON_PUT or member in self.MEMBERS
 
-    async def call(self, method: str, member: str, request: AlpacaRequest) -> Any:
-        """Run the handler of ``method`` ``member``; raise BadRequest / AscomError."""
-        done, result = self.begin(method, member, request)
-        return result if done else await self.finish(result)
-
     def begin(self, method: str, member: str, request: AlpacaRequest) -> tuple[bool, Any]:
         """Start the handler of ``method`` ``member`` now: ``(True, value)`` when it answered
         at once (every state read), ``(False, awaitable)`` for :meth:`finish` otherwise; raise
