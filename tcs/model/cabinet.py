@@ -441,25 +441,38 @@ class Cabinet(ModuleHealth):
         if value != 0:
             raise RangeRefused("only 0 (acknowledge) may be written to ERROR_STATE")
         self._batch = True
-        resets = []  # drive axes: their fault resets (ERROR_STATE=0 of an axis is long-running)
         try:
-            for member in self.members():
-                ack = getattr(member, "acknowledge_errors", None)
-                if callable(ack):
-                    try:
-                        result = ack(0)
-                        if inspect.isawaitable(result):
-                            resets.append(result)
-                    except Exception:
-                        log.exception("acknowledging %s failed", _name(member))
+            resets = self._acknowledge(self.members())
         finally:
             self._batch = False
         super().acknowledge_errors(0)
         self.status_list.acknowledged(None)
         self._publish("acknowledged")
-        if resets:  # complete when every reset ended; fail (why) when one did not reset
-            return all_reset(resets)
-        return None
+        return _all_reset(resets) if resets else None
+
+    def acknowledge_modules(self, mask: int):
+        """Acknowledge only the modules whose ERROR_STATE has a bit of ``mask`` (OpenTSI's
+        STATUS.CLEAR by severity); None, or an awaitable as :meth:`acknowledge_errors` returns."""
+        resets = self._acknowledge([m for m in self.members()
+                                    if int(getattr(m, "error_state", 0) or 0) & mask])
+        return _all_reset(resets) if resets else None
+
+    @staticmethod
+    def _acknowledge(members) -> list:
+        """ERROR_STATE=0 of each of ``members``; the drive axes' fault resets under way (an
+        axis's acknowledge is long-running: complete when every reset ended, fail — why — when
+        one did not reset)."""
+        resets = []
+        for member in members:
+            ack = getattr(member, "acknowledge_errors", None)
+            if callable(ack):
+                try:
+                    result = ack(0)
+                    if inspect.isawaitable(result):
+                        resets.append(result)
+                except Exception:
+                    log.exception("acknowledging %s failed", _name(member))
+        return resets
 
     def _changed(self, before: int, text: str) -> None:  # ModuleHealth hook
         self._publish(text)
@@ -575,7 +588,7 @@ def _as_tcs_error(exc: BaseException, member: Any, what: str) -> TcsError:
 __all__ = ["Cabinet", "ManualControl", "MAIN_AXES_ORDER"]
 
 
-async def all_reset(resets: list) -> None:
+async def _all_reset(resets: list) -> None:
     """``CABINET.ERROR_STATE=0``'s wait for the axes' fault resets: done when all ended; a reset
     that failed fails the acknowledge with its reason (it used to answer done while an
     ``AZ.ERROR_STATE`` stayed 2)."""

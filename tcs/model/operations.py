@@ -35,7 +35,6 @@ What may touch it: the event loop.
 from __future__ import annotations
 
 import asyncio
-import inspect
 import logging
 import math
 
@@ -43,7 +42,6 @@ import erfa
 
 from tcs.errors import ErrorNumber, RangeRefused, TcsError, gather_all
 from tcs.model.health import ERROR, PANIC, ModuleHealth
-from tcs.model.cabinet import all_reset
 from tcs.model.events import current_cause
 from tcs.pointing.sky_object import SkyObject
 from tcs.pointing.targets import BodyTarget
@@ -503,13 +501,7 @@ class Operations(ModuleHealth):
         cab = self.cabinet
         if not (cab.error_state & 0xF & ~mask):
             return cab.acknowledge_errors(0)
-        resets = []
-        for member in cab.members():
-            if int(getattr(member, "error_state", 0) or 0) & mask:
-                result = member.acknowledge_errors(0)
-                if inspect.isawaitable(result):
-                    resets.append(result)
-        return all_reset(resets) if resets else None
+        return cab.acknowledge_modules(mask)
 
     def _failed(self, what: str, exc: TcsError) -> None:
         """A verb failed: a latched ERROR (gone, kept until acknowledged)."""
