@@ -180,6 +180,9 @@ def test_set_polls_at_the_progress_interval(env, live):
     try:
         assert client(env, "set", "CABINET.REINIT=1").returncode == 0
         until(env, "CABINET.REFERENCED", lambda v: v == 1.0)
+        # from AZ 0 (AZ is cyclic: from 40, say, where an earlier test may have left it, the
+        # nearer 210 would be the way to -150); a TARGETPOS also ends any tracking left running
+        assert client(env, "set", "AZ.TARGETPOS=0").returncode == 0
         server = live.service.server
         before = set(on_service(live, lambda: list(server.sessions)))
         started = time.monotonic()
