@@ -18,12 +18,16 @@ dump=$!
 step "tcs-sim: the drives on $ch"
 tcs-sim --config "$work/stack.toml" 2> "$work/sim.log" &
 sim=$!
-wait_for 600 grep -q 'tcs-sim: ready' "$work/sim.log"; check tcs-sim-ready $? "$(grep 'ready' "$work/sim.log")"
+# (until it is ready or has ended: a refused hardware file ends it at once, with status 2)
+wait_for 600 sh -c "grep -q 'tcs-sim: ready' '$work/sim.log' || ! kill -0 $sim 2>/dev/null"
+grep -q 'tcs-sim: ready' "$work/sim.log"; check tcs-sim-ready $? "$(grep 'ready' "$work/sim.log" || tail -5 "$work/sim.log")"
 step "tcs-server: master on $ch (socketcan)"
 t=$(date +%s.%N)
 tcs-server --config "$work/stack.toml" --opentsi-port -1 --alpaca-port -1 2> "$work/server.log" &
 server=$!
-wait_for 600 value LOCAL.UT1 >/dev/null; check tcs-server-serving $? "after $(since "$t") s"
+server_up() { value LOCAL.UT1 >/dev/null || ! kill -0 "$server" 2>/dev/null; }
+wait_for 600 server_up; value LOCAL.UT1 >/dev/null
+check tcs-server-serving $? "after $(since "$t") s$(kill -0 "$server" 2>/dev/null || echo "; it ended: $(tail -3 "$work/server.log")")"
 client get CABINET.CORE.CYCLE.CYCLES CABINET.CORE.CYCLE.MISSED 2>&1 | tr '\n' ' '; echo
 step "power, referencing"
 client set CABINET.POWER=1 | tail -1; rc=${PIPESTATUS[0]}; check power-on "$rc"
