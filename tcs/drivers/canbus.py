@@ -250,10 +250,10 @@ class CanBus:
         self.network = canopen.Network(self.bus)
         self.network.listeners.append(_HealthListener(self))
         self.network.connect()
-        if heartbeat:
-            self.start_heartbeat()
         self._closing.clear()
         self._broken.clear()
+        if heartbeat:
+            self.start_heartbeat()
         self._reconnector = threading.Thread(target=self._reconnect_loop, name="tcs-can-reconnect",
                                              daemon=True)
         self._reconnector.start()
@@ -309,8 +309,7 @@ class CanBus:
                     old_notifier.stop(0.5)
                 except Exception:
                     pass
-            periodic = self._heartbeat_task is not None
-            self._heartbeat_task = None  # (bound to the old bus)
+            self._stop_task()  # (bound to the old bus: stopped before its socket closes under it)
             if old_bus is not None:
                 try:
                     old_bus.shutdown()
@@ -322,8 +321,8 @@ class CanBus:
         network.bus = new
         network.notifier = can.Notifier(new, network.listeners, network.NOTIFIER_CYCLE)
         self.bus = new
-        if periodic:
-            self.start_heartbeat()
+        if self._heartbeat_wanted:
+            self._start_task()
 
     def close(self) -> None:
         """Stop the heartbeat and the notifier, shut the bus down (idempotent)."""
@@ -353,6 +352,10 @@ class CanBus:
     def start_heartbeat(self) -> None:
         """Produce the TCS heartbeat (state operational) every ``heartbeat_period``."""
         self._heartbeat_wanted = True
+        if not self._broken.is_set():  # (a broken bus: the reconnect starts it on the new one)
+            self._start_task()
+
+    def _start_task(self) -> None:
         if self._cycle_beats or self._heartbeat_task is not None or self.bus is None:
             return
         msg = can.Message(arbitration_id=HEARTBEAT_BASE + self.section.node_id,
