@@ -306,7 +306,9 @@ class SimCanPort:
                 except (KeyError, ValueError):
                     pass
         if self._notifier is not None:
-            self._notifier.stop(RECEIVE_CYCLE * 4)
+            # (returns once the reader ends, within a RECEIVE_CYCLE; the bus may close only then:
+            # a reader still in recv would die on the closed socket, on a slow host too)
+            self._notifier.stop(2.0)
         if self._owns_bus and self._bus is not None:
             self._bus.shutdown()
         _forget(self)

@@ -65,7 +65,9 @@ def _one_test_at_a_time_on_a_kernel_bus():
 @pytest.fixture
 def can_channel(monkeypatch) -> dict:
     """python-can ``can.Bus(**kwargs)`` arguments of a bus private to this test."""
-    monkeypatch.setattr(canopen.network.Network, "NOTIFIER_SHUTDOWN_TIMEOUT", 0.0)
+    # (the join returns once the reader ends, one NOTIFIER_CYCLE; not waiting at all closed the
+    # socket under a reader still in recv: EBADF warnings in a slow guest's tests/vcan)
+    monkeypatch.setattr(canopen.network.Network, "NOTIFIER_SHUTDOWN_TIMEOUT", 2.0)
     monkeypatch.setattr(canopen.network.Network, "NOTIFIER_CYCLE", 0.05)
     interface = os.environ.get("TCS_CAN_INTERFACE", "virtual")
     if interface == "virtual":
