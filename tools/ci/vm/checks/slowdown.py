@@ -8,7 +8,7 @@ measured natively). The stack of the checks — tcs-sim's drives, the TCS's cont
 its service in one 2-vCPU guest — needs roughly a third of a native core at a 10 ms cycle, so
 it fits a guest ``F`` times slower with the cycle and every supervision time stretched by
 about ``0.75 F`` (headroom for the service's planning bursts). Software emulation ranges
-from ~6x (a quiet host) to ~12x (a busy one, measured 2026-11-26): a fixed factor of 5 fitted
+from ~6x (a quiet host) to 11–17x (a busy one, measured 2026-11-26): a fixed factor of 5 fitted
 the first and faulted the drives (following error, RPDO time-out) on the second. The floor
 (``--floor``, default 1) is the least factor printed, :data:`CEILING` the most (the hardware
 file's SYNC period may not pass 0.1 s: 10 ms × 10). The measurement goes to stderr.
