@@ -570,12 +570,14 @@ def test_the_rest_protects_a_control_loop_in_the_same_interpreter():
 async def test_a_repeated_get_reads_live_values_with_the_levels_and_budget_of_each_connection():
     """The same GET text is parsed and looked up once, then answered from its plan: every
     answer still reads the value now, a connection's read level still denies, and
-    ``max_objects`` still cuts the reply (issue 27: the plan caches lookups, never values)."""
+    ``max_objects`` still cuts the reply (issue 27: the plan caches lookups, never values;
+    ``reuse_reply = 0``: no reply is reused either, see the test below)."""
     from tcs.opentci_server.tree import INT, module, var
 
     hub = EventHub()
     hub.bind_loop()
-    server = Tpl2Server(ServerSection(port=0, auth_fail_delay=0.01, max_objects=3), USERS, hub)
+    server = Tpl2Server(ServerSection(port=0, auth_fail_delay=0.01, max_objects=3, reuse_reply=0.0),
+                        USERS, hub)
     counter = _Counter(server)
     server.tree = Tree.build((SERVER, module(
         "COUNT", var("A", INT, get=lambda c: c.tick("A")),
@@ -595,6 +597,59 @@ async def test_a_repeated_get_reads_live_values_with_the_levels_and_budget_of_ea
         assert [x.rpartition("=")[2] for x in over[1:5]][3] == "DIMENSION", over
         assert over[-1] == "8 COMMAND COMPLETE"
         for x in (admin, observer):
+            await x.close()
+    finally:
+        await server.stop()
+
+
+async def test_a_get_reply_is_reused_only_while_nothing_changed_and_never_across_connections_state():
+    """``[server] reuse_reply``: the same GET line again answers with the kept reply (the
+    value is not read again) — but not after anything changed (``tcs.state_epoch``: here a
+    bump as readbacks and PLC polls make, and a SET another client sent), not for another read
+    level, not for a line pipelined behind another, and never for a per-connection variable.
+    (The age limit is set to an hour so that only these rules decide, never the clock.)"""
+    from tcs import state_epoch
+    from tcs.opentci_server.tree import INT, module, sysvar, var
+
+    hub = EventHub()
+    hub.bind_loop()
+    server = Tpl2Server(ServerSection(port=0, auth_fail_delay=0.01), USERS, hub)
+    server.replies.max_age = 3600.0
+    counter = _Counter(server)
+    counter.b = 0
+    server.tree = Tree.build((SERVER, module(
+        "COUNT", var("A", INT, get=lambda c: c.tick("A")),
+        var("B", INT, get=lambda c: c.b, set=lambda c, v: setattr(c, "b", int(v))),
+        var("SECRET", INT, get=lambda c: 42, rlevel=1),
+        sysvar("MINE", INT, get=lambda conn: conn.id), bind=lambda root: root)), counter)
+    await server.start("127.0.0.1", 0)
+    try:
+        admin, _ = await login(server.port, "admin", "admin-pw")
+        other, _ = await login(server.port, "admin", "admin-pw")
+        observer, _ = await login(server.port, "observer", "obs-pw")
+        line = "GET COUNT.A;COUNT.SECRET"
+        first = await admin.command(7, line)
+        again = await other.command(7, line)  # another connection, same level: the kept reply
+        assert again == first and server.replies.hits == 1 and counter.order == ["A"]
+        denied = await observer.command(7, line)  # another read level: read for it
+        assert denied[1] == "7 DATA INLINE COUNT.A=2" and denied[2] == "7 DATA INLINE COUNT.SECRET=DENIED"
+        state_epoch.bump()  # what every readback batch, PLC poll and GPS line does
+        assert (await admin.command(7, line))[1] == "7 DATA INLINE COUNT.A=3"
+        assert (await other.command(7, line))[1] == "7 DATA INLINE COUNT.A=3"  # (kept again)
+        assert await other.command(9, "SET COUNT.B=5") == ["9 COMMAND OK", "9 DATA OK COUNT.B",
+                                                           "9 COMMAND COMPLETE"]
+        assert (await admin.command(7, line))[1] == "7 DATA INLINE COUNT.A=4"  # a SET was answered
+        # two lines in one chunk go the normal way, each read
+        await admin.send_bytes(b"3 GET COUNT.A\n4 GET COUNT.A\n")
+        lines = [await admin.readline() for _ in range(6)]
+        assert "3 DATA INLINE COUNT.A=5" in lines and "4 DATA INLINE COUNT.A=6" in lines, lines
+        # a per-connection variable: each connection its own answer, however often asked
+        mine_admin = await admin.command(5, "GET COUNT.MINE")
+        mine_other = await other.command(5, "GET COUNT.MINE")
+        assert mine_admin[1] != mine_other[1], (mine_admin, mine_other)
+        hits = server.replies.hits
+        assert await admin.command(5, "GET COUNT.MINE") == mine_admin and server.replies.hits == hits
+        for x in (admin, other, observer):
             await x.close()
     finally:
         await server.stop()

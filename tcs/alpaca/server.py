@@ -41,6 +41,7 @@ from tcs import __version__ as TCS_VERSION
 from tcs.alpaca.device import Device
 from tcs.alpaca.protocol import AlpacaRequest, AscomError, BadRequest, Code, TransactionCounter, reply
 from tcs.model.command_stats import CommandStats
+from tcs.state_epoch import bump as bump_epoch
 
 log = logging.getLogger(__name__)
 
@@ -182,6 +183,7 @@ class AlpacaServer:
             if method == "GET":
                 params = dict(request.query)
             else:
+                bump_epoch()  # a PUT may change what TPL2 reads (tcs.state_epoch)
                 if request.content_type not in ("application/x-www-form-urlencoded", "multipart/form-data",
                                                 "application/octet-stream", ""):
                     raise BadRequest(f"PUT needs a form body (application/x-www-form-urlencoded), "

@@ -33,6 +33,7 @@ from typing import Callable, Sequence
 
 from tcs.drivers.cycle import Cycle, CycleSource
 from tcs.errors import ErrorNumber, TcsError
+from tcs.state_epoch import bump as bump_epoch
 
 log = logging.getLogger(__name__)
 
@@ -128,6 +129,7 @@ class ControlLoop:
                     pass
         if self.mount:
             self._couple_mount()
+        bump_epoch()  # the axes' readings changed (tcs.state_epoch; threaded mode's readbacks)
         self.cycles += 1
         end = self.clock()
         self.last_cycle = end

@@ -56,6 +56,7 @@ from tcs.axes.control_core import READBACKS
 from tcs.axes.trajectory import AddResult
 from tcs.drivers.drive import DriveState, DriveStatus
 from tcs.errors import CommunicationError, ErrorNumber, TcsError
+from tcs.state_epoch import bump as bump_epoch
 
 log = logging.getLogger(__name__)
 
@@ -259,6 +260,7 @@ class ControlProcess:
         for index, snap in snapshots.items():
             if index < len(axes):
                 axes[index].apply(snap)
+        bump_epoch()  # (after: a GET reply kept meanwhile is not used again)
         loop = self.loop
         done = []
         for item in items:

@@ -43,6 +43,7 @@ import serial
 
 from tcs.config.gps import GpsSection
 from tcs.errors import ErrorNumber
+from tcs.state_epoch import bump as bump_epoch
 
 __all__ = ["GpsReader", "GpsStatus", "GpsEvent"]
 
@@ -294,6 +295,7 @@ class GpsReader:
         for line in lines:
             self._line(line.strip())
         self._evaluate()
+        bump_epoch()  # GPS.* and LOCAL.* may have changed (tcs.state_epoch)
 
     def _line(self, raw: bytes) -> None:
         if not raw:

@@ -55,6 +55,7 @@ from tcs.config.plc import AXIS_STOP, BIT_KINDS, PlcSection, RegisterPoint, Valu
 from tcs.drivers.modbus_client import ModbusExceptionResponse, ModbusLink
 from tcs.errors import (AccessDenied, CommunicationError, ErrorNumber, HardwareError, RangeRefused,
                         TcsError, UnknownObject)
+from tcs.state_epoch import bump as bump_epoch
 
 __all__ = ["PlcDriver", "PlcSnapshot", "PlcConnectionEvent", "PollStats", "ReadBlock",
            "ModbusExceptionResponse", "plan_reads"]
@@ -532,6 +533,7 @@ class PlcDriver:
         self.stats.cycles += 1
         self._snapshot = PlcSnapshot(self.name, self._snapshot.cycle + 1, loop.time(), True,
                                      MappingProxyType(values))
+        bump_epoch()  # readable state may have changed (tcs.state_epoch)
         for cb in list(self._poll_listeners):
             try:
                 cb(self._snapshot)

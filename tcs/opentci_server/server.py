@@ -39,6 +39,7 @@ from tcs.errors import ConfigError
 from tcs.model.command_stats import CommandStats
 from tcs.model.events import Event, EventHub
 from tcs.opentci_server.guard import ConnectionGuard
+from tcs.opentci_server.reply_cache import ReplyCache
 from tcs.opentci_server.scheduler import FairScheduler
 from tcs.opentci_server.session import Session
 
@@ -90,6 +91,7 @@ class Tpl2Server:
         self._tls_server: asyncio.base_events.Server | None = None
         self.guard = ConnectionGuard(settings)
         self.scheduler = FairScheduler(settings.work_slice, work_rest(settings, shares_interpreter))
+        self.replies = ReplyCache(settings.reuse_reply)  # GET replies kept while nothing changed
         self._dummy_hash = _dummy_hash(users)
         self._tasks: set[asyncio.Task] = set()
         self._pepper = os.urandom(16)

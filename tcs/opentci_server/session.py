@@ -63,9 +63,12 @@ from tcs.opentci_server.protocol import Tpl2Connection, wire_object
 from tcs.opentci_server.server_module import BLOCKED_HASH
 from tcs.opentci_server.tree import allowed, module_of
 from tcs.opentci_server.values import ascii_text
+from tcs.state_epoch import EPOCH
+from tcs.state_epoch import bump as bump_epoch
 
 if TYPE_CHECKING:  # pragma: no cover
     from tcs.opentci_server.guard import ConnectionGuard
+    from tcs.opentci_server.reply_cache import ReplyCache
     from tcs.opentci_server.scheduler import FairScheduler
 
 
@@ -81,6 +84,7 @@ class SessionHost(Protocol):
     tree: Any
     guard: "ConnectionGuard"
     scheduler: "FairScheduler"
+    replies: "ReplyCache"
     sessions: dict
 
     def admit(self, session: "Session") -> str | None:
@@ -135,9 +139,10 @@ PLAN_CACHE_SIZE = 4096
 
 
 def _get_plan(tree, objects: tuple) -> tuple:
-    """How to read each object of a GET: ``(ref, object as echoed, reader, rlevel)``, with
-    ``reader`` the variable's fast reader (:meth:`Tree.plain_reader`) or None for the general
-    path. Kept per tree and per parsed-objects tuple (the parser hands out the same tuple for
+    """How to read each object of a GET: ``(ref, object as echoed, reader, rlevel, shared)``,
+    with ``reader`` the variable's fast reader (:meth:`Tree.plain_reader`) or None for the
+    general path, ``shared`` true when its answer is the same for every connection of the same
+    read level (:meth:`Tree.same_for_every_connection`: a reply may then be kept). Kept per tree and per parsed-objects tuple (the parser hands out the same tuple for
     the same GET text); only lookups are kept, never a value."""
     plans = tree.get_plans
     entry = plans.get(id(objects))
@@ -147,7 +152,8 @@ def _get_plan(tree, objects: tuple) -> tuple:
     for ref in objects:
         found = tree.plain_reader(ref)
         reader, level = found if found is not None else (None, 0)
-        plan.append((ref, wire_object(ref.text), reader, level))
+        shared = found is not None or tree.same_for_every_connection(ref)
+        plan.append((ref, wire_object(ref.text), reader, level, shared))
     plan = tuple(plan)
     if len(plans) < PLAN_CACHE_SIZE:
         plans[id(objects)] = (objects, plan)
@@ -189,6 +195,8 @@ class Session(asyncio.Protocol):
         self._inbox = bytearray()  # received, not parsed yet
         self._eof = False          # the client ended its input (parsed after the inbox)
         self._stall_timer: asyncio.TimerHandle | None = None
+        self._fresh_line: bytes | None = None  # received alone into an empty inbox (reply_cache.py)
+        self._cacheable: tuple | None = None    # (its message, the line) while it waits
 
     # -- SERVER.CONNECTION.* ---------------------------------------------------------------------
     @property
@@ -232,8 +240,29 @@ class Session(asyncio.Protocol):
         self._last_input = time.monotonic()
         if self._closed:
             return
+        if (not self._inbox and self.authenticated and not self._queue and self._auth_task is None
+                and not self._paused and not self._eof and data.find(b"\n") == len(data) - 1
+                and not self.proto.buffered):
+            # one whole line and nothing else waiting: answered by a kept GET reply when one
+            # is still good (reply_cache.py), else marked so that its reply may be kept
+            kept = self.server.replies.get(data, self.rlevel)
+            if kept is not None and self._answer_kept(*kept):
+                return
+            self._fresh_line = data
         self._inbox += data
         self._pump()
+
+    def _answer_kept(self, cmd_id: int, reply: bytes) -> bool:
+        """Send a kept GET reply as this connection's answer to the same line (False: the id is
+        busy or too many commands are in flight; the line then goes the normal way)."""
+        if cmd_id in self.commands or len(self.commands) >= self.server.settings.max_in_flight:
+            return False
+        started = perf_counter()
+        self.command_times.append(time.monotonic())
+        self.write(reply)
+        self.server.replies.hits += 1
+        self.server.command_stats.record("GET", "complete", perf_counter() - started)
+        return True
 
     def eof_received(self) -> bool:
         self._eof = True
@@ -299,6 +328,7 @@ class Session(asyncio.Protocol):
 
     # -- output ----------------------------------------------------------------------------------
     def send(self, msg) -> None:
+        bump_epoch()  # what a client is told may be a change: kept GET replies are not used again
         self.write(self.proto.send(msg))
 
     def write(self, data: bytes) -> None:
@@ -360,7 +390,11 @@ class Session(asyncio.Protocol):
             if self._inbox:
                 chunk = bytes(self._inbox[:PARSE_CHUNK])
                 del self._inbox[:PARSE_CHUNK]
-                self._queue.extend(self.proto.receive(chunk))
+                msgs = self.proto.receive(chunk)
+                fresh, self._fresh_line = self._fresh_line, None
+                if fresh is not None and len(msgs) == 1 and chunk == fresh:
+                    self._cacheable = (msgs[0], fresh)
+                self._queue.extend(msgs)
             elif self._eof:
                 self._eof = False
                 self._queue.extend(self.proto.eof())
@@ -546,12 +580,22 @@ class Session(asyncio.Protocol):
         readers, looked up once per distinct GET text), everything else through
         :meth:`Tree.resolve` and :meth:`Tree.read`; both read the live value at this moment."""
         started = perf_counter()
+        epoch, since = EPOCH.value, time.monotonic()
+        cacheable, self._cacheable = self._cacheable, None
+        keep = cacheable is not None and cacheable[0] is msg
+        if keep:  # another connection's same line may have been answered meanwhile
+            kept = self.server.replies.get(cacheable[1], self.rlevel)
+            if kept is not None:
+                self.write(kept[1])
+                self.server.replies.hits += 1
+                self.server.command_stats.record("GET", "complete", perf_counter() - started)
+                return
         tree = self.server.tree
         settings = self.server.settings
         budget, room = settings.max_objects, settings.max_reply_bytes
         rlevel = self.rlevel
         items = []
-        for ref, wire, reader, level in _get_plan(tree, msg.objects):
+        for ref, wire, reader, level, shared in _get_plan(tree, msg.objects):
             if reader is not None and budget >= 1 and allowed(rlevel, level):
                 budget -= 1
                 try:
@@ -562,12 +606,16 @@ class Session(asyncio.Protocol):
                     log.exception("reading %s failed", ref.text)
                     value = "FAILED 13"
             else:
+                keep = keep and shared  # (a per-connection variable: its reply is not kept)
                 value, budget = self._get_one(tree, ref, budget)
             room -= len(value) + len(ref.text)
             if room < 0:
                 value = "DIMENSION"
             items.append((wire, value))
-        self.write(self.proto.get_reply(msg.cmd_id, items))
+        reply = self.proto.get_reply(msg.cmd_id, items)
+        if keep:
+            self.server.replies.keep(cacheable[1], rlevel, epoch, since, msg.cmd_id, reply)
+        self.write(reply)
         self.server.command_stats.record("GET", "complete", perf_counter() - started)
 
     def _get_one(self, tree, ref, budget: int) -> tuple[str, int]:

@@ -380,6 +380,20 @@ class Tree:
             return None
         return fast, target.node.spec.rlevel
 
+    def same_for_every_connection(self, ref: ObjectRef) -> bool:
+        """True when what :meth:`read` answers for ``ref`` depends on the reading connection
+        only through its read level: every object it names is a variable (or a property of
+        one) that is not per connection. False when it cannot be told (an error, a module)."""
+        try:
+            targets = self.resolve(ref)
+        except TcsError:
+            return False
+        for target in targets:
+            node = target.node
+            if target.error is not None or not isinstance(node, VarNode) or node.spec.per_connection:
+                return False
+        return bool(targets)
+
     # -- walking (documentation, tests) ------------------------------------------------------
 
     def walk(self) -> Iterator[tuple[str, Node]]:
