@@ -316,3 +316,27 @@ async def test_core_drive_diagnostics_come_from_the_control_process(proc_service
         await c.wait("CABINET.CORE.DRIVE[0].POSITION", lambda v: abs(v - 12.5) < 1e-3)
     finally:
         await c.close()
+
+
+def test_an_unchanged_readback_carries_only_its_times_and_never_hides_a_change():
+    """An axis whose readbacks but their times are those sent last sends ``(measured_ut1,
+    sample)``; when the service has not taken the full snapshot before it yet, the pending one
+    keeps its values and takes the new times (a change is never coalesced away)."""
+    from tcs.axes.control_core import MEASURED, READBACKS, SAMPLE, Outbox, merge_unchanged, unchanged_key
+
+    width = 1 + len(READBACKS) + 8
+    full = tuple(range(width))
+    full = (*full[:MEASURED], 10.0, *full[MEASURED + 1:SAMPLE], (10.0, 5.0, 10.01, 5.0),
+            *full[SAMPLE + 1:-1], None)
+    later = (*full[:MEASURED], 10.01, *full[MEASURED + 1:SAMPLE], (10.01, 5.0, 10.02, 5.0),
+             *full[SAMPLE + 1:])
+    assert unchanged_key(later) == unchanged_key(full)  # only times differ
+    moved = (*full[:3], 99.0, *full[4:])
+    assert unchanged_key(moved) != unchanged_key(full)
+    outbox = Outbox()
+    outbox.cycle({0: full}, None)
+    outbox.cycle({0: (10.01, later[SAMPLE])}, None)  # unchanged, before the sender took `full`
+    batch, _ = outbox.take()
+    assert batch[1][0] == later == merge_unchanged(full, (10.01, later[SAMPLE]))
+    outbox.cycle({0: (10.02, later[SAMPLE])}, None)  # after it: the times alone
+    assert outbox.take()[0][1][0] == (10.02, later[SAMPLE])

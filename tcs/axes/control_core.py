@@ -21,7 +21,9 @@ pickled tuples; the service is the only peer):
   (answered at once by this receiver thread, the queue has its own lock); ``("ut1_utc",
   value)``; ``("samples", rid, clear)``; ``("close",)``.
 * out: ``("claimed",)``, then ``("ready", info)``, or ``("refused", kind, error)``; one
-  ``("batch", snapshots, items, stats)`` per cycle with the readbacks of every axis, then the
+  ``("batch", snapshots, items, stats)`` per cycle with the readbacks of every axis (only
+  ``(measured_ut1, sample)`` for an axis whose other readbacks are those it sent last: an
+  idle telescope sends seven pairs of floats a cycle, not seven snapshots), then the
   cycle's events, error conditions and completions in the order they happened (so a client
   that gets ``DATA OK`` reads the new state; every 10th cycle's readbacks also carry each
   drive's status for ``CABINET.CORE.DRIVE[]``); ``("reply", rid, ok, value)``; ``("log",
@@ -39,6 +41,7 @@ from __future__ import annotations
 import collections
 import logging
 import os
+import pickle
 import signal
 import sys
 import threading
@@ -54,6 +57,25 @@ log = logging.getLogger("tcs.control")
 READBACKS = ("power_state", "referenced", "real_position", "current_speed", "current_acc",
              "current_jerk", "motion_state", "limit_state", "target_position", "offset",
              "measured_ut1", "sample")
+#: Where a snapshot holds ``measured_ut1``, ``sample`` (its times change every cycle) and the
+#: drive status (every 10th cycle): what :func:`unchanged_key` leaves out.
+MEASURED = 1 + READBACKS.index("measured_ut1")
+SAMPLE = 1 + READBACKS.index("sample")
+DRIVE = -1
+
+
+def unchanged_key(snap: tuple) -> tuple:
+    """What of a snapshot must be equal for the next one to go as an *unchanged* readback:
+    everything but the times (``measured_ut1``, the times in ``sample``) and the drive status."""
+    sample = snap[SAMPLE]
+    return (snap[:MEASURED], snap[MEASURED + 1:SAMPLE], snap[SAMPLE + 1:DRIVE],
+            None if sample is None else (sample[1], sample[3]))
+
+
+def merge_unchanged(pending: tuple, unchanged: tuple) -> tuple:
+    """A full snapshot not sent yet, with the times of a later unchanged readback."""
+    return (*pending[:MEASURED], unchanged[0], *pending[MEASURED + 1:SAMPLE], unchanged[1],
+            *pending[SAMPLE + 1:])
 
 
 def drive_tuple(st) -> tuple | None:
@@ -125,7 +147,12 @@ class Outbox:
 
     def cycle(self, snapshots: dict, stats) -> None:
         with self._lock:
-            self._snapshots.update(snapshots)
+            pending = self._snapshots
+            for index, snap in snapshots.items():
+                old = pending.get(index)
+                if old is not None and len(snap) == 2 and len(old) > 2:
+                    snap = merge_unchanged(old, snap)  # (the change not sent yet stays)
+                pending[index] = snap
             if stats is not None:
                 self._stats = stats
         self.wake.set()
@@ -176,6 +203,7 @@ class CoreAxis(Axis):
         self.applied_seq = 0    # newest command the loop has taken (a readback is after it)
         self._active: dict[str, int] = {}  # conditions raised here and still active
         self.send_drive = False  # this cycle's snapshot carries the drive status (CORE.DRIVE[])
+        self._sent_key: tuple | None = None  # unchanged_key of the last full snapshot
 
     def receive(self, seq: int, kind: str, value, future_id, cause) -> None:
         with self._lock:
@@ -221,13 +249,18 @@ class CoreAxis(Axis):
                 path = (*follower.path_sample(t), t)
             except TcsError:  # (emptied meanwhile)
                 path = None
-        return (self.applied_seq, *(getattr(self, name) for name in READBACKS),
+        snap = (self.applied_seq, *(getattr(self, name) for name in READBACKS),
                 None if stale is None else (stale.message, stale.number),
                 None if fault is None else error_tuple(fault),
                 self._homing, self._ack_pending,
                 (len(q), q.start_time, q.end_time, q.free_points_at(t)),
                 None if follower is None else (follower.state.value, follower.end_reason),
                 path, drive_tuple(self.last_status) if self.send_drive else None)
+        key = unchanged_key(snap)
+        if key == self._sent_key and snap[DRIVE] is None:
+            return (snap[MEASURED], snap[SAMPLE])  # unchanged: only its times (RemoteAxis.apply)
+        self._sent_key = key
+        return snap
 
 
 class Core:
@@ -258,8 +291,8 @@ class Core:
             try:
                 for msg in others:
                     self.conn.send(msg)
-                if batch is not None:
-                    self.conn.send(batch)
+                if batch is not None:  # (plain data: pickle's own dumps, not the reducers' pickler)
+                    self.conn.send_bytes(pickle.dumps(batch, pickle.HIGHEST_PROTOCOL))
             except (OSError, EOFError, ValueError):
                 return  # the service is gone: the receiver sees it too
 

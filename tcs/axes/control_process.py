@@ -620,7 +620,12 @@ class RemoteAxis(Axis):
                            heartbeat_ok=hb_ok)
 
     def apply(self, snap) -> None:
-        """One cycle's readbacks from the child (receiver thread)."""
+        """One cycle's readbacks from the child (receiver thread): a full snapshot, or
+        ``(measured_ut1, sample)`` when nothing but the times changed since the last full one
+        (:meth:`tcs.axes.control_core.CoreAxis.snapshot`)."""
+        if len(snap) == 2:
+            self.measured_ut1, self.sample = snap
+            return
         applied = snap[0]
         values = snap[1:1 + len(READBACKS)]
         stale, fault, homing, ack, queue, follower, path, drive = snap[1 + len(READBACKS):]
