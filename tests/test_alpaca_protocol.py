@@ -182,3 +182,53 @@ async def test_state_reads_answer_at_once_and_a_waiting_call_still_times_out():
         assert sum(counts) == 5 and total >= 0.3  # (the one that timed out took 0.3 s)
     finally:
         await server.stop()
+
+
+def test_a_state_read_is_reused_only_while_nothing_changed():
+    """``[server] reuse_reply`` for Alpaca: a GET of a member without parameters answers with
+    the value just read — not after anything changed (``tcs.state_epoch``), never a member that
+    takes parameters, never past its age, and not at all with 0. The reply text is the one
+    ``json.dumps`` gives."""
+    from tcs import state_epoch
+    from tcs.alpaca.device import Device
+    from tcs.alpaca.server import encode_reply
+
+    class Counting(Device):
+        TYPE, NAME, MEMBERS, ALWAYS = "counting", "Counting", ("count", "twice"), frozenset({"count", "twice"})
+        PARAMETERS = {"get_twice": (("Value", "float"),)}
+        reads = 0
+
+        def get_count(self, r):
+            self.reads += 1
+            return float(self.reads)
+
+        def get_twice(self, r):
+            self.reads += 1
+            return 2 * r.float("Value")
+
+    d = Counting(0, "c", "counting", telescope=None)
+    get = AlpacaRequest("GET", {"ClientTransactionID": "1"})
+    assert d.begin("GET", "count", get) == (True, 1.0) and d.begin("GET", "count", get) == (True, 2.0)
+    d.reuse_value = 3600.0  # (only the rules decide here, never the clock)
+    first = d.begin("GET", "count", get)
+    assert d.begin("GET", "count", get) == first and d.reads == 3
+    state_epoch.bump()  # a readback, a PLC poll, a PUT
+    assert d.begin("GET", "count", get) == (True, 4.0)
+    twice = AlpacaRequest("GET", {"Value": "2"})
+    d.begin("GET", "twice", twice), d.begin("GET", "twice", twice)
+    assert d.reads == 6  # a member with parameters is read each time
+    d.reuse_value = 1e-9
+    before = d.reads
+    d.begin("GET", "count", get)
+    import time
+    time.sleep(0.001)
+    d.begin("GET", "count", get)
+    assert d.reads == before + 2  # past its age
+    for body in ({"Value": 1.5, "ClientTransactionID": 3, "ServerTransactionID": 4, "ErrorNumber": 0,
+                  "ErrorMessage": ""}, {"Value": float("nan"), "ClientTransactionID": 3, "ServerTransactionID": 4,
+                                        "ErrorNumber": 0, "ErrorMessage": ""},
+                 {"ClientTransactionID": 3, "ServerTransactionID": 4, "ErrorNumber": 1025, "ErrorMessage": "é\""},
+                 {"Value": [1, {"a": "x\"y"}], "ClientTransactionID": 0, "ServerTransactionID": 1,
+                  "ErrorNumber": 0, "ErrorMessage": ""}, {"Value": True, "ClientTransactionID": 0,
+                                                          "ServerTransactionID": 1, "ErrorNumber": 0, "ErrorMessage": ""}):
+        assert encode_reply(body) == json.dumps(body)

@@ -33,7 +33,10 @@ def build_devices(telescope, commands=None) -> list:
 def build_alpaca_server(config, telescope, commands=None) -> AlpacaServer:
     """The Alpaca listener for ``telescope`` (not started)."""
     section = config.alpaca
-    return AlpacaServer(build_devices(telescope, commands), manufacturer=config.cabinet.manufacturer,
+    devices = build_devices(telescope, commands)
+    for device in devices:  # a state read's value answers the same read again while nothing changed
+        device.reuse_value = config.server.reuse_reply
+    return AlpacaServer(devices, manufacturer=config.cabinet.manufacturer,
                         server_name=section.server_name, location=section.location)
 
 

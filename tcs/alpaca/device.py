@@ -41,6 +41,7 @@ import asyncio
 import datetime as _dt
 import inspect
 import logging
+import time
 import uuid
 import weakref
 from typing import Any
@@ -48,6 +49,7 @@ from typing import Any
 from tcs import __version__ as TCS_VERSION
 from tcs.alpaca.protocol import AlpacaRequest, AscomError, BadRequest, Code, from_tcs_error, not_implemented
 from tcs.errors import ErrorNumber, TcsError
+from tcs.state_epoch import EPOCH
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +87,11 @@ def utc_iso(utc: float) -> str:
     return t.strftime("%Y-%m-%dT%H:%M:%S.") + f"{t.microsecond:06d}0Z"
 
 
+#: What a state read returns: never awaitable (no isawaitable check for them).
+_PLAIN = frozenset((float, int, bool, str, type(None), list, dict))
+#: What a state read may return to be reused (immutable).
+_SCALARS = frozenset((float, int, bool, str, type(None)))
+
 class Device:
     """Base of every Alpaca device (see the module docstring)."""
 
@@ -100,7 +107,9 @@ class Device:
     PARAMETERS: dict[str, tuple[tuple[str, str], ...]] = {}
     #: Every PUT member of this interface: synchronous or asynchronous, and what a client reads
     #: right after the reply (the race suite checks the asynchronous ones). Every GET member is
-    #: a state read computed at the request (within a control cycle; never a cached value).
+    #: a state read computed at the request (within a control cycle) — or, for a member without
+    #: parameters, the value read for it at most ``reuse_value`` seconds before while nothing
+    #: changed (:mod:`tcs.state_epoch`: readbacks, PLC polls, every PUT before and after it runs).
     RULES: dict[str, str] = {}
 
     def rule(self, member: str) -> str:
@@ -124,6 +133,9 @@ class Device:
         self._quiet_failures = False   # DeviceState reads do not take a failure away
         self.referencing: asyncio.Future | None = None   # an axis referencing a first move started
         self.unique_id = str(uuid.uuid5(uuid.NAMESPACE_URL, f"tcs-alpaca:{unique_seed}:{self.TYPE}:{number}"))
+        #: ``[server] reuse_reply``: seconds a state read's value answers the same member again
+        self.reuse_value = 0.0
+        self._values: dict[str, tuple[int, float, Any]] = {}  # member -> (epoch, time, value)
 
     # -- dispatch -------------------------------------------------------------------------------
     def knows(self, member: str) -> bool:
@@ -134,24 +146,36 @@ class Device:
         at once (every state read), ``(False, awaitable)`` for :meth:`finish` otherwise; raise
         BadRequest / AscomError. The server awaits only what needs awaiting (a task and a timer
         per state read were a quarter of a status poll's cost)."""
-        if not self.knows(member):
-            raise BadRequest(f"{self.NAME} has no member {member!r}")
-        handler = getattr(self, f"{method.lower()}_{member}", None)
+        handlers = self.__dict__.setdefault("_handlers", {})  # (method, member) -> handler
+        handler = handlers.get((method, member))
         if handler is None:
-            other = "put" if method == "GET" else "get"
-            if getattr(self, f"{other}_{member}", None) is not None or member in COMMON_GET + COMMON_PUT:
-                raise BadRequest(f"{member} does not accept {method}")
-            raise not_implemented(f"{self.NAME}.{member}")
+            if not self.knows(member):
+                raise BadRequest(f"{self.NAME} has no member {member!r}")
+            handler = getattr(self, f"{method.lower()}_{member}", None)
+            if handler is None:
+                other = "put" if method == "GET" else "get"
+                if getattr(self, f"{other}_{member}", None) is not None or member in COMMON_GET + COMMON_PUT:
+                    raise BadRequest(f"{member} does not accept {method}")
+                raise not_implemented(f"{self.NAME}.{member}")
+            handlers[(method, member)] = handler
         self.check_parameters(handler.__name__, request)
         if member not in UNCONNECTED and member not in self.ALWAYS and not self.connected:
             raise AscomError(Code.NOT_CONNECTED, f"{self.NAME} {self.number} is not connected")
+        reusable = method == "GET" and self.reuse_value > 0 and not self._takes_parameters(handler.__name__)
+        if reusable:  # a state read: the value just read, while nothing changed (tcs.state_epoch)
+            kept = self._values.get(member)
+            if kept is not None and kept[0] == EPOCH.value and time.monotonic() - kept[1] <= self.reuse_value:
+                return True, kept[2]
+            epoch, since = EPOCH.value, time.monotonic()
         try:
             result = handler(request)
         except TcsError as exc:
             raise from_tcs_error(exc) from None
-        if inspect.isawaitable(result):
-            return False, result
-        return True, result
+        if reusable and type(result) in _SCALARS:
+            self._values[member] = (epoch, since, result)
+        if type(result) in _PLAIN or not inspect.isawaitable(result):
+            return True, result
+        return False, result
 
     @staticmethod
     async def finish(awaitable) -> Any:
@@ -160,6 +184,9 @@ class Device:
             return await awaitable
         except TcsError as exc:
             raise from_tcs_error(exc) from None
+
+    def _takes_parameters(self, handler: str) -> bool:
+        return bool(self.PARAMETERS.get(handler) or COMMON_PARAMETERS.get(handler))
 
     def check_parameters(self, handler: str, request: AlpacaRequest) -> None:
         """BadRequest (HTTP 400) unless every parameter ``handler`` takes is there and parses

@@ -49,6 +49,26 @@ DISCOVERY_QUERY = b"alpacadiscovery1"
 MAX_BODY = 64 * 1024
 
 
+
+def encode_reply(body: dict[str, Any]) -> str:
+    """``json.dumps(body)`` of a device reply: the same text, written directly for the common
+    case — a value, no error (a third of the JSON cost per status poll)."""
+    if len(body) == 5 and body.get("ErrorMessage", 0) == "" and "Value" in body:
+        v = body["Value"]
+        t = type(v)
+        if t is float and v - v == 0.0:  # finite: its repr is its JSON
+            text = repr(v)
+        elif t is bool:
+            text = "true" if v else "false"
+        else:
+            text = json.dumps(v)
+        c, s, n = body["ClientTransactionID"], body["ServerTransactionID"], body["ErrorNumber"]
+        if type(c) is int and type(s) is int and type(n) is int:
+            return (f'{{"Value": {text}, "ClientTransactionID": {c}, "ServerTransactionID": {s}, '
+                    f'"ErrorNumber": {n}, "ErrorMessage": ""}}')
+    return json.dumps(body)
+
+
 class AlpacaServer:
     """The HTTP listener and discovery responder for a list of devices."""
 
@@ -128,7 +148,7 @@ class AlpacaServer:
 
     # -- replies ---------------------------------------------------------------------------------
     def _json(self, body: dict[str, Any]) -> web.Response:
-        return web.Response(text=json.dumps(body), content_type="application/json")
+        return web.Response(text=encode_reply(body), content_type="application/json")
 
     @staticmethod
     def _bad(message: str) -> web.Response:
@@ -198,9 +218,13 @@ class AlpacaServer:
             if member != member.lower():
                 raise BadRequest(f"member names are lower case in the URL: {member!r}")
             try:
-                done, value = device.begin(method, member, req)
-                if not done:  # only what needs awaiting gets a task and the time-out
-                    value = await asyncio.wait_for(device.finish(value), self.request_timeout)
+                try:
+                    done, value = device.begin(method, member, req)
+                    if not done:  # only what needs awaiting gets a task and the time-out
+                        value = await asyncio.wait_for(device.finish(value), self.request_timeout)
+                finally:
+                    if method != "GET":  # what it changed: no value read before is reused after
+                        bump_epoch()
                 body = reply(req, self.next_id(), value, has_value=(method == "GET" or value is not None))
             except AscomError as exc:
                 result = "error"

@@ -299,9 +299,10 @@ class TelescopeDevice(Device):
         self.ops.check_fresh()  # (no fresh readback: an error, not the last position)
         p = self.p
         place = p.place()
+        if p.mount == "AZ-ZD":  # (to_normal of one position, without numpy)
+            a1, a2 = float(place.ideal1), float(place.ideal2)
+            return (a1 + 180.0 if a2 < 0.0 else a1) % 360.0, 90.0 - abs(a2)
         n1, n2, _rev = to_normal(place.ideal1, place.ideal2, p.mount)
-        if p.mount == "AZ-ZD":
-            return float(n1) % 360.0, 90.0 - float(n2)
         az, alt = erfa.hd2ae(math.radians(float(n1)), math.radians(float(n2)), math.radians(p.latitude))
         return math.degrees(float(az)) % 360.0, math.degrees(float(alt))
 

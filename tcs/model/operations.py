@@ -131,8 +131,14 @@ class Operations(ModuleHealth):
         return self.telescope.pointing
 
     def main_axes(self) -> list:
-        names = MAIN_AXES.get(self.telescope.config.mount.type, ())
-        return [a for a in (self.telescope.axis(n) for n in names) if a is not None]
+        axes = self.telescope.axes  # (only ever appended to: its length tells a change)
+        key = (id(axes), len(axes))
+        cached = getattr(self, "_main_axes", None)
+        if cached is None or cached[0] != key:
+            names = MAIN_AXES.get(self.telescope.config.mount.type, ())
+            cached = self._main_axes = (key, [a for a in (self.telescope.axis(n) for n in names)
+                                              if a is not None])
+        return list(cached[1])
 
     def park_positions(self) -> list[tuple[object, float]]:
         """(axis, park position): the hardware file's, replaced by a SetPark (persisted)."""
@@ -205,7 +211,8 @@ class Operations(ModuleHealth):
         """Raise the ``stale`` error of a main axis without fresh readbacks (drive offline,
         bus lost, control process restarting): the front ends answer their error for it
         (OpenTSI ``FAILED 4``, an Alpaca error), never the last value."""
-        for axis in self.main_axes():
+        self.main_axes()
+        for axis in self._main_axes[1]:
             stale = getattr(axis, "stale", None)
             if stale is not None:
                 raise stale
