@@ -1,18 +1,19 @@
 """A counter that changes whenever state a client can read may have changed.
 
-The TPL2 servers keep a GET's reply for the rest of the event-loop pass that made it, so that
-the same status GET from many clients in one pass is read once
-(:class:`tcs.opentci_server.reply_cache.ReplyCache`); a kept reply is used only while this
-counter still has the value it had when the reply was made. Whatever changes readable state
-outside a GET bumps it:
+The TPL2 servers reuse a GET's reply, and the Alpaca devices a state read's value, for the
+same request within ``[server] reuse_reply`` (:mod:`tcs.opentci_server.reply_cache`,
+:meth:`tcs.alpaca.device.Device.begin`) — only while this counter still has the value it had
+before the values were read. Whatever changes readable state outside a read bumps it:
 
-* the control process's readbacks, as the service applies them (:mod:`tcs.axes.control_process`,
-  its reader thread, once per batch);
-* a PLC's poll result (:mod:`tcs.drivers.modbus`);
+* the control loop's readbacks: in the service as it applies the control process's batches
+  (:mod:`tcs.axes.control_process`, its reader thread), or each cycle of a loop running as a
+  thread of the service (:mod:`tcs.axes.control_loop`); a lost control process;
+* a PLC's poll result and its connection changes (:mod:`tcs.drivers.modbus`); GPS input
+  (:mod:`tcs.drivers.gps`);
 * every line a TPL2 server writes that is not a GET's reply — a SET's or ABORT's lines, an
   event, a completion, a login (:meth:`tcs.opentci_server.session.Session.send`): a client
   that was told of a change cannot then read the state from before it;
-* every Alpaca PUT (:mod:`tcs.alpaca.server`).
+* every Alpaca PUT, before and after it runs (:mod:`tcs.alpaca.server`).
 
 Any thread may bump it; a lost increment between two threads still changes the value.
 """

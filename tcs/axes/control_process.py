@@ -323,6 +323,7 @@ class ControlProcess:
         for axis in self.axes:
             axis.stale = error
             axis.raise_condition("control process", 2, error.message)
+        bump_epoch()  # every axis reads stale from now on (tcs.state_epoch)
         pending, self._futures = list(self._futures.values()), {}
         with self._reply_ready:
             self._reply_ready.notify_all()

@@ -69,7 +69,7 @@ class ServerSection:
                                "many times as long (command work takes at most 1/(1+work_rest) of the loop); "
                                "-1 (default): 0 when the control loop runs in its own process "
                                "([can] control_process = true), 1.0 when it shares the service's interpreter")
-    reuse_reply: float = setting(0.001, min=0.0, max=0.01,
+    reuse_reply: float = setting(0.005, min=0.0, max=0.01,
                                  doc="seconds a GET reply answers the same GET line again while nothing "
                                      "changed (readbacks, PLC polls, commands, events); 0 reads every GET")
     abort_timeout: float = setting(5.0, min=0.1, max=600.0, doc="seconds ABORT waits before COMMAND TIMEOUT")

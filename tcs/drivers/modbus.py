@@ -545,6 +545,7 @@ class PlcDriver:
         self._connected, self._error, self._message = connected, number, message
         if not changed:
             return
+        bump_epoch()  # its modules read unknown (or again) from now on (tcs.state_epoch)
         if connected:
             log.info("PLC %s: connected (%s)", self.name, self._link.where)
         else:

@@ -154,10 +154,11 @@ def measured(port: int, tpl2: bool, clients: int, seconds: float, pid: int) -> d
     """:func:`load`, plus the server process's CPU during the run: percent of one core and
     microseconds of CPU per request (a cost figure that a shared machine's load disturbs less
     than requests/s)."""
-    before = cpu_seconds(pid)
+    before, own = cpu_seconds(pid), time.process_time()
     t0 = time.perf_counter()
     result = asyncio.run(load(port, tpl2, clients, seconds))
     cpu, wall = cpu_seconds(pid) - before, time.perf_counter() - t0
+    result["client_cpu_percent"] = 100 * (time.process_time() - own) / wall
     result["server_cpu_percent"] = 100 * cpu / wall
     result["server_cpu_us_per_request"] = 1e6 * cpu / max(1, result["requests"])
     return result
@@ -203,7 +204,8 @@ def main() -> None:
     for name, r in results.items():
         print(f"{name:5s}: {r['requests_per_s']:9.0f} req/s {r['variables_per_s']:10.0f} var/s  "
               f"latency p50 {r['p50_ms']:.2f} ms  p99 {r['p99_ms']:.2f} ms  max {r['max_ms']:.2f} ms  "
-              f"server CPU {r['server_cpu_percent']:.0f} % ({r['server_cpu_us_per_request']:.0f} us/request)")
+              f"server CPU {r['server_cpu_percent']:.0f} % ({r['server_cpu_us_per_request']:.0f} us/request), "
+              f"bench client CPU {r['client_cpu_percent']:.0f} %")
     ratio = {"requests_ratio_tcs_to_echo": tcs["requests_per_s"] / echo["requests_per_s"],
              "p99_ratio_tcs_to_echo": tcs["p99_ms"] / echo["p99_ms"]}
     print(f"ratio tcs/echo: throughput {ratio['requests_ratio_tcs_to_echo']:.2f}, "
