@@ -35,6 +35,7 @@ from tcs.opentci_server.opentci import SERVER, Root
 from tcs.opentci_server.opentci.cabinet import CABINET
 from tcs.opentci_server.server import Tpl2Server
 from tcs.opentci_server.tree import Tree
+from tcs import state_epoch
 
 HWFILE = """
 [cabinet]
@@ -644,6 +645,7 @@ async def test_core_drive_and_cycle_diagnostics(make_rig):
 
     assert await c.get("CABINET.CORE.CYCLE.CYCLES") == "0"  # no control loop yet
     rig.cabinet.loop_stats = lambda: {"cycles": 1200, "late": 2, "missed": 1, "max_lateness": 0.0015}
+    state_epoch.bump()  # as the loop's readbacks do (a GET reply just made is not reused)
     assert await c.get("CABINET.CORE.CYCLE.CYCLES") == "1200"
     assert await c.get("CABINET.CORE.CYCLE.LATE") == "2"
     assert await c.get("CABINET.CORE.CYCLE.MISSED") == "1"
@@ -654,6 +656,7 @@ async def test_core_drive_and_cycle_diagnostics(make_rig):
         raise RuntimeError("loop gone")
 
     rig.cabinet.loop_stats = broken
+    state_epoch.bump()
     assert await c.get("CABINET.CORE.CYCLE.CYCLES") == "0"
 
 

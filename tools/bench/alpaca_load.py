@@ -18,6 +18,16 @@ lateness p50/p99/max, loop time, late and missed cycles (the cycle source's own 
 ``loop_load.py``). The last line is one JSON object with the figures.
 
     python3 tools/bench/alpaca_load.py [--clients 20] [--seconds 10]
+
+Where the time goes (issue 27; py-spy of the service, the samples inside the Alpaca handler,
+and the handler timed alone with aiohttp's mocked requests): before, 8.5-18 us per request on
+top of what the baseline's handler does — the sky place for RA/Dec/Alt/Az (recomputed every
+10 ms while tracking: ~20 % of the handler), ``to_normal`` through numpy for one position,
+``json.dumps`` (~20 %), per-request lookups (handler by name, the main axes, ``isawaitable``).
+After: the reply text written directly, the handler looked up once per member, the main axes
+cached, AZ-ZD alt/az without numpy, and a state read without parameters reusing the value
+read for the same member while nothing changed (``[server] reuse_reply``, ``tcs.state_epoch``):
+7.6-8.4 us per member, all of them, the rest being aiohttp's own work, as in the baseline.
 """
 
 from __future__ import annotations
