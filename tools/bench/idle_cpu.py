@@ -52,14 +52,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import socket
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from tpl2_load import free_port, wait_port  # tools/bench/tpl2_load.py
+from tpl2_load import free_port, loop_counters, wait_port  # tools/bench/tpl2_load.py
 
 ROOT = Path(__file__).resolve().parents[2]
 TICK = os.sysconf("SC_CLK_TCK")
@@ -120,27 +119,6 @@ def snapshot(pids: list[int]) -> dict:
             pass
         out[pid] = (st[2], threads)
     return out
-
-
-CYCLE = ("CABINET.CORE.CYCLE.CYCLES", "CABINET.CORE.CYCLE.MISSED", "CABINET.CORE.CYCLE.TPDO_TIMEOUTS")
-
-
-def loop_counters(port: int) -> list[int]:
-    """The control loop's cycle counters, by one short TPL2 login and GET (outside the window)."""
-    with socket.create_connection(("127.0.0.1", port), timeout=30) as s:
-        f = s.makefile("rwb")
-        f.readline()
-        f.write(b'AUTH PLAIN "admin" "admin"\n1 GET ' + ";".join(CYCLE).encode() + b"\n")
-        f.flush()
-        values = {}
-        while True:
-            line = f.readline().decode().strip()
-            if line.startswith("1 DATA INLINE "):
-                name, _, value = line[len("1 DATA INLINE "):].partition("=")
-                values[name] = int(value)
-            elif line.startswith("1 COMMAND COMPLETE") or not line:
-                break
-    return [values.get(n, -1) for n in CYCLE]
 
 
 def measure(roles: dict[str, int], seconds: float, port: int) -> dict:

@@ -14,7 +14,9 @@ in the same run (goal: OpenTSI within 20 % of OpenTCI's throughput).
 Goal (issue 27): at 1 and at 50 clients the TCS's requests/s at least 0.8 of the echo server's
 and its p99 latency at most 1.5 times the echo's, measured in the same run. Each side's line
 also shows the server process's CPU (percent of a core, and microseconds per request: on a
-shared machine a steadier cost figure than requests/s). Figures: ``tools/bench/README.md``.
+shared machine a steadier cost figure than requests/s), the bench client's own CPU, and for the
+TCS the control loop's cycles, missed cycles and TPDO time-outs during the run (its counters,
+read by one short login before and after: the loop must miss nothing under this load). Figures: ``tools/bench/README.md``.
 
 Where the time goes (issue 27; py-spy ``record --gil`` of the service's main process at 50
 clients, shares of the samples that held the interpreter lock):
@@ -116,6 +118,27 @@ def wait_port(port: int, timeout: float = 30.0) -> None:
     raise SystemExit(f"server on port {port} did not start")
 
 
+CYCLE = ("CABINET.CORE.CYCLE.CYCLES", "CABINET.CORE.CYCLE.MISSED", "CABINET.CORE.CYCLE.TPDO_TIMEOUTS")
+
+
+def loop_counters(port: int) -> list[int]:
+    """The control loop's cycle counters, by one short TPL2 login and GET (outside the window)."""
+    with socket.create_connection(("127.0.0.1", port), timeout=30) as s:
+        f = s.makefile("rwb")
+        f.readline()
+        f.write(b'AUTH PLAIN "admin" "admin"\n1 GET ' + ";".join(CYCLE).encode() + b"\n")
+        f.flush()
+        values = {}
+        while True:
+            line = f.readline().decode().strip()
+            if line.startswith("1 DATA INLINE "):
+                name, _, value = line[len("1 DATA INLINE "):].partition("=")
+                values[name] = int(value)
+            elif line.startswith("1 COMMAND COMPLETE") or not line:
+                break
+    return [values.get(n, -1) for n in CYCLE]
+
+
 async def client(port: int, tpl2: bool, seconds: float, latencies: list[float], start: asyncio.Event):
     reader, writer = await asyncio.open_connection("127.0.0.1", port)
     if tpl2:
@@ -164,10 +187,14 @@ def measured(port: int, tpl2: bool, clients: int, seconds: float, pid: int) -> d
     """:func:`load`, plus the server process's CPU during the run: percent of one core and
     microseconds of CPU per request (a cost figure that a shared machine's load disturbs less
     than requests/s)."""
+    counters = loop_counters(port) if tpl2 else None
     before, own = cpu_seconds(pid), time.process_time()
     t0 = time.perf_counter()
     result = asyncio.run(load(port, tpl2, clients, seconds))
     cpu, wall = cpu_seconds(pid) - before, time.perf_counter() - t0
+    if counters is not None:  # the control loop meanwhile (in its own process): cycles missed
+        result["loop"] = dict(zip(("cycles", "missed", "tpdo_timeouts"),
+                                  (b - a for a, b in zip(counters, loop_counters(port)))))
     result["client_cpu_percent"] = 100 * (time.process_time() - own) / wall
     result["server_cpu_percent"] = 100 * cpu / wall
     result["server_cpu_us_per_request"] = 1e6 * cpu / max(1, result["requests"])
@@ -215,7 +242,9 @@ def main() -> None:
         print(f"{name:5s}: {r['requests_per_s']:9.0f} req/s {r['variables_per_s']:10.0f} var/s  "
               f"latency p50 {r['p50_ms']:.2f} ms  p99 {r['p99_ms']:.2f} ms  max {r['max_ms']:.2f} ms  "
               f"server CPU {r['server_cpu_percent']:.0f} % ({r['server_cpu_us_per_request']:.0f} us/request), "
-              f"bench client CPU {r['client_cpu_percent']:.0f} %")
+              f"bench client CPU {r['client_cpu_percent']:.0f} %"
+              + (f"; control loop: {r['loop']['cycles']} cycles, {r['loop']['missed']} missed, "
+                 f"{r['loop']['tpdo_timeouts']} TPDO time-outs" if "loop" in r else ""))
     ratio = {"requests_ratio_tcs_to_echo": tcs["requests_per_s"] / echo["requests_per_s"],
              "p99_ratio_tcs_to_echo": tcs["p99_ms"] / echo["p99_ms"]}
     print(f"ratio tcs/echo: throughput {ratio['requests_ratio_tcs_to_echo']:.2f}, "
