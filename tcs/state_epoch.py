@@ -13,7 +13,7 @@ before the values were read. Whatever changes readable state outside a read bump
 * every line a TPL2 server writes that is not a GET's reply — a SET's or ABORT's lines, an
   event, a completion, a login (:meth:`tcs.opentci_server.session.Session.send`): a client
   that was told of a change cannot then read the state from before it;
-* every Alpaca PUT, before and after it runs (:mod:`tcs.alpaca.server`).
+* every Alpaca PUT once it has run (:mod:`tcs.alpaca.server`).
 
 Any thread may bump it; a lost increment between two threads still changes the value.
 """

@@ -109,7 +109,7 @@ class Device:
     #: right after the reply (the race suite checks the asynchronous ones). Every GET member is
     #: a state read computed at the request (within a control cycle) — or, for a member without
     #: parameters, the value read for it at most ``reuse_value`` seconds before while nothing
-    #: changed (:mod:`tcs.state_epoch`: readbacks, PLC polls, every PUT before and after it runs).
+    #: changed (:mod:`tcs.state_epoch`: readbacks, PLC polls, every PUT once it has run).
     RULES: dict[str, str] = {}
 
     def rule(self, member: str) -> str:
@@ -136,6 +136,7 @@ class Device:
         #: ``[server] reuse_reply``: seconds a state read's value answers the same member again
         self.reuse_value = 0.0
         self._values: dict[str, tuple[int, float, Any]] = {}  # member -> (epoch, time, value)
+        self._handlers: dict[tuple[str, str], Any] = {}  # (method, member) -> bound handler
 
     # -- dispatch -------------------------------------------------------------------------------
     def knows(self, member: str) -> bool:
@@ -146,7 +147,7 @@ class Device:
         at once (every state read), ``(False, awaitable)`` for :meth:`finish` otherwise; raise
         BadRequest / AscomError. The server awaits only what needs awaiting (a task and a timer
         per state read were a quarter of a status poll's cost)."""
-        handlers = self.__dict__.setdefault("_handlers", {})  # (method, member) -> handler
+        handlers = self._handlers
         handler = handlers.get((method, member))
         if handler is None:
             if not self.knows(member):

@@ -49,7 +49,6 @@ DISCOVERY_QUERY = b"alpacadiscovery1"
 MAX_BODY = 64 * 1024
 
 
-
 def encode_reply(body: dict[str, Any]) -> str:
     """``json.dumps(body)`` of a device reply: the same text, written directly for the common
     case — a value, no error (a third of the JSON cost per status poll)."""
@@ -203,7 +202,6 @@ class AlpacaServer:
             if method == "GET":
                 params = dict(request.query)
             else:
-                bump_epoch()  # a PUT may change what TPL2 reads (tcs.state_epoch)
                 if request.content_type not in ("application/x-www-form-urlencoded", "multipart/form-data",
                                                 "application/octet-stream", ""):
                     raise BadRequest(f"PUT needs a form body (application/x-www-form-urlencoded), "
@@ -223,7 +221,7 @@ class AlpacaServer:
                     if not done:  # only what needs awaiting gets a task and the time-out
                         value = await asyncio.wait_for(device.finish(value), self.request_timeout)
                 finally:
-                    if method != "GET":  # what it changed: no value read before is reused after
+                    if method != "GET":  # what it changed: no value read before is reused
                         bump_epoch()
                 body = reply(req, self.next_id(), value, has_value=(method == "GET" or value is not None))
             except AscomError as exc:

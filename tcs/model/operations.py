@@ -131,14 +131,19 @@ class Operations(ModuleHealth):
         return self.telescope.pointing
 
     def main_axes(self) -> list:
-        axes = self.telescope.axes  # (only ever appended to: its length tells a change)
+        return list(self._main_axes())
+
+    def _main_axes(self) -> list:
+        """The main axes, looked up again only when the telescope's axes changed (its list is
+        only ever appended to: its length tells)."""
+        axes = self.telescope.axes
         key = (id(axes), len(axes))
-        cached = getattr(self, "_main_axes", None)
+        cached = getattr(self, "_main_cache", None)
         if cached is None or cached[0] != key:
             names = MAIN_AXES.get(self.telescope.config.mount.type, ())
-            cached = self._main_axes = (key, [a for a in (self.telescope.axis(n) for n in names)
-                                              if a is not None])
-        return list(cached[1])
+            cached = self._main_cache = (key, [a for a in (self.telescope.axis(n) for n in names)
+                                               if a is not None])
+        return cached[1]
 
     def park_positions(self) -> list[tuple[object, float]]:
         """(axis, park position): the hardware file's, replaced by a SetPark (persisted)."""
@@ -211,8 +216,7 @@ class Operations(ModuleHealth):
         """Raise the ``stale`` error of a main axis without fresh readbacks (drive offline,
         bus lost, control process restarting): the front ends answer their error for it
         (OpenTSI ``FAILED 4``, an Alpaca error), never the last value."""
-        self.main_axes()
-        for axis in self._main_axes[1]:
+        for axis in self._main_axes():
             stale = getattr(axis, "stale", None)
             if stale is not None:
                 raise stale

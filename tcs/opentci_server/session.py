@@ -142,8 +142,9 @@ def _get_plan(tree, objects: tuple) -> tuple:
     """How to read each object of a GET: ``(ref, object as echoed, reader, rlevel, shared)``,
     with ``reader`` the variable's fast reader (:meth:`Tree.plain_reader`) or None for the
     general path, ``shared`` true when its answer is the same for every connection of the same
-    read level (:meth:`Tree.same_for_every_connection`: a reply may then be kept). Kept per tree and per parsed-objects tuple (the parser hands out the same tuple for
-    the same GET text); only lookups are kept, never a value."""
+    read level (:meth:`Tree.same_for_every_connection`: a reply may then be kept). Kept per
+    tree and per parsed-objects tuple (the parser hands out the same tuple for the same GET
+    text); only lookups are kept, never a value."""
     plans = tree.get_plans
     entry = plans.get(id(objects))
     if entry is not None and entry[0] is objects:  # (the tuple is held here: its id stays its own)
@@ -195,8 +196,7 @@ class Session(asyncio.Protocol):
         self._inbox = bytearray()  # received, not parsed yet
         self._eof = False          # the client ended its input (parsed after the inbox)
         self._stall_timer: asyncio.TimerHandle | None = None
-        self._fresh_line: bytes | None = None  # received alone into an empty inbox (reply_cache.py)
-        self._cacheable: tuple | None = None    # (its message, the line) while it waits
+        self._cacheable: tuple | None = None  # (message, its whole line) of a one-line chunk
 
     # -- SERVER.CONNECTION.* ---------------------------------------------------------------------
     @property
@@ -244,11 +244,10 @@ class Session(asyncio.Protocol):
                 and not self._paused and not self._eof and data.find(b"\n") == len(data) - 1
                 and not self.proto.buffered):
             # one whole line and nothing else waiting: answered by a kept GET reply when one
-            # is still good (reply_cache.py), else marked so that its reply may be kept
+            # is still good (reply_cache.py)
             kept = self.server.replies.get(data, self.rlevel)
             if kept is not None and self._answer_kept(*kept):
                 return
-            self._fresh_line = data
         self._inbox += data
         self._pump()
 
@@ -257,12 +256,14 @@ class Session(asyncio.Protocol):
         busy or too many commands are in flight; the line then goes the normal way)."""
         if cmd_id in self.commands or len(self.commands) >= self.server.settings.max_in_flight:
             return False
-        started = perf_counter()
         self.command_times.append(time.monotonic())
+        self._send_kept(reply, perf_counter())
+        return True
+
+    def _send_kept(self, reply: bytes, started: float) -> None:
         self.write(reply)
         self.server.replies.hits += 1
         self.server.command_stats.record("GET", "complete", perf_counter() - started)
-        return True
 
     def eof_received(self) -> bool:
         self._eof = True
@@ -390,10 +391,10 @@ class Session(asyncio.Protocol):
             if self._inbox:
                 chunk = bytes(self._inbox[:PARSE_CHUNK])
                 del self._inbox[:PARSE_CHUNK]
+                whole = not self.proto.buffered and chunk.find(b"\n") == len(chunk) - 1
                 msgs = self.proto.receive(chunk)
-                fresh, self._fresh_line = self._fresh_line, None
-                if fresh is not None and len(msgs) == 1 and chunk == fresh:
-                    self._cacheable = (msgs[0], fresh)
+                if whole and len(msgs) == 1:  # one line, these bytes: its GET reply may be kept
+                    self._cacheable = (msgs[0], chunk)
                 self._queue.extend(msgs)
             elif self._eof:
                 self._eof = False
@@ -586,9 +587,7 @@ class Session(asyncio.Protocol):
         if keep:  # another connection's same line may have been answered meanwhile
             kept = self.server.replies.get(cacheable[1], self.rlevel)
             if kept is not None:
-                self.write(kept[1])
-                self.server.replies.hits += 1
-                self.server.command_stats.record("GET", "complete", perf_counter() - started)
+                self._send_kept(kept[1], started)
                 return
         tree = self.server.tree
         settings = self.server.settings
