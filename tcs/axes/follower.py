@@ -91,6 +91,15 @@ _STRICT = 1.0 + 1e-12
 _STRICT_JERK = 1.0 + 1e-6
 
 
+def _inside(err: Setpoint, rel: tuple[float, float, float]) -> bool:
+    """Whether a ruckig profile of the error channel from ``err`` stays within ``rel``
+    (velocity, acceleration, jerk): both inside, and the velocity the acceleration still
+    adds, taken back at full jerk, keeps inside too."""
+    v, a = err.velocity, err.acceleration
+    return (abs(v) <= rel[0] and abs(a) <= rel[1]
+            and abs(v + a * abs(a) / (2.0 * rel[2])) <= rel[0])
+
+
 class FollowerState(enum.Enum):
     IDLE = "idle"
     INTERCEPTING = "intercepting"
@@ -147,7 +156,7 @@ class TrajectoryFollower:
     def _reset_run(self) -> None:
         self._plan = None            # ruckig Trajectory of the intercept / stop
         self._plan_t0 = 0.0
-        self._plan_kind = ""         # "relative" | "preposition" | "wait" | "chase" | "stop"
+        self._plan_kind = ""         # "relative" | "preposition" | "wait" | "chase" | "match" | "stop"
         self._t_last: float | None = None
         self._replan = False
         self.limited = False
@@ -410,6 +419,9 @@ class TrajectoryFollower:
                 self.limited = True
                 self._plan, self._plan_kind = None, "chase"
                 return
+            if not _inside(err, rel):
+                self._plan, self._plan_kind = rel, "match"
+                return
             traj = self._solver.move(err, 0.0, max_velocity=rel[0], max_acceleration=rel[1],
                                      max_jerk=rel[2], discrete=False)
             if traj.duration <= horizon:
@@ -442,7 +454,32 @@ class TrajectoryFollower:
             return Setpoint(sample(traj, traj.duration)[0], 0.0, 0.0, -cur.acceleration / dt)
         if kind == "chase":
             return self._chase(t, cur, dt)
+        if kind == "match":
+            return self._match(t, cur, dt)
         return None
+
+    def _match(self, t: float, cur: Setpoint, dt: float) -> Setpoint | None:
+        """The error's velocity or acceleration is beyond what the error channel may use (an
+        axis at rest under a fast path): a relative plan would brake it within the channel's
+        small limits while the path's own velocity adds to it, over the absolute limits. So
+        first, each cycle, an absolute ruckig profile towards the path's velocity and
+        acceleration (position left free); ``None`` once the error is inside the channel's
+        limits (then the intercept is planned)."""
+        t0 = t - dt
+        rp, rv, ra = self._ref(t0)
+        if _inside(Setpoint(cur.position - rp, cur.velocity - rv, cur.acceleration - ra),
+                   self._plan):
+            self._plan, self._plan_kind = None, ""
+            return None
+        d = self.dynamics
+        rv, ra = self._ref(t)[1:]
+        traj = self._solver.reach_velocity(cur, rv, ra, max_velocity=self._speed,
+                                           max_acceleration=d.max_acceleration,
+                                           max_jerk=d.max_jerk, discrete=False)
+        p, v, a = sample(traj, min(dt, traj.duration))
+        if dt > traj.duration:                 # reached: continue with the path's velocity
+            p += (dt - traj.duration) * v
+        return Setpoint(p, v, a, (a - cur.acceleration) / dt)
 
     def _chase(self, t: float, cur: Setpoint, dt: float) -> Setpoint | None:
         """Path too fast for the axis: each cycle, head for the path's state (clipped to the

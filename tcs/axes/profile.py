@@ -193,10 +193,19 @@ class ProfileSolver:
     def stop(self, start: Setpoint, *, max_velocity: float, max_acceleration: float,
              max_jerk: float, discrete: bool = True) -> Trajectory:
         """Shortest profile from ``start`` to rest (velocity and acceleration zero)."""
+        return self.reach_velocity(start, 0.0, max_velocity=max_velocity,
+                                   max_acceleration=max_acceleration, max_jerk=max_jerk,
+                                   discrete=discrete)
+
+    def reach_velocity(self, start: Setpoint, velocity: float, acceleration: float = 0.0, *,
+                       max_velocity: float, max_acceleration: float, max_jerk: float,
+                       discrete: bool = True) -> Trajectory:
+        """Shortest profile from ``start`` to the state (``velocity``, ``acceleration``),
+        wherever that leaves the position."""
         inp = self._inp
         inp.control_interface = ControlInterface.Velocity
-        inp.target_velocity = [0.0]
-        inp.target_acceleration = [0.0]
+        inp.target_velocity = [velocity]
+        inp.target_acceleration = [acceleration]
         inp.minimum_duration = None
         return self._calculate(start, max_velocity, max_acceleration, max_jerk, discrete)
 

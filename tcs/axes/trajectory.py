@@ -94,6 +94,56 @@ def fd_weights(z: float, x: Sequence[float], m: int) -> list[list[float]]:
     return c
 
 
+def segment_extremes(coef: tuple) -> tuple[float, float, float]:
+    """Largest |velocity|, |acceleration| and |jerk| of one quintic segment
+    ``(c0..c5, h)`` (position ``sum c_k s^k``, ``s = (t - t_i) / h``), exactly: the
+    acceleration's extremes are where the (quadratic) jerk is zero, the velocity's where the
+    acceleration is zero, found by bisection between those points, where the acceleration is
+    monotonic. (Sampling 9 points a segment missed 2.3 % of the acceleration of a sine of
+    5 s period given at 2 s spacing: more than the 2 % margin the follower keeps.)"""
+    _, c1, c2, c3, c4, c5, h = coef
+
+    def vel(s: float) -> float:
+        return c1 + s * (2 * c2 + s * (3 * c3 + s * (4 * c4 + s * 5 * c5)))
+
+    def acc(s: float) -> float:
+        return 2 * c2 + s * (6 * c3 + s * (12 * c4 + s * 20 * c5))
+
+    def jerk(s: float) -> float:
+        return 6 * c3 + s * (24 * c4 + s * 60 * c5)
+
+    # roots of the jerk 60 c5 s^2 + 24 c4 s + 6 c3 in (0, 1)
+    qa, qb, qc = 60 * c5, 24 * c4, 6 * c3
+    roots: list[float] = []
+    if qa != 0.0:
+        disc = qb * qb - 4 * qa * qc
+        if disc >= 0.0:
+            r = math.sqrt(disc)
+            roots = [(-qb - r) / (2 * qa), (-qb + r) / (2 * qa)]
+    elif qb != 0.0:
+        roots = [-qc / qb]
+    points = [0.0] + sorted(x for x in roots if 0.0 < x < 1.0) + [1.0]
+    accs = [acc(s) for s in points]
+    amax = max(abs(a) for a in accs)
+    vmax = max(abs(vel(s)) for s in points)
+    for k in range(len(points) - 1):
+        lo, hi, a_lo = points[k], points[k + 1], accs[k]
+        if a_lo * accs[k + 1] >= 0.0:
+            continue
+        for _ in range(48):                    # the acceleration is monotonic on [lo, hi]
+            mid = 0.5 * (lo + hi)
+            if (acc(mid) < 0.0) == (a_lo < 0.0):
+                lo = mid
+            else:
+                hi = mid
+        vmax = max(vmax, abs(vel(0.5 * (lo + hi))))
+    jerks = [jerk(0.0), jerk(1.0)]
+    if qa != 0.0 and 0.0 < -qb / (2 * qa) < 1.0:
+        jerks.append(jerk(-qb / (2 * qa)))
+    jmax = max(abs(j) for j in jerks)
+    return vmax / h, amax / (h * h), jmax / h ** 3
+
+
 class TrajectoryQueue:
     """Time-stamped positions of one axis with C2 quintic interpolation.
 
@@ -279,7 +329,7 @@ class TrajectoryQueue:
 
     def usage(self, t0: float, t1: float) -> tuple[float, float, float]:
         """Largest |velocity|, |acceleration| and |jerk| of the path over ``[t0, t1]``
-        (sampled at 9 points per segment, jerk exactly; 0 for an empty queue)."""
+        (whole segments, exactly: see :func:`segment_extremes`; 0 for an empty queue)."""
         with self._lock:
             ts = self._t
             n = len(ts)
@@ -296,17 +346,8 @@ class TrajectoryQueue:
             saved = self._coef_seg, self._coef
             for i in range(i0, min(i1, n - 1)):
                 self._coefficients(i)
-                c0, c1, c2, c3, c4, c5, h = self._coef
-                for k in range(9):
-                    s = k / 8.0
-                    v = (c1 + s * (2 * c2 + s * (3 * c3 + s * (4 * c4 + s * 5 * c5)))) / h
-                    a = (2 * c2 + s * (6 * c3 + s * (12 * c4 + s * 20 * c5))) / (h * h)
-                    vmax, amax = max(vmax, abs(v)), max(amax, abs(a))
-                jerks = [6 * c3, 6 * c3 + 24 * c4 + 60 * c5]
-                if c5 != 0.0 and 0.0 < -24 * c4 / (120 * c5) < 1.0:
-                    s = -24 * c4 / (120 * c5)
-                    jerks.append(6 * c3 + 24 * c4 * s + 60 * c5 * s * s)
-                jmax = max(jmax, max(abs(j) for j in jerks) / h ** 3)
+                v, a, j = segment_extremes(self._coef)
+                vmax, amax, jmax = max(vmax, v), max(amax, a), max(jmax, j)
             self._coef_seg, self._coef = saved
             return vmax, amax, jmax
 
