@@ -40,7 +40,11 @@ limits equal to the axis dynamics minus what the path itself uses over the horiz
 (position, velocity and acceleration) without any arrival-time search, and the same code
 serves the first slew onto the path, a new ``OFFSET`` (a rest-to-rest move of the error
 channel: the "second ruckig channel for the offset") and recovery after a disturbance.
-Slower only than the absolute optimum when the path comes towards the axis.
+Slower only than the absolute optimum when the path comes towards the axis. The channel's
+limits hold the sum only if the error starts inside them; an error that does not (an axis at
+rest under a path at 4 of 5 °/s: error velocity 4, channel 0.7) is first *matched*: each cycle
+an absolute ruckig profile towards the path's velocity and acceleration, position left free,
+until the error is inside, then the channel plan closes the position.
 
 After arrival the path is followed directly: each sample is checked against the velocity,
 acceleration and jerk limits and against continuity with the last setpoint (position within
