@@ -340,3 +340,28 @@ def test_an_unchanged_readback_carries_only_its_times_and_never_hides_a_change()
     assert batch[1][0] == later == merge_unchanged(full, (10.01, later[SAMPLE]))
     outbox.cycle({0: (10.02, later[SAMPLE])}, None)  # after it: the times alone
     assert outbox.take()[0][1][0] == (10.02, later[SAMPLE])
+
+
+def test_quiet_cycles_wake_the_sender_every_fifth_time_and_anything_else_at_once():
+    """An idle telescope's readbacks (times only) go to the service every QUIET_EVERY-th
+    cycle, the newest times each; a change, an event or the statistics go at once."""
+    from tcs.axes.control_core import QUIET_EVERY, Outbox
+
+    outbox = Outbox()
+    for k in range(1, 3 * QUIET_EVERY + 1):
+        outbox.cycle({0: (float(k), None), 1: (float(k), None)}, None)
+        assert outbox.wake.is_set() == (k % QUIET_EVERY == 0), k
+        if outbox.wake.is_set():
+            outbox.wake.clear()
+            assert outbox.take()[0][1] == {0: (float(k), None), 1: (float(k), None)}
+    outbox.cycle({0: (1.0, None), 1: tuple(range(20))}, None)   # a change
+    assert outbox.wake.is_set()
+    outbox.wake.clear()
+    outbox.take()
+    outbox.item(("event", "INFO", "AZ", 1, "", None))
+    outbox.cycle({0: (2.0, None)}, None)                        # an event
+    assert outbox.wake.is_set()
+    outbox.wake.clear()
+    outbox.take()
+    outbox.cycle({0: (3.0, None)}, {"cycles": 1})               # the statistics
+    assert outbox.wake.is_set()

@@ -23,7 +23,8 @@ pickled tuples; the service is the only peer):
 * out: ``("claimed",)``, then ``("ready", info)``, or ``("refused", kind, error)``; one
   ``("batch", snapshots, items, stats)`` per cycle with the readbacks of every axis (only
   ``(measured_ut1, sample)`` for an axis whose other readbacks are those it sent last: an
-  idle telescope sends seven pairs of floats a cycle, not seven snapshots), then the
+  idle telescope sends seven pairs of floats, and only every :data:`QUIET_EVERY` th cycle
+  when nothing else happened: 20 batches a second, the newest times each), then the
   cycle's events, error conditions and completions in the order they happened (so a client
   that gets ``DATA OK`` reads the new state; every 10th cycle's readbacks also carry each
   drive's status for ``CABINET.CORE.DRIVE[]``); ``("reply", rid, ok, value)``; ``("log",
@@ -130,6 +131,12 @@ def error_tuple(error: BaseException | None):
     return ("TcsError", f"{type(error).__name__}: {error}", 13, None)
 
 
+#: A quiet cycle (every axis unchanged but for its times, nothing else to tell) wakes the
+#: sender only every this many cycles: an idle telescope sends 20 batches a second, not 100.
+#: Any change, event, completion or reply goes at the end of its cycle as before.
+QUIET_EVERY = 5
+
+
 class Outbox:
     """What the loop and the other threads hand to the sender thread (never blocks them)."""
 
@@ -139,6 +146,7 @@ class Outbox:
         self._snapshots: dict = {}      # axis index -> newest readbacks
         self._stats = None
         self._other: collections.deque = collections.deque()  # replies, logs, …
+        self._quiet = 0                 # quiet cycles held since the last wake-up
         self.wake = threading.Event()
 
     def item(self, entry: tuple) -> None:
@@ -155,6 +163,12 @@ class Outbox:
                 pending[index] = snap
             if stats is not None:
                 self._stats = stats
+            if self._stats is None and not self._items \
+                    and all(len(snap) == 2 for snap in pending.values()):
+                self._quiet += 1
+                if self._quiet < QUIET_EVERY:
+                    return  # (held: the next cycle's batch carries the newest times)
+            self._quiet = 0
         self.wake.set()
 
     def message(self, msg: tuple) -> None:
@@ -359,7 +373,7 @@ class Core:
     def _publish(self, cycle) -> None:
         """After the loop's step (same thread): readbacks and counters to the outbox."""
         self._cycles += 1
-        drives = self._cycles % self._stats_every == 1  # CORE.DRIVE[]: 10 times a second
+        drives = self._cycles % self._stats_every == 0  # CORE.DRIVE[]: 10 times a second
         for axis in self.axes:
             axis.send_drive = drives
         snaps = {axis.index: axis.snapshot() for axis in self.axes}
