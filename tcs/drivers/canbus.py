@@ -60,6 +60,7 @@ import canopen
 
 from tcs.config.can import CanSection
 from tcs.errors import CommunicationError, ErrorNumber, TcsError
+from tcs.virtual_can import open_bus
 
 log = logging.getLogger(__name__)
 
@@ -262,7 +263,7 @@ class CanBus:
     def _new_bus(self) -> can.BusABC:
         if self.section.interface == "socketcand":
             probe_socketcand(self.section.host, self.section.port)
-        bus = count_sends(can.Bus(**self.section.bus_kwargs()), self.traffic)
+        bus = count_sends(open_bus(**self.section.bus_kwargs()), self.traffic)
         return serialize_sends(bus) if self.section.interface in SERIALIZED_INTERFACES else bus
 
     # ---------------------------------------------------------------- reconnect

@@ -45,6 +45,8 @@ from typing import Any
 
 import can
 
+from tcs.virtual_can import open_bus
+
 log = logging.getLogger(__name__)
 
 FrameCallback = Callable[[int, bytes], None]
@@ -356,7 +358,7 @@ def open_port(bus_or_network: Any) -> SimCanPort:
         if port.closed:
             raise ValueError("the simulated CAN port is closed")
     elif isinstance(bus_or_network, Mapping) and not hasattr(bus_or_network, "send_message"):
-        port = SimCanPort(bus=can.Bus(**dict(bus_or_network)), owns_bus=True)
+        port = SimCanPort(bus=open_bus(**dict(bus_or_network)), owns_bus=True)
     else:
         with _registry_lock:
             port = _registry.get(id(bus_or_network))

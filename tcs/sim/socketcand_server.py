@@ -37,6 +37,8 @@ import time
 
 import can
 
+from tcs.virtual_can import open_bus
+
 log = logging.getLogger(__name__)
 
 SEND = re.compile(r"send\s+([0-9A-Fa-f]{1,8})\s+([0-9A-Fa-f])((?:\s+[0-9A-Fa-f]{1,2})*)\s*$")
@@ -148,7 +150,7 @@ class SocketcandServer:
     async def start(self) -> int:
         """Open the bridge and listen; returns the bound port."""
         self._loop = asyncio.get_running_loop()
-        self._bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
+        self._bus = open_bus(interface="virtual", channel=self.channel, receive_own_messages=False)
         self._notifier = can.Notifier(self._bus, [self._on_bus_frame], timeout=0.1)
         self._server = await self._loop.create_server(lambda: self._track(_Client(self)),
                                                       self.host, self.port, reuse_address=True)
