@@ -84,7 +84,6 @@ from tcs.sim.drive_logic import (
     error_register_bits,
 )
 from tcs.resources import hwconfig_file
-from tcs.sim.drive_params import SimDriveParams
 from tcs.sim.drive_params import SimDriveParams, store_options
 from tcs.sim.object_store import ABORT_STORE, ObjectStore
 from tcs.sim.pdo import PdoEngine
@@ -181,6 +180,7 @@ class SimDrive:
         self._last_sync: float | None = None  # real time of the last SYNC while operational
         self._rpdo_seen: dict[int, float] = {}  # RPDO → last reception (port's awake clock), deadline armed
         self._subscribed: dict[int, str] = {}
+        self._rpdo_numbers: dict[int, int] = {}  # COB-ID -> RPDO number (by _update_comm)
         self._sync_cob = 0x080
         self._timers: list[TimerHandle] = []
         self._heartbeat_timer: TimerHandle | None = None
@@ -379,7 +379,8 @@ class SimDrive:
             sync = self.store.get(0x1005, 0)
             self._sync_cob = sync & 0x7FF
             wanted.setdefault(self._sync_cob, "sync")
-            for cob, _n in self.pdo.rpdo_cob_ids().items():
+            self._rpdo_numbers = self.pdo.rpdo_cob_ids()
+            for cob in self._rpdo_numbers:
                 wanted.setdefault(cob, "rpdo")
             consumers = {}
             for sub in range(1, self.store.get(0x1016, 0) + 1):
@@ -395,6 +396,7 @@ class SimDrive:
             self.logic.rpdo_deadlines = self.pdo.rpdo_deadlines()
         else:
             self.logic.rpdo_deadlines = {}
+            self._rpdo_numbers = {}
         for cob in [c for c in self._subscribed if c not in wanted]:
             self._port.unsubscribe(cob, self._on_frame)
         for cob in wanted:
@@ -470,10 +472,11 @@ class SimDrive:
             self._update_comm()
 
     def _on_rpdo(self, cob_id: int, data: bytes) -> None:
-        n = self.pdo.rpdo_cob_ids().get(cob_id)
+        n = self._rpdo_numbers.get(cob_id)
         if n is None:
             return
-        self.logic.update(self.clock())
+        if not self.pdo.rpdo_synchronous(n):  # (applied now; a synchronous one at the SYNC)
+            self.logic.update(self.clock())
         before = self.pdo.rpdo_length_errors
         self.pdo.receive(n, data)
         if self.pdo.rpdo_length_errors != before:

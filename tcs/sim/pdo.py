@@ -196,7 +196,7 @@ class PdoEngine:
             self.rpdo_length_errors += 1
             return False
         self.rpdo_received += 1
-        if self.store.get(RPDO_COMM + n, 2) <= 240:
+        if self.rpdo_synchronous(n):
             self._rpdo_buffer[n] = bytes(data[:length])
             return False
         self._apply(n, bytes(data[:length]))
@@ -210,9 +210,13 @@ class PdoEngine:
             self._apply(n, data)
         return applied
 
+    def rpdo_synchronous(self, n: int) -> bool:
+        """Whether RPDO ``n`` waits for the next SYNC (transmission type 0-240)."""
+        return self.store.get(RPDO_COMM + n, 2) <= 240
+
     def has_sync_rpdo(self) -> bool:
         """Whether any valid RPDO is synchronous (its absence can be noticed at SYNC)."""
-        return any(self.store.get(RPDO_COMM + n, 2) <= 240 for n in self.rpdo_cob_ids().values())
+        return any(self.rpdo_synchronous(n) for n in self.rpdo_cob_ids().values())
 
     def _apply(self, n: int, data: bytes) -> None:
         offset = 0
