@@ -3,7 +3,7 @@
 ``_no_leaks`` (autouse) fails any test that leaves threads or asyncio tasks behind: servers,
 buses, notifiers and simulators must be stopped by the test that started them.
 
-The suite runs in pytest-xdist workers (``-n 4 --dist loadfile``, pyproject.toml): a file runs
+The suite runs in pytest-xdist workers (``-n 6 --dist loadfile``, pyproject.toml): a file runs
 on one worker, in order, and its module-scoped service starts once. xdist hands the files out
 in collection order, so the longest files are collected first (``SLOW_FIRST``; longest-first
 scheduling: a long file handed out last would set the suite's wall time on its own). What a test uses is its

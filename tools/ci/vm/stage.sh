@@ -37,8 +37,8 @@ summary=()
 rc=0
 for part in "${parts[@]}"; do
   case "$part" in
-    # one pytest worker per guest CPU, each on its own vcan (the project's default of 4 workers
-    # would put gw3 on a vcan3 nobody made); the per-test time-out stretched like the rest
+    # one pytest worker per guest CPU, each on its own vcan (the project's default of 6 workers
+    # would put gw5 on a vcan5 nobody made); the per-test time-out stretched like the rest
     vcan) cmd='n=$(nproc); tools/ci/vcan-up.sh $(seq -f "vcan%g" 0 $((n - 1))) >/dev/null && TCS_TEST_SLOWDOWN='"$slow"' TCS_CAN_INTERFACE=socketcan TCS_CAN_CHANNEL=vcan0 python -m pytest tests/vcan -p no:cacheprovider -q -n "$n" --timeout '"$((120 * slow))"' -rfE --durations=10' ;;
     stack) cmd='bash tools/ci/vm/checks/stack.sh vcan0' ;;
     systemd) cmd='bash tools/ci/vm/checks/systemd.sh' ;;
