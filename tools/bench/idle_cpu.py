@@ -45,6 +45,17 @@ shares of the samples holding each process's interpreter lock):
   python-can's virtual bus in the same process.
 * ``remote``: the service's control process talks socketcand (python-can's client parses the
   ASCII frames in Python): 7-13 % of a core for 7 drives at 10 ms; tcs-sim 13-24 %.
+* third pass (2026-11-26, yappi with a CPU clock in the control process, shares of its CPU):
+  python-can's ``VirtualBus.send`` deep-copied every frame (``copy.deepcopy`` of the message
+  and its bytearray through ``copyreg``): 16 %; the simulated drives (SYNC: RPDOs applied,
+  the model advanced, TPDOs packed and sent; the 10 ms poll: supervision and event TPDOs) about
+  half; the TCS's cycle of 7 axes (drive step, axis step, snapshot) a quarter; thread hand-overs
+  of the two receive threads the rest. Changed: frames are copied by the ``Message``
+  constructor (``tcs.virtual_can``), a synchronous RPDO no longer advances the drive model
+  when it arrives (the SYNC does), and quiet readback batches go every 5th cycle (20 a second,
+  not 100; a change at once). The simulator alone (``sim_drives.py``, 7 drives in CSP) costs
+  8.4-9.7 % of a core, the whole budget of the goal: ≤ 10 % for the default telescope needs
+  the simulated drives out of Python or a slower idle cycle (see tools/bench/README.md).
 """
 
 from __future__ import annotations
