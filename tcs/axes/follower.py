@@ -160,7 +160,8 @@ class TrajectoryFollower:
     def _reset_run(self) -> None:
         self._plan = None            # ruckig Trajectory of the intercept / stop
         self._plan_t0 = 0.0
-        self._plan_kind = ""         # "relative" | "preposition" | "wait" | "chase" | "match" | "stop"
+        self._plan_kind = ""  # "relative" | "preposition" | "wait" | "chase" | "match" | "stop"
+        self._match_limits = (0.0, 0.0, 0.0)  # the error channel's limits a "match" aims inside
         self._t_last: float | None = None
         self._replan = False
         self.limited = False
@@ -424,7 +425,7 @@ class TrajectoryFollower:
                 self._plan, self._plan_kind = None, "chase"
                 return
             if not _inside(err, rel):
-                self._plan, self._plan_kind = rel, "match"
+                self._plan, self._plan_kind, self._match_limits = None, "match", rel
                 return
             traj = self._solver.move(err, 0.0, max_velocity=rel[0], max_acceleration=rel[1],
                                      max_jerk=rel[2], discrete=False)
@@ -472,8 +473,8 @@ class TrajectoryFollower:
         t0 = t - dt
         rp, rv, ra = self._ref(t0)
         if _inside(Setpoint(cur.position - rp, cur.velocity - rv, cur.acceleration - ra),
-                   self._plan):
-            self._plan, self._plan_kind = None, ""
+                   self._match_limits):
+            self._plan_kind = ""
             return None
         d = self.dynamics
         rv, ra = self._ref(t)[1:]
