@@ -30,7 +30,6 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-import can  # noqa: E402
 import canopen  # noqa: E402
 
 from tcs.sim import DEFAULT_EDS, SimDriveParams, start_sim_drives  # noqa: E402
