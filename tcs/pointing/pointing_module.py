@@ -363,9 +363,10 @@ class Pointing(ModuleHealth):
 
     def place(self) -> Place:
         """CURRENT: the sky place of the main axes' REALPOS at the time the drives measured it
-        (the last control cycle's SYNC; a readback read a little late — a busy service — still
-        gives the place the telescope pointed to then, not a place shifted by the sky's turn
-        meanwhile); cached per position and 10 ms."""
+        (the SYNC of the last readback: every cycle while the axes move, every fifth at rest,
+        ``QUIET_EVERY`` of the control process; a readback read a little late — a busy
+        service — still gives the place the telescope pointed to then, not a place shifted by
+        the sky's turn meanwhile); cached per position and 10 ms."""
         measured = getattr(self.axis1, "measured_ut1", 0.0)
         utc = measured - self.local.ut1_utc if measured else self.utc()
         pipe = self.pipeline()
