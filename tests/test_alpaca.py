@@ -779,7 +779,9 @@ def test_lunar_and_solar_tracking_rates_follow_the_real_moon_and_sun(live):
     assert t.TrackingRate == DriveRates.driveLunar
     moon = body_rate_now("moon")
     assert abs(p.target.ra_v - moon[0]) < 0.005 and abs(p.target.dec_v - moon[1]) < 0.005, (p.target.ra_v, moon)
-    assert 0.3 < p.target.ra_v < 0.9                     # east among the stars, ~0.55″ of RA/s
+    # east among the stars: topocentric, 0.20-1.01″ of RA/s over 2026-2045 at latitudes -30..52
+    # (0.90 on 2026-11-26 at 37° N: the old bound 0.9 failed CI on the date, not on the TCS)
+    assert 0.15 < p.target.ra_v < 1.1, p.target.ra_v
     assert t.RightAscensionRate == 0.0
     with pytest.raises(InvalidOperationException):
         t.RightAscensionRate = 0.01
