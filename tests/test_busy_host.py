@@ -87,7 +87,7 @@ async def test_tracking_survives_a_busy_host_and_stalls_of_the_control_process(s
         await c.set(f"POINTING.TARGET.RA={ra + 0.01!r};POINTING.TARGET.DEC={dec + 0.1!r}")
         cmd = await c.start("POINTING.TRACK=1")
         for ax in ("AZ", "ZD"):
-            await c.wait(f"{ax}.MOTION_STATE", lambda v: int(v) & 10 == 10, 60)  # on the path
+            await c.wait(f"{ax}.MOTION_STATE", lambda v: (int(v) & 10) == 10, 60)  # on the path
         hogs = start_hogs(2 * (os.cpu_count() or 2), HOG_SECONDS)
         for _ in range(STOPS):
             await asyncio.sleep(2.0)
@@ -99,7 +99,7 @@ async def test_tracking_survives_a_busy_host_and_stalls_of_the_control_process(s
         await asyncio.to_thread(lambda: [h.wait(HOG_SECONDS + 30) for h in hogs])
         # back on the path after the window (the follower catches up within its limits)
         for ax in ("AZ", "ZD"):
-            await c.wait(f"{ax}.MOTION_STATE", lambda v: int(v) & 10 == 10, 60)
+            await c.wait(f"{ax}.MOTION_STATE", lambda v: (int(v) & 10) == 10, 60)
         for ax in ("AZ", "ZD"):
             assert await c.num(f"{ax}.POWER_STATE") == 1.0
             assert await c.num(f"{ax}.ERROR_STATE") == 0

@@ -139,7 +139,7 @@ async def test_tracking_through_the_control_process(proc_service):
         await c.set(f"POINTING.TARGET.RA={ra + 0.01!r};POINTING.TARGET.DEC={dec + 0.1!r}")
         cmd = await c.start("POINTING.TRACK=1")
         for ax in ("AZ", "ZD"):
-            await c.wait(f"{ax}.MOTION_STATE", lambda v: int(v) & 10 == 10, 60)   # trajectory, on path
+            await c.wait(f"{ax}.MOTION_STATE", lambda v: (int(v) & 10) == 10, 60)   # trajectory, on path
         az0 = await c.num("AZ.REALPOS")
         for _ in range(5):
             await asyncio.sleep(0.4)
