@@ -202,7 +202,8 @@ class SimDrive:
         self.store = ObjectStore(self._od, **store_options(self._od, self.params, self.node_id))
         self.sdo = SdoServer(self.store)
         self.sdo.refuse_code = ABORT_STORE if self.refuse_sdo else None
-        self.pdo = PdoEngine(self.store, lambda: self.nmt_state == PRE_OPERATIONAL)
+        self.pdo = PdoEngine(self.store, lambda: self.nmt_state == PRE_OPERATIONAL,
+                             timer_in_operational=self.params.pdo_timer_in_operational)
         old = getattr(self, "logic", None)
         params = self.params
         if old is not None:  # the motor does not jump when the firmware restarts

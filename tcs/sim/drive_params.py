@@ -50,6 +50,10 @@ class SimDriveParams:
         ``N`` counts per revolution has ``60 / N``.
     objects:
         ``{(index, sub): value}`` for objects the EDS gives no default (else built-ins).
+    pdo_timer_in_operational:
+        Whether the PDO event timers (0x1400+n:5, 0x1800+n:5) may be written in operational,
+        as CiA 301 allows; False: like some devices, every PDO parameter only in
+        pre-operational (abort 0x08000022).
     """
 
     increments_per_unit: float = 10000.0
@@ -68,6 +72,7 @@ class SimDriveParams:
     velocity_scale: float = 1.0
     acceleration_scale: float = 1.0
     objects: dict | None = None
+    pdo_timer_in_operational: bool = True
 
     def problems(self) -> list[str]:
         """What is wrong with these parameters (empty when they are usable)."""

@@ -4,7 +4,9 @@ The configuration lives in the node's :class:`ObjectStore` (0x1400–0x1403 / 0x
 RPDOs, 0x1800–0x1803 / 0x1A00–0x1A03 for TPDOs), so a master reads and changes it by SDO; the
 write hooks here enforce what real devices enforce (CiA-301):
 
-* PDO parameters can only be changed in NMT pre-operational: otherwise abort 0x08000022;
+* PDO parameters can only be changed in NMT pre-operational: otherwise abort 0x08000022 —
+  except the event timer (sub-index 5), which CiA 301 lets change while the PDO is valid (a
+  master slows its SYNC and widens the RPDO deadlines in operational, ``tcs.drivers.idle_sync``);
 * mapping entries can only be written while the PDO is invalid (COB-ID bit 31) and its
   sub-index 0 is 0 (the procedure: invalidate, sub0 = 0, entries, sub0 = n, validate);
 * an entry must name an existing, PDO-mappable object of the right direction, 8/16/32 bits
@@ -65,10 +67,14 @@ class PdoEngine:
         The node's objects; mapping hooks are installed on construction.
     is_pre_operational:
         ``() -> bool``: whether PDO parameters may be changed now.
+    timer_in_operational:
+        Whether the event timers may be changed in any NMT state (CiA 301); False: only in
+        pre-operational, as the other parameters.
     """
 
     store: ObjectStore
     is_pre_operational: object
+    timer_in_operational: bool = True
     _rpdo_buffer: dict[int, bytes] = field(default_factory=dict)
     _tpdo: list[_TpdoRuntime] = field(default_factory=lambda: [_TpdoRuntime() for _ in range(COUNT)])
     rpdo_received: int = 0
@@ -96,6 +102,9 @@ class PdoEngine:
 
     def _comm_hook(self, base: int, n: int):
         def hook(sub: int, value: int) -> None:
+            if sub == 5 and self.timer_in_operational:  # the event timer (an RPDO's deadline) may change while the PDO is
+                self._compiled.clear()  # valid, in operational too (CiA 301: only the COB-ID,
+                return                  # the type and the inhibit time need it invalid)
             self._check_state()
             if sub == 1:
                 old = self.store.get(base + n, 1)
