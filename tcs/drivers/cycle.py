@@ -33,6 +33,13 @@ Where the SYNC comes from: on ``socketcan`` the kernel broadcast manager sends i
 runner thread itself sends SYNC at ``t_k``: it sleeps to the slot, sends, waits for the
 barrier, runs the callbacks. No SYNC counter byte is sent.
 
+A resting telescope may slow the SYNC: :meth:`CycleSource.set_divider` ``(n)`` sends SYNC — and
+runs the callbacks — every ``n``-th period from the next SYNC on (kernel SYNC: the broadcast
+manager's task is replaced by one at ``n × period``); ``1`` is the normal rate again.
+:class:`Cycle` then says when the next SYNC comes, lateness is measured on the slower grid,
+and ``period`` stays the nominal one. Only :mod:`tcs.drivers.idle_sync` calls it, after
+telling the drives (0x1006, RPDO deadlines).
+
 Threads: the runner is one dedicated thread (``tcs-cycle``), optionally with a real-time
 priority (``realtime_priority``: SCHED_FIFO, so other processes cannot delay its wake-ups; the
 GIL is still shared with the rest of the process); callbacks run in it and must not block.
@@ -128,6 +135,8 @@ class CycleSource:
         self.realtime_priority = int(realtime_priority)
         self.realtime = False  # the runner got its real-time priority
         self.max_lateness = 0.0  # worst lateness since start, s
+        self._divider = 1  # SYNC every this many periods (set_divider)
+        self._sync_msg = None  # the kernel's periodic SYNC frame
 
     @property
     def tpdo_deadline(self) -> float:
@@ -140,6 +149,25 @@ class CycleSource:
     @tpdo_deadline.setter
     def tpdo_deadline(self, value: float | None) -> None:
         self._tpdo_deadline = None if value is None else float(value)
+
+    @property
+    def divider(self) -> int:
+        """SYNC every this many periods (1 normally; see :meth:`set_divider`)."""
+        return self._divider
+
+    def set_divider(self, n: int) -> None:
+        """SYNC and the callbacks every ``n``-th period from the next SYNC on (1 = every
+        period). Any thread; the drives must have been told first (tcs.drivers.idle_sync)."""
+        n = max(1, int(n))
+        with self._lock:
+            if n == self._divider:
+                return
+            self._divider = n
+            periodic = self._periodic
+            if periodic is not None:  # kernel SYNC: a new task at the new rate
+                self._periodic = self.bus.bus.send_periodic(self._sync_msg, self.period * n)
+                periodic.stop()
+        log.debug("SYNC every %d period(s) of %g s now", n, self.period)
 
     # ---------------------------------------------------------------- set-up
     def add_callback(self, callback: Callable[[Cycle], None]) -> None:
@@ -181,8 +209,10 @@ class CycleSource:
         self.bus.heartbeat_from_cycle()  # the TCS heartbeat now proves the loop works
         if self.kernel_sync:
             self.bus.network.subscribe(SYNC_COB_ID, self._on_sync)
-            msg = can.Message(arbitration_id=SYNC_COB_ID, data=b"", is_extended_id=False)
-            self._periodic = self.bus.bus.send_periodic(msg, self.period)
+            msg = self._sync_msg = can.Message(arbitration_id=SYNC_COB_ID, data=b"",
+                                               is_extended_id=False)
+            with self._lock:
+                self._periodic = self.bus.bus.send_periodic(msg, self.period * self._divider)
             target = self._run_kernel
         else:
             target = self._run_thread
@@ -200,7 +230,8 @@ class CycleSource:
         if thread is not None and thread is not threading.current_thread():
             thread.join(timeout=5.0)
         self.bus.heartbeat_to_periodic()
-        periodic, self._periodic = self._periodic, None
+        with self._lock:
+            periodic, self._periodic = self._periodic, None
         if periodic is not None:
             periodic.stop()
             t = getattr(periodic, "thread", None)
@@ -308,14 +339,15 @@ class CycleSource:
                 self.last_error = exc
                 self._count(sync_failures=1)
             self._late(sent - slot)
-            self._cycle(index, sent, slot + period)
+            step = period * self._divider
+            self._cycle(index, sent, slot + step)
             index += 1
-            slot += period
+            slot += step
             now = self._clock()
             if now > slot:  # overran one or more slots: skip them, keep the grid
-                skipped = int((now - slot) // period) + 1
+                skipped = int((now - slot) // step) + 1
                 self._count(missed=skipped)
-                slot += skipped * period
+                slot += skipped * step
                 index += skipped
 
     def _run_kernel(self) -> None:
@@ -324,6 +356,7 @@ class CycleSource:
         seen = 0
         first_time = None
         first_count = 0
+        divider = self._divider
         while not self._stop.is_set():
             with self._sync_seen:
                 while self._sync_count == seen and not self._stop.is_set():
@@ -331,10 +364,13 @@ class CycleSource:
                 count, sync_time = self._sync_count, self._sync_time
             if self._stop.is_set():
                 break
+            if self._divider != divider:  # a new rate: a new grid from this SYNC on
+                divider, first_time = self._divider, None
+            step = period * divider
             if first_time is None:
                 first_time, first_count = sync_time, count
             elif count > seen + 1:
                 self._count(missed=count - seen - 1)
             seen = count
-            self._late(sync_time - (first_time + (count - first_count) * period))
-            self._cycle(count, sync_time, sync_time + period)
+            self._late(sync_time - (first_time + (count - first_count) * step))
+            self._cycle(count, sync_time, sync_time + step)
