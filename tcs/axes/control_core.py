@@ -23,11 +23,12 @@ pickled tuples; the service is the only peer):
 * out: ``("claimed",)``, then ``("ready", info)``, or ``("refused", kind, error)``; one
   ``("batch", snapshots, items, stats)`` per cycle with the readbacks of every axis (only
   ``(measured_ut1, sample)`` for an axis whose other readbacks are those it sent last: an
-  idle telescope sends seven pairs of floats, and only every :data:`QUIET_EVERY` th cycle
-  when nothing else happened: 20 batches a second, the newest times each), then the
+  idle telescope sends seven pairs of floats, and only every :data:`QUIET_EVERY` th SYNC
+  period when nothing else happened: 20 batches a second, the newest times each), then the
   cycle's events, error conditions and completions in the order they happened (so a client
-  that gets ``DATA OK`` reads the new state; every 10th cycle's readbacks also carry each
-  drive's status for ``CABINET.CORE.DRIVE[]``); ``("reply", rid, ok, value)``; ``("log",
+  that gets ``DATA OK`` reads the new state; the readbacks of every 10th SYNC period — of
+  every 2nd cycle under the 5 times slower idle SYNC, ``tcs.drivers.idle_sync`` — also carry
+  the counters and each drive's status for ``CABINET.CORE.DRIVE[]``); ``("reply", rid, ok, value)``; ``("log",
   name, level, text)``; ``("closed",)``.
 
 The loop thread never blocks on the service: it appends to an outbox that a sender thread
@@ -132,8 +133,9 @@ def error_tuple(error: BaseException | None):
 
 
 #: A quiet cycle (every axis unchanged but for its times, nothing else to tell) wakes the
-#: sender only every this many cycles: an idle telescope sends 20 batches a second, not 100.
-#: Any change, event, completion or reply goes at the end of its cycle as before.
+#: sender only every this many SYNC periods: an idle telescope sends 20 batches a second, not
+#: 100 (under the idle SYNC every cycle is that long: each one). Any change, event, completion
+#: or reply goes at the end of its cycle as before.
 QUIET_EVERY = 5
 
 
@@ -153,7 +155,8 @@ class Outbox:
         with self._lock:
             self._items.append(entry)
 
-    def cycle(self, snapshots: dict, stats) -> None:
+    def cycle(self, snapshots: dict, stats, periods: int = 1) -> None:
+        """A cycle's readbacks (and counters); ``periods``: SYNC periods it stands for."""
         with self._lock:
             pending = self._snapshots
             for index, snap in snapshots.items():
@@ -165,7 +168,7 @@ class Outbox:
                 self._stats = stats
             if self._stats is None and not self._items \
                     and all(len(snap) == 2 for snap in pending.values()):
-                self._quiet += 1
+                self._quiet += periods
                 if self._quiet < QUIET_EVERY:
                     return  # (held: the next cycle's batch carries the newest times)
             self._quiet = 0
@@ -290,8 +293,8 @@ class Core:
         self.bus_lock = None
         self.ut1_utc = 0.0
         self._running = True
-        self._stats_every = 10
-        self._cycles = 0
+        self._stats_every = 10  # nominal SYNC periods between counters (10 times a second)
+        self._slots = 0         # nominal periods since the last counters
 
     def ut1(self) -> float:
         return time.time() + self.ut1_utc
@@ -372,16 +375,21 @@ class Core:
 
     def _publish(self, cycle) -> None:
         """After the loop's step (same thread): readbacks and counters to the outbox."""
-        self._cycles += 1
-        drives = self._cycles % self._stats_every == 0  # CORE.DRIVE[]: 10 times a second
+        # counters and CORE.DRIVE[] 10 times a second, also when the idle SYNC (one cycle per
+        # `divider` periods) slows the cycle
+        periods = self.can.cycle.divider
+        self._slots += periods
+        drives = self._slots >= self._stats_every
+        if drives:
+            self._slots = 0
         for axis in self.axes:
             axis.send_drive = drives
         snaps = {axis.index: axis.snapshot() for axis in self.axes}
         stats = None
-        if self._cycles % self._stats_every == 0:
+        if drives:
             stats = dict(self.loop.stats(), last_cycle=self.loop.last_cycle,
                          bus=bus_figures(self.can))
-        self.outbox.cycle(snaps, stats)
+        self.outbox.cycle(snaps, stats, periods)
 
     # -- receiver ----------------------------------------------------------------------------
     def run(self) -> int:

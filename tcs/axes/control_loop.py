@@ -156,6 +156,7 @@ class ControlLoop:
                 "tpdo_timeouts": s.tpdo_timeouts, "errors": self.errors,
                 "max_step_ms": self.max_step * 1e3, "max_lateness": self.source.max_lateness,
                 "realtime": int(self.source.realtime), "period": self.source.period,
+                "sync_divider": self.source.divider,
                 "loop_time_hist": self.loop_time.export(), "lateness_hist": self.lateness.export()}
 
     def samples(self, clear: bool = False):
@@ -173,5 +174,5 @@ class ControlLoop:
         """True when the loop ran within the last ``max_age_periods`` SYNC periods (or the
         last ``within`` seconds: the systemd watchdog asks whether it ran at all since its
         previous ping — a late loop on a busy host is alive, only a dead one is not)."""
-        age = max_age_periods * self.source.period if within is None else within
+        age = max_age_periods * self.source.period * self.source.divider if within is None else within
         return self.cycles > 0 and self.clock() - self.last_cycle < age

@@ -13,6 +13,8 @@ What a drive accepts is checked here, before anything talks to the bus:
 * ``sync_period`` must be a whole number of µs (0x1006 is U32 µs) that 0x60C2 can express as
   ``value × 10^exponent`` with ``value`` 1..255 and ``exponent`` −3..−6, between 1 and 100 ms,
   and not shorter than any drive's ``min_sync_period``;
+* ``idle_sync_period`` (the slower SYNC of a resting telescope, :mod:`tcs.drivers.idle_sync`)
+  is 0 or a whole multiple (2 or more) of ``sync_period``, at most ``heartbeat_period``;
 * node ids 1..127, unique, and different from the TCS's own;
 * a PDO mapping override carries at most 64 bits per PDO, maps only objects the driver knows,
   and keeps controlword + target position in RPDO1 (the driver sends one RPDO per cycle) and
@@ -186,6 +188,13 @@ class CanSection:
                                     "if some synchronous TPDOs have not arrived (default 0.5 "
                                     "with kernel SYNC on socketcan, 0.8 when the cycle thread "
                                     "sends SYNC itself)")
+    idle_sync_period: float = setting(
+        0.0, min=0.0, max=1.0, doc="SYNC period while every drive rests disabled (0 = always "
+                                   "sync_period): a whole multiple (2x or more) of sync_period, at "
+                                   "most heartbeat_period. The drives' 0x1006 and RPDO "
+                                   "deadlines follow it by SDO; a drive that refuses keeps the "
+                                   "full rate for all; the first enable brings the full rate back "
+                                   "before the power stage (tcs.drivers.idle_sync)")
     heartbeat_period: float = setting(0.1, min=0.01, max=10.0,
                                       doc="period of the TCS's own heartbeat, s (whole ms)")
     node_id: int = setting(127, min=1, max=127, doc="NMT node id of the TCS (its heartbeat COB-ID is 0x700 + id)")
@@ -215,6 +224,15 @@ class CanSection:
                                             "expressible in 0x60C2 (value 1..255 × 10^-3..10^-6 s)"))
         if not _whole_ms(self.heartbeat_period):
             problems.append(("heartbeat_period", "must be a whole number of milliseconds"))
+        if self.idle_sync_period:
+            ratio = self.idle_sync_period / self.sync_period
+            if ratio < 2 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
+                problems.append(("idle_sync_period", f"must be 0 (off) or a whole multiple (2 or more) "
+                                                     f"of sync_period ({self.sync_period:g} s)"))
+            elif self.idle_sync_period > self.heartbeat_period + 1e-12:
+                problems.append(("idle_sync_period", f"must be at most heartbeat_period "
+                                                     f"({self.heartbeat_period:g} s): the TCS "
+                                                     "heartbeat is sent from the cycle"))
         for key, value in self.options.items():
             if key in ("interface", "channel", "host", "port", "bitrate"):
                 problems.append((f"options.{key}", "set it in [can] itself, not in options"))

@@ -284,6 +284,22 @@ def master_loss_writes(section: DriveSection, can: CanSection,
             if pdo.receive and pdo.synchronous]
 
 
+def cycle_period_writes(section: DriveSection, can: CanSection, layouts: dict[str, PdoLayout],
+                        period: float) -> list[tuple[int, int, str, int]]:
+    """The writes that tell a running drive its SYNC now comes every ``period`` (the idle SYNC
+    of :mod:`tcs.drivers.idle_sync`): its RPDO deadlines, as :func:`master_loss_writes` makes
+    them for that period (a configured ``master_loss_timeout`` shorter than 3 periods is
+    widened to 3 periods), then 0x1006. ``period`` = ``can.sync_period`` gives back exactly
+    what the boot wrote. Write them in this order when the SYNC slows (after these writes)
+    and in reverse order when it speeds up (before them)."""
+    import dataclasses
+    if period > can.sync_period and section.master_loss_timeout:
+        section = dataclasses.replace(section,
+                                      master_loss_timeout=max(section.master_loss_timeout, 3 * period))
+    at = dataclasses.replace(can, sync_period=period)
+    return master_loss_writes(section, at, layouts) + [(0x1006, 0, "<I", round(period * 1e6))]
+
+
 def check_eds(od: canopen.ObjectDictionary, layouts: dict[str, PdoLayout], device: str) -> None:
     """The PDO mapping against the EDS: objects exist, may be mapped, enough entries."""
     for pdo in layouts.values():

@@ -34,6 +34,8 @@ Faults handled here, while the service runs (no restart):
   controlled stop and shows the error); "restarted" / "error active" clear it.
 * **Bus reconnect** — when :class:`CanBus` reopened a broken link (the socketcand peer died
   and came back, an interface went down and up) every drive is booted again as above.
+* **Idle SYNC** — with ``[can] idle_sync_period`` the SYNC slows while every drive rests
+  (:mod:`tcs.drivers.idle_sync`, ``self.idle``); a re-boot above counts as activity.
 * **Clean stop** — :meth:`release` (after the axes are off) switches off every disabled
   drive's heartbeat consumer (0x1016:1 = 0) and puts it pre-operational, so stopping the
   service leaves no 0x8130 faults; a crash leaves the consumers armed and the drives react.
@@ -57,6 +59,7 @@ from tcs.drivers.boot import NMT_PRE_OPERATIONAL, send_nmt
 from tcs.drivers.canbus import CanBus
 from tcs.drivers.cia402_drive import Cia402Drive
 from tcs.drivers.cycle import Cycle, CycleSource
+from tcs.drivers.idle_sync import IdleSync
 from tcs.drivers.worker import SdoWorker
 from tcs.drivers.eds_check import check_config, log_report
 from tcs.errors import ConfigError, ConfigErrors, TcsError
@@ -134,6 +137,9 @@ class CanDrives:
         self._boot_locks = {name: threading.Lock() for name in self.drives}  # one boot at a time
         self._pool: ThreadPoolExecutor | None = None
         self.recoveries = 0
+        #: the slower SYNC of a resting telescope (``[can] idle_sync_period``; inactive at 0)
+        self.idle = IdleSync(self.drives, self.cycle, self.worker, can, self._boot_locks, clock=clock)
+        self._idle_added = False
 
     @classmethod
     def from_config(cls, config, **kwargs) -> CanDrives:
@@ -183,7 +189,11 @@ class CanDrives:
         return failures
 
     def start(self) -> None:
-        """Start SYNC and the cycle thread, and the recovery supervisor."""
+        """Start SYNC and the cycle thread, and the recovery supervisor (and the idle SYNC,
+        stepped after every callback added so far: after the drives' step)."""
+        if self.idle.enabled and not self._idle_added:
+            self._idle_added = True
+            self.cycle.add_callback(self.idle.step)
         self.cycle.start()
         if self._supervisor is None:
             self._supervising.set()
@@ -263,8 +273,9 @@ class CanDrives:
     def _note_cycle(self, cycle: Cycle) -> None:
         """Each cycle, first: the drives notice a stall of this process (heartbeat window)."""
         now = self._clock()
+        step = self.cycle.period * self.cycle.divider
         for drive in self.drives.values():
-            drive.note_cycle(now)
+            drive.note_cycle(now, step)
 
     def _on_bus_error(self, error: TcsError) -> None:
         """Bus health changed (notifier thread): bus-off / error passive fault every drive."""

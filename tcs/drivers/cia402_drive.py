@@ -66,10 +66,12 @@ import canopen
 from tcs.config.can import CanSection, DriveSection
 from tcs.drivers import cia402 as sm
 from tcs.drivers.boot import (HB_OPERATIONAL, HB_PRE_OPERATIONAL, HB_STOPPED, NMT_STATE_NAMES,
-                              BootResult, HeartbeatWatch, Sdo, boot_node, set_mode)
+                              BootResult, HeartbeatWatch, Sdo, boot_node, cycle_period_writes,
+                              set_mode)
 from tcs.drivers.canbus import HEARTBEAT_BASE, CanBus
 from tcs.drivers.cia402 import Want
 from tcs.drivers.drive import CYCLIC_MODES, DriveState, DriveStatus, Mode, Progress
+from tcs.drivers.eds import usable_writes
 from tcs.drivers.eds_check import drive_mode
 from tcs.drivers.emcy import DriveFault, decode_emcy
 from tcs.drivers.handshakes import HomingRun, ProfileMove
@@ -139,6 +141,8 @@ class Cia402Drive:
         self._hb = HeartbeatWatch(clock)
         self._hb_timeout = can.heartbeat_tolerance * section.heartbeat_period
         self._last_step: float | None = None   # the previous step (cycle thread)
+        self._cycle_step = 0.0                 # the time between SYNCs at the previous step
+        self._slow_sync = 0.0                  # how much longer than sync_period that is
         self._stall_mark = float("-inf")       # the step after the latest own stall
         self._sync_time = float("-inf")   # last synchronous TPDO (notifier)
         self._seen_sync_time = float("-inf")
@@ -205,6 +209,53 @@ class Cia402Drive:
         self._lost_position = False
         self._reboot_wanted = False
         self.reboots = 0  # boot-ups seen after a successful boot (power blip, reset)
+        # idle SYNC (tcs.drivers.idle_sync): whether the power stage may be switched on now
+        self.may_enable: Callable[[], bool] = lambda: True
+        self._state: DriveState | None = None  # the latest step's state (cycle thread)
+
+    # ================================================================= idle SYNC
+    #: States without a power stage: a drive in one of them cannot move (the idle SYNC's test).
+    RESTING_STATES = frozenset({DriveState.NOT_READY, DriveState.SWITCH_ON_DISABLED,
+                                DriveState.READY_TO_SWITCH_ON, DriveState.FAULT})
+
+    @property
+    def boot_count(self) -> int:
+        """Successful boots so far (a new one means its configuration was written again)."""
+        return self._boot_count
+
+    def resting(self) -> bool:
+        """Cycle thread: booted, its power stage off by the latest status (a resting state,
+        no stale data), not wanted enabled, and no request or SDO job of its own under way —
+        or not booted at all (then it is not on the cycle). The idle SYNC needs every drive so."""
+        if not self._booted:
+            return True
+        with self._lock:
+            asked = (self._want is not Want.DISABLED or self._reset_requested
+                     or self._homing_requested or self._move_request is not None
+                     or self._halt_requested)
+        return (not asked and self._state in self.RESTING_STATES and self._stale_fault is None
+                and self._mode_job is None and self._homing is None and self._move is None
+                and not self._reset_phase)
+
+    def write_cycle_period(self, period: float, done: list | None = None,
+                           only: set | None = None) -> None:
+        """Blocking (the idle SYNC's job): tell the drive that SYNC comes every ``period`` —
+        0x1006 and its RPDO deadlines (:func:`tcs.drivers.boot.cycle_period_writes`), each
+        as its EDS allows. Slower: deadlines first; faster: 0x1006 first. Each ``(index,
+        sub)`` written is appended to ``done``; ``only`` limits the writes to those."""
+        sdo, node = self._sdo, self._node
+        if not self._booted or sdo is None or node is None:
+            return
+        writes = usable_writes(node.object_dictionary,
+                               cycle_period_writes(self.section, self._can, self.layouts, period),
+                               self.section, self.device)
+        if period <= self._can.sync_period:
+            writes.reverse()
+        for index, sub, fmt, value in writes:
+            if only is None or (index, sub) in only:
+                sdo.write(index, sub, fmt, value)
+                if done is not None:
+                    done.append((index, sub))
 
     # ================================================================= boot (blocking)
     @property
@@ -468,7 +519,7 @@ class Cia402Drive:
             return DriveState.OFFLINE, self._boot_error, False
         hb = self._hb
         last = self._last_step
-        if last is not None and now - last > HOST_STALL and last > self._stall_mark:
+        if last is not None and now - last > HOST_STALL + self._slow_sync and last > self._stall_mark:
             # the process stalled inside a cycle (after note_cycle): the same rule, once per gap
             self._stall_mark = now
         hb_ok = hb.time is not None and now - max(hb.time, self._stall_mark) <= self._hb_timeout
@@ -539,6 +590,7 @@ class Cia402Drive:
         self.steps += 1
         self._watch_tpdos()
         state, fault, hb_ok = self._observe(now)
+        self._state = state
         self._fetch_error_code(state)
         raw = self._raw
         sw = raw.get(0x6041, 0)
@@ -598,7 +650,10 @@ class Cia402Drive:
             self._emcy = None  # nothing to reset: forget the last warning
         if reset:
             self._fe_fault, self._fe_since = None, None  # the TCS's own (CSV) following error
-        cw = self._controlled(sm.controlword(want, state), state, sw, now)
+        # the idle SYNC's gate: no power stage before the full SYNC rate is back on the drives
+        gated = (want is Want.ENABLED and not self.may_enable()
+                 and state not in (DriveState.OPERATION_ENABLED, DriveState.QUICK_STOP_ACTIVE))
+        cw = self._controlled(sm.controlword(Want.DISABLED if gated else want, state), state, sw, now)
         if self._reset_phase:
             if state not in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
                 self._reset_phase = 0
@@ -621,7 +676,8 @@ class Cia402Drive:
         enabled = state is DriveState.OPERATION_ENABLED and want is Want.ENABLED
         mode = self._mode
         ready = enabled and self._mode_job is None
-        if want is Want.ENABLED and mode == Mode.IP and self._mode_job is None and not self._reset_phase:
+        if want is Want.ENABLED and not gated and mode == Mode.IP and self._mode_job is None \
+                and not self._reset_phase:
             # enable IP (bit 4) with enable operation: IP is active from the first cycle in
             # Operation enabled, and the record sent with it is the actual position
             cw |= sm.CW_ENABLE_IP
@@ -655,11 +711,16 @@ class Cia402Drive:
             cw |= sm.CW_HALT
         self._send(cw, target)
 
-    def note_cycle(self, now: float) -> None:
+    def note_cycle(self, now: float, step: float = 0.0) -> None:
         """The cycle thread starts a cycle (before anything reads this drive's status in it):
-        a cycle long after the previous one means this process stalled (see the docstring)."""
+        a cycle more than :data:`HOST_STALL` after the previous one *was due* means this
+        process stalled (see the docstring); ``step`` is the time between SYNCs now (longer
+        under the idle SYNC, :mod:`tcs.drivers.idle_sync`)."""
         last, self._last_step = self._last_step, now
-        if last is not None and now - last > HOST_STALL:
+        # (the longer of the steps before and now: the SYNC may have slowed or sped up between)
+        self._slow_sync = max(0.0, max(step, self._cycle_step) - self._can.sync_period)
+        self._cycle_step = step
+        if last is not None and now - last > HOST_STALL + self._slow_sync:
             self._stall_mark = now
             log.debug("%s: the TCS stalled for %.2f s; the heartbeat window restarts", self.device,
                       now - last)

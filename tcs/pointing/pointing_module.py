@@ -363,8 +363,9 @@ class Pointing(ModuleHealth):
 
     def place(self) -> Place:
         """CURRENT: the sky place of the main axes' REALPOS at the time the drives measured it
-        (the SYNC of the last readback: every cycle while the axes move, every fifth at rest,
-        ``QUIET_EVERY`` of the control process; a readback read a little late — a busy
+        (the SYNC of the last readback: every cycle while the axes move, every fifth period at
+        rest, ``QUIET_EVERY`` of the control process — each cycle under the idle SYNC, 50 ms
+        apart in sim.toml; a readback read a little late — a busy
         service — still gives the place the telescope pointed to then, not a place shifted by
         the sky's turn meanwhile); cached per position and 10 ms."""
         measured = getattr(self.axis1, "measured_ut1", 0.0)

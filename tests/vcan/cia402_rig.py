@@ -69,7 +69,7 @@ class Rig:
     def __init__(self, can_channel: dict, axes: dict[str, AxisSpec], *, sync_period: float = 0.01,
                  heartbeat_period: float = 0.05, boot_timeout: float = 3.0,
                  kernel_sync: bool | None = None, options: dict | None = None,
-                 realtime_priority: int = 0):
+                 realtime_priority: int = 0, idle_sync_period: float = 0.0):
         self.channel = dict(can_channel)
         self.axes = axes
         self.can = CanSection(interface=self.channel["interface"], channel=self.channel["channel"],
@@ -77,7 +77,8 @@ class Rig:
                               heartbeat_period=heartbeat_period * SLOWDOWN,
                               boot_timeout=boot_timeout * SLOWDOWN, sdo_timeout=0.3 * SLOWDOWN,
                               options=options or {},
-                              realtime_priority=realtime_priority)
+                              realtime_priority=realtime_priority,
+                              idle_sync_period=idle_sync_period * SLOWDOWN)
         self.kernel_sync = kernel_sync
         self.sections = {name: drive_section(spec.node_id, **spec.section)
                          for name, spec in axes.items()}

@@ -5,7 +5,7 @@ there, tcs-server is the master). ``--slowdown N`` (a whole number; the stage pa
 software emulation): the cycle, the heartbeats and their consumer times, SDO, boot,
 following-error, enable, fault-reset, mode-switch, master-loss (the drives' RPDO deadline) and
 homing time-outs are N times longer, as on a host N times slower — the exchanges are the same,
-the clock runs slower. ``[server] allow_system_control`` is switched on (the checks ask for a
+the clock runs slower (the idle SYNC's period too). ``[server] allow_system_control`` is switched on (the checks ask for a
 reboot to see what the hardened unit does with it)."""
 
 import argparse
@@ -22,6 +22,8 @@ can, n = doc["can"], args.slowdown
 if args.channel:
     can["interface"], can["channel"] = "socketcan", args.channel
 can["sync_period"] = round(float(can.get("sync_period", 0.01)) * n, 3)
+if "idle_sync_period" in can:
+    can["idle_sync_period"] = round(float(can["idle_sync_period"]) * n, 3)
 can["heartbeat_period"] = round(float(can.get("heartbeat_period", 0.1)) * n, 3)
 can["boot_timeout"] = round(float(can.get("boot_timeout", 5.0)) * n, 3)
 can["sdo_timeout"] = min(10.0, round(float(can.get("sdo_timeout", 0.5)) * n, 3))
