@@ -192,6 +192,9 @@ class SnapshotCollector:
                    1.0 if loop["running"] else 0.0)
         if loop["period"] is not None:
             yield _one("tcs_control_loop_sync_period_seconds", "the SYNC period ([can] sync_period)", loop["period"])
+        if loop.get("sync_interval") is not None:
+            yield _one("tcs_control_loop_sync_interval_seconds", "the time between SYNCs now: the "
+                       "period, or [can] idle_sync_period while every drive rests", loop["sync_interval"])
         for key, name, doc in (("cycles", "tcs_control_loop_cycles", "control cycles run"),
                                ("late", "tcs_control_loop_late_cycles", "cycles whose work ended after the next SYNC was due"),
                                ("missed", "tcs_control_loop_missed_cycles", "SYNC slots skipped (the loop was still busy)"),

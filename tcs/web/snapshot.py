@@ -201,6 +201,7 @@ def take(service) -> dict[str, Any]:
     snap["loop"] = {
         "running": loop is not None and bool(_safe(loop.healthy, False)),
         "period": period,
+        "sync_interval": None if period is None else period * (stats.get("sync_divider") or 1),
         "cycles": stats.get("cycles"), "late": stats.get("late"), "missed": stats.get("missed"),
         "tpdo_timeouts": stats.get("tpdo_timeouts"), "errors": stats.get("errors"),
         "max_lateness": _num(stats.get("max_lateness")), "realtime": stats.get("realtime"),
