@@ -21,6 +21,12 @@ named. The machine may be shared: the load average is printed with the figures. 
 is one JSON object with every figure.
 
     python3 tools/bench/idle_cpu.py [--seconds 20] [--settle 8] [--only default|remote]
+                                    [--idle-sync-period 0]
+
+The shipped files slow the SYNC of a resting telescope to ``[can] idle_sync_period`` (50 ms,
+:mod:`tcs.drivers.idle_sync`) 2 s after the last drive came to rest; ``--idle-sync-period 0``
+measures the same code with the SYNC at its full rate (the A/B of the fourth pass), and the
+cycles expected in the window follow the period in effect.
 
 Where the idle time goes (issue 27; py-spy ``record --gil`` of the default simulated telescope,
 shares of the samples holding each process's interpreter lock):
@@ -56,6 +62,17 @@ shares of the samples holding each process's interpreter lock):
   not 100; a change at once). The simulator alone (``sim_drives.py``, 7 drives in CSP) costs
   8.4-9.7 % of a core, the whole budget of the goal: ≤ 10 % for the default telescope needs
   the simulated drives out of Python or a slower idle cycle (see tools/bench/README.md).
+* fourth pass (2026-11-26): the slower idle cycle, done as real drives need it — the idle
+  SYNC (``[can] idle_sync_period``; each drive told its 0x1006 and RPDO deadlines by SDO first,
+  the full rate and the boot's values back before any power stage). Per second at rest: 20
+  SYNCs, 140 RPDOs and 140-280 TPDOs, and 20 steps of the loop and of the simulated drives'
+  SYNC work. The control process of the default telescope 14-15 % -> 5.7-6.6 %, of the
+  remote service 12-13 % -> 3.5-3.7 %, tcs-sim 20-22 % -> 10-11 %. What is left: the main
+  process (5 % default, 3.3 % remote), three quarters of it the two PLCs' Modbus polls (10 Hz,
+  6-7 requests each through pymodbus and asyncio, ~150 requests a second with the simulated
+  PLCs' server side in the same process in the default set-up), and the simulated drives'
+  10 ms supervision poll (a third of the default control process: heartbeats, consumer
+  windows, event TPDOs packed to see whether they changed).
 """
 
 from __future__ import annotations
@@ -132,7 +149,27 @@ def snapshot(pids: list[int]) -> dict:
     return out
 
 
-def measure(roles: dict[str, int], seconds: float, port: int) -> dict:
+def idle_period(doc) -> float:
+    """The SYNC period of a resting telescope in a parsed hardware file (the idle SYNC's, or
+    the full one)."""
+    can = doc["can"]
+    return float(can.get("idle_sync_period", 0.0)) or float(can.get("sync_period", 0.01))
+
+
+def hardware_file(name: str, state: str, idle_sync: float | None):
+    """The parsed ``hwconfig/<name>``, with ``[can] idle_sync_period`` replaced when given."""
+    import tomlkit
+
+    doc = tomlkit.parse((ROOT / "hwconfig" / name).read_text())
+    if idle_sync is not None:
+        doc["can"]["idle_sync_period"] = idle_sync
+    eds = Path(state) / "eds"
+    if not eds.exists():
+        eds.symlink_to(ROOT / "hwconfig" / "eds")
+    return doc
+
+
+def measure(roles: dict[str, int], seconds: float, port: int, period: float = 0.01) -> dict:
     """Percent of one core per role (a process and its descendants) and per process/thread,
     and the control loop's cycles meanwhile (a starved loop runs fewer cycles and so costs less:
     the CPU per cycle tells that apart)."""
@@ -160,31 +197,39 @@ def measure(roles: dict[str, int], seconds: float, port: int) -> dict:
     result["seconds"] = wall
     cycles, missed, timeouts = (y - x for x, y in zip(c0, c1))
     result["loop"] = {"cycles": cycles, "missed": missed, "tpdo_timeouts": timeouts,
-                      "expected_cycles": round(wall / 0.01)}
+                      "expected_cycles": round(wall / period), "sync_period": period}
     service_cpu = result["roles"]["service"] * wall / 100
     result["service_cpu_us_per_cycle"] = 1e6 * service_cpu / max(1, cycles)
     return result
 
 
-def run_default(seconds: float, settle: float, state: str) -> dict:
+def run_default(seconds: float, settle: float, state: str, idle_sync: float | None = None) -> dict:
+    import tomlkit
+
     port = free_port()
     env = dict(os.environ, XDG_STATE_HOME=state)
+    doc = hardware_file("sim.toml", state, idle_sync)
+    extra = []
+    if idle_sync is not None:  # (else no arguments at all: the README's first command)
+        hwfile = Path(state) / "default.toml"
+        hwfile.write_text(tomlkit.dumps(doc))
+        extra = ["--config", str(hwfile)]
     server = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--log-level", "WARNING",
-                               "--port", str(port), "--opentsi-port", "-1", "--alpaca-port", "-1"],
+                               *extra, "--port", str(port), "--opentsi-port", "-1", "--alpaca-port", "-1"],
                               env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         wait_port(port, 90.0)
         time.sleep(settle)
-        return measure({"service": server.pid}, seconds, port)
+        return measure({"service": server.pid}, seconds, port, idle_period(doc))
     finally:
         server.terminate()
         server.wait(60)
 
 
-def run_remote(seconds: float, settle: float, state: str) -> dict:
+def run_remote(seconds: float, settle: float, state: str, idle_sync: float | None = None) -> dict:
     import tomlkit
 
-    doc = tomlkit.parse((ROOT / "hwconfig" / "sim-remote.toml").read_text())
+    doc = hardware_file("sim-remote.toml", state, idle_sync)
     port = free_port()
     doc["can"]["port"] = free_port()
     for plc in doc.get("plcs", {}).values():
@@ -193,7 +238,6 @@ def run_remote(seconds: float, settle: float, state: str) -> dict:
         doc["gps"]["url"] = f"socket://127.0.0.1:{free_port()}"
     hwfile = Path(state) / "remote.toml"
     hwfile.write_text(tomlkit.dumps(doc))
-    (Path(state) / "eds").symlink_to(ROOT / "hwconfig" / "eds")
     env = dict(os.environ, XDG_STATE_HOME=state)
     sim = subprocess.Popen([sys.executable, "-m", "tcs.cli.sim", "--config", str(hwfile)], env=env,
                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
@@ -210,7 +254,7 @@ def run_remote(seconds: float, settle: float, state: str) -> dict:
                                   env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         wait_port(port, 90.0)
         time.sleep(settle)
-        return measure({"service": server.pid, "tcs-sim": sim.pid}, seconds, port)
+        return measure({"service": server.pid, "tcs-sim": sim.pid}, seconds, port, idle_period(doc))
     finally:
         for proc in (server, sim):
             if proc is not None:
@@ -226,15 +270,19 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=20.0, help="measuring window")
     ap.add_argument("--settle", type=float, default=8.0, help="seconds after the port opens")
     ap.add_argument("--only", choices=("default", "remote"))
+    ap.add_argument("--idle-sync-period", type=float, default=None,
+                    help="replace [can] idle_sync_period of the hardware files (0 = off: the "
+                         "SYNC at its full rate; the default run then gets --config)")
     args = ap.parse_args()
     results = {}
     for name, fn in (("default", run_default), ("remote", run_remote)):
         if args.only and args.only != name:
             continue
         with tempfile.TemporaryDirectory() as state:
-            r = results[name] = fn(args.seconds, args.settle, state)
+            r = results[name] = fn(args.seconds, args.settle, state, args.idle_sync_period)
         print(f"{name}: " + ", ".join(f"{role} {pct:.1f} %" for role, pct in r["roles"].items())
               + f" of one core; loop: {r['loop']['cycles']} cycles of {r['loop']['expected_cycles']} "
+              f"at {r['loop']['sync_period'] * 1e3:g} ms "
               f"(missed {r['loop']['missed']}, TPDO time-outs {r['loop']['tpdo_timeouts']}), "
               f"service {r['service_cpu_us_per_cycle']:.0f} us CPU per cycle")
         for p in r["processes"]:
