@@ -24,10 +24,11 @@ States (``state``), stepped once per cycle in the cycle thread after the axes' s
   reset, a fault reset, a drive booted again, data gone stale) → the SYNC speeds up at once →
   ``tightening``.
 * ``tightening`` — a job writes each drive's 0x1006 for the full rate, then its deadlines
-  back (exactly the boot's values). A drive is released to switch its power stage on
-  (``may_enable``) once its own writes are done; a drive whose writes failed is tried again
-  every second, and stays held (its enable times out with the driver's usual error) — its
-  deadlines are still the wide ones. All done → ``full``.
+  back (exactly the boot's values, only the objects that were changed). A drive is released
+  to switch its power stage on (its ``may_enable`` gate) once its own writes are done; a
+  drive whose writes failed is tried again every second and stays held (its enable times
+  out with the driver's usual error) — its deadlines are still the wide ones. All done →
+  ``full``.
 
 Safety: a drive never gets its power stage while the SYNC is slow or its deadlines are wide —
 :meth:`Cia402Drive.step <tcs.drivers.cia402_drive.Cia402Drive.step>` holds an enable
@@ -38,8 +39,9 @@ readbacks of a resting telescope come at the idle rate (``CABINET.CORE.CYCLE.CYC
 the SYNCs sent).
 
 Who touches it: :class:`tcs.drivers.can_system.CanDrives` creates one and adds :meth:`step`
-to the cycle when it starts; the drives call :meth:`may_enable` from their step (cycle
-thread); jobs run in the SDO worker thread. ``stats()`` may be read from any thread.
+to the cycle when it starts; each drive's ``may_enable`` (a gate set here) is called from its
+step (cycle thread); jobs run in the SDO worker thread. ``state``, ``entered`` and ``left`` may be read
+from any thread.
 """
 
 from __future__ import annotations
@@ -116,10 +118,6 @@ class IdleSync:
             state = self.state
             return state == "full" or (state == "tightening" and name in self._tight)
         return may_enable
-
-    def stats(self) -> dict:
-        return {"state": self.state, "entered": self.entered, "left": self.left,
-                "divider": self.cycle.divider}
 
     # ---------------------------------------------------------------- cycle thread
     def step(self, cycle: Cycle | None = None) -> None:
