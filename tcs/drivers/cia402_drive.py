@@ -233,9 +233,11 @@ class Cia402Drive:
             asked = (self._want is not Want.DISABLED or self._reset_requested
                      or self._homing_requested or self._move_request is not None
                      or self._halt_requested)
+        homing, move = self._homing, self._move  # (kept after they end, for their result)
         return (not asked and self._state in self.RESTING_STATES and self._stale_fault is None
-                and self._mode_job is None and self._homing is None and self._move is None
-                and not self._reset_phase)
+                and self._mode_job is None and not self._reset_phase
+                and (homing is None or homing.progress is not Progress.RUNNING)
+                and (move is None or move.progress is not Progress.RUNNING))
 
     def write_cycle_period(self, period: float, done: list | None = None,
                            only: set | None = None) -> None:

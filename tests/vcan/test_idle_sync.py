@@ -11,7 +11,7 @@ import logging
 
 from cia402_rig import SLOWDOWN, AxisSpec, Rig
 
-from tcs.drivers.drive import DriveState
+from tcs.drivers.drive import DriveState, Progress
 from tcs.sim.cia402_drive import SimDriveParams
 
 FULL, IDLE = 0.01, 0.05
@@ -58,9 +58,18 @@ def test_resting_drives_slow_the_sync_and_an_enable_brings_it_back_first(can_cha
         assert told(rig, "az") == told(rig, "alt") == full_values()
         rig.drive("az").set_setpoint(0.5)
         rig.wait(lambda: abs(rig.status("az").position - 0.5) < 1e-3, WAIT, "az at 0.5")
+        # a homing run and a profile move end, and their results stay for the status: the
+        # drive rests again all the same once disabled
+        rig.drive("az").start_homing()
+        rig.wait(lambda: rig.status("az").homing is Progress.DONE, WAIT, "az homed")
+        rig.enable("alt")
+        rig.drive("alt").move_to(0.25)
+        rig.wait(lambda: rig.status("alt").move is Progress.DONE, WAIT, "alt's move done")
 
         rig.drive("az").disable()
+        rig.drive("alt").disable()
         rig.wait_state("az", DriveState.SWITCH_ON_DISABLED)
+        rig.wait_state("alt", DriveState.SWITCH_ON_DISABLED)
         rig.wait(lambda: idle.state == "idle" and idle.entered == 2, WAIT, "idle again")
         assert told(rig, "az") == idle_values()
         assert violations == []
