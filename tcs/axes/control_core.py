@@ -28,8 +28,8 @@ pickled tuples; the service is the only peer):
   cycle's events, error conditions and completions in the order they happened (so a client
   that gets ``DATA OK`` reads the new state; the readbacks of every 10th SYNC period — of
   every 2nd cycle under the 5 times slower idle SYNC, ``tcs.drivers.idle_sync`` — also carry
-  the counters and each drive's status for ``CABINET.CORE.DRIVE[]``); ``("reply", rid, ok, value)``; ``("log",
-  name, level, text)``; ``("closed",)``.
+  the counters and each drive's status for ``CABINET.CORE.DRIVE[]``); ``("reply", rid, ok,
+  value)``; ``("log", name, level, text)``; ``("closed",)``.
 
 The loop thread never blocks on the service: it appends to an outbox that a sender thread
 drains (readbacks are coalesced to the newest if the service reads slowly). If the service

@@ -44,7 +44,7 @@ import math
 import struct
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import canopen
@@ -292,11 +292,9 @@ def cycle_period_writes(section: DriveSection, can: CanSection, layouts: dict[st
     widened to 3 periods), then 0x1006. ``period`` = ``can.sync_period`` gives back exactly
     what the boot wrote. Write them in this order when the SYNC slows (after these writes)
     and in reverse order when it speeds up (before them)."""
-    import dataclasses
     if period > can.sync_period and section.master_loss_timeout:
-        section = dataclasses.replace(section,
-                                      master_loss_timeout=max(section.master_loss_timeout, 3 * period))
-    at = dataclasses.replace(can, sync_period=period)
+        section = replace(section, master_loss_timeout=max(section.master_loss_timeout, 3 * period))
+    at = replace(can, sync_period=period)
     return master_loss_writes(section, at, layouts) + [(0x1006, 0, "<I", round(period * 1e6))]
 
 

@@ -40,8 +40,8 @@ the SYNCs sent).
 
 Who touches it: :class:`tcs.drivers.can_system.CanDrives` creates one and adds :meth:`step`
 to the cycle when it starts; each drive's ``may_enable`` (a gate set here) is called from its
-step (cycle thread); jobs run in the SDO worker thread. ``state``, ``entered`` and ``left`` may be read
-from any thread.
+step (cycle thread); jobs run in the SDO worker thread. ``state``, ``entered`` and ``left``
+may be read from any thread.
 """
 
 from __future__ import annotations

@@ -102,9 +102,12 @@ class PdoEngine:
 
     def _comm_hook(self, base: int, n: int):
         def hook(sub: int, value: int) -> None:
-            if sub == 5 and self.timer_in_operational:  # the event timer (an RPDO's deadline) may change while the PDO is
-                self._compiled.clear()  # valid, in operational too (CiA 301: only the COB-ID,
-                return                  # the type and the inhibit time need it invalid)
+            # the event timer (an RPDO's deadline) may change while the PDO is valid, in
+            # operational too (CiA 301: only the COB-ID, the type and the inhibit time need it
+            # invalid)
+            if sub == 5 and self.timer_in_operational:
+                self._compiled.clear()
+                return
             self._check_state()
             if sub == 1:
                 old = self.store.get(base + n, 1)

@@ -5,8 +5,8 @@ there, tcs-server is the master). ``--slowdown N`` (a whole number; the stage pa
 software emulation): the cycle, the heartbeats and their consumer times, SDO, boot,
 following-error, enable, fault-reset, mode-switch, master-loss (the drives' RPDO deadline) and
 homing time-outs are N times longer, as on a host N times slower — the exchanges are the same,
-the clock runs slower (the idle SYNC's period too). ``[server] allow_system_control`` is switched on (the checks ask for a
-reboot to see what the hardened unit does with it)."""
+the clock runs slower (the idle SYNC's period too). ``[server] allow_system_control`` is
+switched on (the checks ask for a reboot to see what the hardened unit does with it)."""
 
 import argparse
 
