@@ -292,6 +292,40 @@ async def test_dome_follows_a_trajectory(live, c):
     assert failed(lines, "DOME[0].TRAJECTORY.RUN") == 11, lines  # nothing queued: nopoints
 
 
+async def test_a_dome_trajectory_keeps_the_plc_at_its_full_poll_rate(live, c):
+    """The dome's PLC rests at its idle poll rate (hw_enclosure.toml: 0.5 s); a trajectory is
+    sampled at every poll, so while one runs the PLC is polled at the full rate (0.05 s) even
+    when its path stands still and nothing is written or moves."""
+    await ready(c, "DOME[0]")
+    driver = live.telescope.peripherals.drivers["dome"]
+    for _ in range(int(WAIT / 0.05)):
+        if driver.stats.interval == 0.5:
+            break
+        await asyncio.sleep(0.05)
+    assert driver.stats.interval == 0.5
+    here = await c.num("DOME[0].REALPOS")
+    now = float(await c.value("LOCAL.UT1"))
+    points = [(now + 0.5 + 0.75 * i, here) for i in range(10)]  # 6.75 s standing still
+    for i, (t, p) in enumerate(points):
+        assert done_ok(await c.set(f"DOME[0].TRAJECTORY.BUFFER[{i}].TIME={t!r};"
+                                   f"DOME[0].TRAJECTORY.BUFFER[{i}].TARGETPOS={p!r}"),
+                       f"DOME[0].TRAJECTORY.BUFFER[{i}].TARGETPOS")
+    assert done_ok(await c.set(f"DOME[0].TRAJECTORY.ADDPOINTS={len(points)}"), "DOME[0].TRAJECTORY.ADDPOINTS")
+    cmd = await c.start("DOME[0].TRAJECTORY.RUN=1")
+    await c.wait("DOME[0].MOTION_STATE", lambda v: int(v) & TRAJ)
+    # well over 2 s into the run (the idle rate's wait), still 3 s before its end
+    await c.wait("DOME[0].TRAJECTORY.RUNTIME", lambda v: v < 3.0)
+    running = await c.value("DOME[0].TRAJECTORY.RUN")
+    interval = driver.stats.interval
+    assert running == "1" and interval == 0.05, (running, interval)
+    assert done_ok(await c.until(cmd), "DOME[0].TRAJECTORY.RUN")
+    for _ in range(int(WAIT / 0.05)):  # the hold is released: at rest again
+        if driver.stats.interval == 0.5:
+            break
+        await asyncio.sleep(0.05)
+    assert driver.stats.interval == 0.5
+
+
 async def test_stalled_motor_fails_the_move_until_acknowledged(live, c):
     """A stalled slit motor: TARGETPOS fails with 7 and an event, ERROR_STATE ERROR, power off;
     POWER=1 is refused until ERROR_STATE=0 (which resets the PLC's fault)."""

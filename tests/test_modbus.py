@@ -37,9 +37,10 @@ class ManualClock:
 
 
 def fast(section: PlcSection, **changes) -> PlcSection:
-    """The section with test timing: quick polls, quick reconnects."""
+    """The section with test timing: quick polls (no idle rate), quick reconnects."""
     # a request time-out well above a loaded machine's stalls: a slow answer is not a lost PLC
-    base = dict(poll_interval=0.02, timeout=4.0, reconnect_min=0.05, reconnect_max=0.3)
+    base = dict(poll_interval=0.02, idle_poll_interval=0.0, timeout=4.0, reconnect_min=0.05,
+                reconnect_max=0.3)
     return dataclasses.replace(section, **{**base, **changes})
 
 
@@ -286,6 +287,50 @@ async def test_the_driver_counts_the_watchdog_and_the_simulated_plc_stops_withou
         assert not sim.read_point("az_status") & 1  # not moving
 
 
+async def idle_interval(driver: PlcDriver, interval: float) -> None:
+    """Wait (generously) until the driver polls at ``interval``."""
+    for _ in range(int(WAIT / 0.02)):
+        if driver.stats.interval == interval:
+            return
+        await asyncio.sleep(0.02)
+    assert driver.stats.interval == interval
+
+
+async def test_a_resting_plc_is_polled_at_the_idle_rate_until_something_moves(plcs, clock):
+    """idle_poll_interval: 2 s after the last write and the last poll that saw an axis moving,
+    the driver polls slower — the watchdog still counting; a write brings the full rate back
+    before its caller resumes, a moving axis keeps it, and so does a holder (a trajectory)."""
+    sim = SimPlc("dome", plcs["dome"], clock=clock, port=0)
+    async with sim:
+        section = fast(plcs["dome"], port=sim.port, idle_poll_interval=0.25)
+        async with PlcDriver("dome", section) as driver:
+            await driver.wait_connected(WAIT)
+            assert driver.stats.interval == 0.02  # (just connected: the full rate first)
+            await idle_interval(driver, 0.25)
+            first = await fresh(driver)
+            later = await fresh(driver, first.cycle)
+            assert later["tcs_watchdog"] != first["tcs_watchdog"]  # written at every idle poll
+            az = PlcAxis(driver, "az")
+            after = await az.move(250.0)
+            assert driver.stats.interval == 0.02   # the write: at once, not at the next idle poll
+            clock.advance(1.0)
+            assert az.state(await fresh(driver, after)).moving
+            await asyncio.sleep(2.5)                # moving (on the manual clock) for longer than 2 s
+            assert driver.stats.interval == 0.02
+            assert az.state(await fresh(driver)).moving
+            clock.advance(600.0)                    # arrived
+            assert not az.state(await fresh(driver)).moving
+            await idle_interval(driver, 0.25)
+            holder = object()
+            driver.hold_full_rate(holder)
+            await idle_interval(driver, 0.02)
+            await asyncio.sleep(2.5)
+            assert driver.stats.interval == 0.02    # held, whatever the axes do
+            driver.hold_full_rate(holder, False)
+            await idle_interval(driver, 0.25)
+        assert sim.watchdog_trips == 0
+
+
 async def test_plc_that_stops_answering_is_lost_and_recovers(dome):
     sim, driver, events = dome
     sim.set_responding(False)
@@ -478,6 +523,11 @@ def map_problems(points: str, extra: str = "") -> list[str]:
      "hw.toml: plcs.p.serial_port: transport 'rtu' needs a serial_port"),
     ('a = { kind = "coil", address = 0 }', 'reconnect_min = 10.0\nreconnect_max = 1.0',
      "hw.toml: plcs.p.reconnect_min: 10.0 is above reconnect_max"),
+    ('a = { kind = "coil", address = 0 }', 'poll_interval = 0.2\nidle_poll_interval = 0.1',
+     "hw.toml: plcs.p.idle_poll_interval: must be 0 (off) or at least poll_interval (0.2 s)"),
+    ('tcs_watchdog = { kind = "holding", address = 60 }', 'idle_poll_interval = 1.5\nsim = {}',
+     "hw.toml: plcs.p.idle_poll_interval: the simulated PLC's watchdog (sim.watchdog_timeout = 2 s) "
+     "needs a write at least every 1 s"),
     ('a_target = { kind = "holding", address = 0, type = "float32" }\n'
      'a_command = { kind = "holding", address = 2 }\n'
      'a_position = { kind = "input", address = 0, type = "float32" }',

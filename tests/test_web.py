@@ -116,6 +116,7 @@ async def test_metrics_parse_and_match_tpl2(live):
     assert ("tcs_axis_drive_faults_total", zd) in m and ("tcs_axis_limit_hits_total", zd) in m
     assert ("tcs_axis_following_error_arcsec", zd) in m
     assert m[("tcs_plc_up", (("plc", "dome"),))] == 1.0
+    assert m[("tcs_plc_poll_interval_seconds", (("plc", "dome"),))] in (0.1, 0.5)  # (idle poll)
     assert m[("tcs_frontend_connections", (("front_end", "opentci"),))] >= 0
     assert ("tcs_tracking_active", ()) in m and ("tcs_tracking_on_target", ()) in m
     assert ("tcs_gps_position_fix", ()) in m

@@ -314,6 +314,12 @@ class PlcSection:
     bytesize: int = setting(8, min=7, max=8, doc="rtu: data bits")
     device_id: int = setting(1, min=0, max=247, doc="Modbus unit / device id")
     poll_interval: float = setting(0.1, min=0.001, max=60.0, doc="seconds between poll cycles")
+    idle_poll_interval: float = setting(
+        0.0, min=0.0, max=60.0, doc="seconds between poll cycles while the PLC rests: no axis of "
+        "the map moving or commanded, nothing written for 2 s, no dome trajectory running (0 = "
+        "always poll_interval). The watchdog point is written at every poll, so keep it well "
+        "under the PLC program's watchdog time; a write brings the full rate back at once "
+        "(tcs.drivers.modbus)")
     timeout: float = setting(1.0, min=0.01, max=60.0, doc="seconds to wait for each answer")
     reconnect_min: float = setting(0.2, min=0.0, max=600.0, doc="first reconnect delay, s")
     reconnect_max: float = setting(5.0, min=0.01, max=3600.0, doc="longest reconnect delay, s (doubles up to it)")
@@ -381,6 +387,9 @@ class PlcSection:
             problems.append(("serial_port", "transport 'rtu' needs a serial_port (device path or URL)"))
         if self.reconnect_min > self.reconnect_max:
             problems.append(("reconnect_min", f"{self.reconnect_min} is above reconnect_max {self.reconnect_max}"))
+        if self.idle_poll_interval and self.idle_poll_interval < self.poll_interval:
+            problems.append(("idle_poll_interval", f"must be 0 (off) or at least poll_interval "
+                                                   f"({self.poll_interval:g} s)"))
         for name in self.points:
             if not _NAME.match(name):
                 problems.append((f"points.{name}", "point name must be an identifier (letters, digits, _)"))
@@ -402,6 +411,12 @@ class PlcSection:
 
     def _sim_problems(self):
         problems = []
+        timeout = self.sim.watchdog_timeout
+        if self.idle_poll_interval and timeout and self.watchdog in self.points \
+                and self.idle_poll_interval > timeout / 2:
+            problems.append(("idle_poll_interval", f"the simulated PLC's watchdog (sim.watchdog_timeout "
+                                                   f"= {timeout:g} s) needs a write at least every "
+                                                   f"{timeout / 2:g} s, at rest too"))
         for axis in self.sim.axes:
             problems.extend(self.axis_problems(axis))
         for name in self.sim.sensors:

@@ -12,7 +12,12 @@ code touching pymodbus) and does, in order:
    unreachable never resumes when the link returns (issue 14.3), and no queued write precedes it;
 2. loop: send queued writes first (each as soon as it is queued), then the poll cycle when it
    is due (every ``poll_interval``; a late cycle skips the slots it missed, counted in
-   ``stats.missed``);
+   ``stats.missed``). With ``idle_poll_interval`` set, a resting PLC is polled that much less
+   often: resting means no poll for :data:`IDLE_AFTER` (2 s) has seen an axis of the map
+   moving (``X_status.moving``) or commanded (``X_command`` not yet reset to 0 by the PLC),
+   nothing was written meanwhile, and nobody holds the full rate (:meth:`hold_full_rate`: a
+   dome trajectory, sampled at every poll). A write brings the full rate back at once: the
+   next poll comes at most ``poll_interval`` after it (``stats.interval`` is the one in effect);
 3. on any communication failure: close the link, mark the snapshot invalid, report **lost**
    with the OpenTCI number — 4 (nocon) when the connection cannot be opened or was closed,
    3 (confail) when the PLC did not answer in time or refused a poll — fail every pending write
@@ -61,6 +66,10 @@ __all__ = ["PlcDriver", "PlcSnapshot", "PlcConnectionEvent", "PollStats", "ReadB
            "ModbusExceptionResponse", "plan_reads"]
 
 log = logging.getLogger(__name__)
+
+#: Seconds after the last write, the last poll that saw an axis moving or commanded, or the end
+#: of a full-rate hold, before the idle poll rate (``idle_poll_interval``) may begin.
+IDLE_AFTER = 2.0
 
 
 async def _within(fut: asyncio.Future, timeout: float | None):
@@ -148,8 +157,10 @@ class PlcConnectionEvent:
 
 @dataclass
 class PollStats:
-    """Counters and recent timings (seconds) of one driver, for diagnostics and benchmarks."""
+    """Counters and recent timings (seconds) of one driver, for diagnostics and benchmarks;
+    ``interval`` is the poll interval in effect (the idle one while the PLC rests)."""
 
+    interval: float = 0.0
     cycles: int = 0
     missed: int = 0
     failures: int = 0
@@ -187,7 +198,7 @@ class PlcDriver:
         self.blocks = plan_reads(self.points, max_gap=section.max_gap,
                                  max_registers=section.max_read_registers,
                                  max_bits=section.max_read_bits)
-        self.stats = PollStats()
+        self.stats = PollStats(interval=section.poll_interval)
         self._link = ModbusLink(name, section)
         self._snapshot = PlcSnapshot(name, 0, 0.0, False)
         self._connected = False
@@ -203,6 +214,12 @@ class PlcDriver:
         self._watchdog = wd if wd is not None and wd.writable and wd.kind == "holding" else None
         self._watchdog_count = 0
         self._holds = [self.points[f"{axis}_command"] for axis in section.axis_names()]
+        # the idle rate (idle_poll_interval): the points that say an axis is busy, the loop time
+        # until which the PLC counts as busy anyway, and who holds the full rate
+        self._busy_points = [name for axis in section.axis_names()
+                             for name in (f"{axis}_status.moving", f"{axis}_command")]
+        self._busy_until = 0.0
+        self._full_rate_holders: set = set()
 
     # ---------------------------------------------------------------- lifecycle
 
@@ -452,14 +469,16 @@ class PlcDriver:
 
     async def _serve(self) -> None:
         loop = asyncio.get_running_loop()
-        interval = self.section.poll_interval
-        next_poll = loop.time() + interval
+        interval = self.stats.interval = self.section.poll_interval
+        self._busy_until = loop.time() + IDLE_AFTER  # (connected: the full rate first)
+        due = loop.time() + interval  # the slot of the next poll
         while not self._stopping:
             while self._writes:
                 job = self._writes[0]
                 if job.future.done():  # caller gave up before it was sent
                     self._writes.popleft()
                     continue
+                self._busy_until = loop.time() + IDLE_AFTER
                 try:
                     await self._link.write(job.kind, job.address, job.values)
                 except ModbusExceptionResponse as exc:
@@ -472,17 +491,40 @@ class PlcDriver:
                 if not job.future.done():
                     job.future.set_result(self._snapshot.cycle)
             now = loop.time()
-            if now >= next_poll:
-                late = now - next_poll
+            wanted = self._interval_at(now)
+            if wanted != interval:  # the idle rate begins or ends: the slots follow
+                due = due - interval + wanted if wanted > interval else max(now, due - interval + wanted)
+                interval = self.stats.interval = wanted
+            if now >= due:
+                late = now - due
                 self.stats.lateness.append(late)
                 if late >= interval:
                     skipped = int(late // interval)
                     self.stats.missed += skipped
-                    next_poll += skipped * interval
-                next_poll += interval
+                    due += skipped * interval
+                due += interval
                 await self._poll()
                 continue
-            await self._sleep_until(next_poll)
+            await self._sleep_until(due)
+
+    def _interval_at(self, now: float) -> float:
+        """The poll interval in effect: ``idle_poll_interval`` while the PLC rests."""
+        idle = self.section.idle_poll_interval
+        if not idle or now < self._busy_until or self._full_rate_holders:
+            return self.section.poll_interval
+        return idle
+
+    def hold_full_rate(self, holder: object, hold: bool = True) -> None:
+        """Keep (``hold``) or release the full poll rate for ``holder`` whatever the PLC's axes
+        do — e.g. a dome trajectory sampled at every poll. Releasing starts the 2 s before the
+        idle rate (``idle_poll_interval``) may begin."""
+        if hold:
+            if holder not in self._full_rate_holders:
+                self._full_rate_holders.add(holder)
+                self._wakeup()
+        elif holder in self._full_rate_holders:
+            self._full_rate_holders.discard(holder)
+            self._busy_until = max(self._busy_until, asyncio.get_running_loop().time() + IDLE_AFTER)
 
     async def _sleep_until(self, when: float) -> None:
         loop = asyncio.get_running_loop()
@@ -531,7 +573,10 @@ class PlcDriver:
                     values.update(p.decode_bits(raw))
         self.stats.cycle_times.append(time.perf_counter() - t0)
         self.stats.cycles += 1
-        self._snapshot = PlcSnapshot(self.name, self._snapshot.cycle + 1, loop.time(), True,
+        now = loop.time()
+        if any(values.get(name) for name in self._busy_points):  # an axis moves or is commanded
+            self._busy_until = now + IDLE_AFTER
+        self._snapshot = PlcSnapshot(self.name, self._snapshot.cycle + 1, now, True,
                                      MappingProxyType(values))
         bump_epoch()  # readable state may have changed (tcs.state_epoch)
         for cb in list(self._poll_listeners):

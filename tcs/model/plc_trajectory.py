@@ -8,7 +8,8 @@ PLC dome cannot be fed setpoints every 10 ms, so the runner is deliberately simp
 poll of the dome's PLC (``poll_interval``, 10 Hz in the simulated dome) it samples the path
 ``lead`` seconds ahead, adds ``OFFSET`` and, when that aim point moved by more than a
 hundredth of ``track_tolerance`` and no write is on its way, writes it to the PLC as a plain
-move target. The PLC's own positioning chases it. That is good enough for a dome, whose slit
+move target (the PLC is polled at its full rate meanwhile, never at its ``idle_poll_interval``).
+The PLC's own positioning chases it. That is good enough for a dome, whose slit
 is several degrees wider than the telescope's beam.
 
 ``RUN=1`` (long) completes when the path's last point is in the past (the last aim point is
@@ -101,12 +102,14 @@ class PlcTrajectory:
         self.on_path = False
         self._aim = None
         self._offset_dirty = False
+        self.axis.group.driver.hold_full_rate(self)  # (sampled at every poll: not the idle rate)
 
     def halt(self) -> None:
         """End following (the caller completes RUN) and free the buffers."""
         self.running = False
         self.on_path = False
         self.queue.clear()
+        self.axis.group.driver.hold_full_rate(self, False)
 
     def offset_changed(self) -> None:
         """OFFSET was written while following: its SET completes once an aim point with it

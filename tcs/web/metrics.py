@@ -297,13 +297,16 @@ class SnapshotCollector:
             rtt = _gauge("tcs_plc_round_trip_seconds", "the last Modbus request's round trip", ["plc"])
             fails = CounterMetricFamily("tcs_plc_failures", "failed Modbus poll cycles", labels=["plc"])
             connects = CounterMetricFamily("tcs_plc_connects", "Modbus (re)connections", labels=["plc"])
+            interval = _gauge("tcs_plc_poll_interval_seconds", "the poll interval in effect (the idle "
+                              "one while the PLC rests)", ["plc"])
             for p in snap["plcs"]:
                 up.add_metric([p["name"]], 1.0 if p["connected"] else 0.0)
                 if p["round_trip"] is not None:
                     rtt.add_metric([p["name"]], p["round_trip"])
                 fails.add_metric([p["name"]], p["failures"])
                 connects.add_metric([p["name"]], p["connects"])
-            yield from (up, rtt, fails, connects)
+                interval.add_metric([p["name"]], p["poll_interval"])
+            yield from (up, rtt, fails, connects, interval)
         gps = snap["gps"]
         if gps is not None:
             yield _one("tcs_gps_position_fix", "1 while the GPS has a good position fix",

@@ -224,7 +224,8 @@ def take(service) -> dict[str, Any]:
         "causes": _safe(interlock.causes, {})}
     snap["plcs"] = [{"name": name, "connected": bool(d.connected), "message": d.message,
                      "round_trip": _num(d.stats.latencies[-1]) if d.stats.latencies else None,
-                     "failures": d.stats.failures, "connects": d.stats.connects}
+                     "failures": d.stats.failures, "connects": d.stats.connects,
+                     "poll_interval": d.stats.interval}
                     for name, d in per.drivers.items()]
     gps = per.gps
     if gps is None:

@@ -21,7 +21,7 @@ named. The machine may be shared: the load average is printed with the figures. 
 is one JSON object with every figure.
 
     python3 tools/bench/idle_cpu.py [--seconds 20] [--settle 8] [--only default|remote]
-                                    [--idle-sync-period 0]
+                                    [--idle-sync-period 0] [--set KEY=VALUE ...]
 
 The shipped files slow the SYNC of a resting telescope to ``[can] idle_sync_period`` (50 ms,
 :mod:`tcs.drivers.idle_sync`) 2 s after the last drive came to rest; ``--idle-sync-period 0``
@@ -156,13 +156,21 @@ def idle_period(doc) -> float:
     return float(can.get("idle_sync_period", 0.0)) or float(can.get("sync_period", 0.01))
 
 
-def hardware_file(name: str, state: str, idle_sync: float | None):
-    """The parsed ``hwconfig/<name>``, with ``[can] idle_sync_period`` replaced when given."""
+def hardware_file(name: str, state: str, overrides: dict[str, float]):
+    """The parsed ``hwconfig/<name>`` with ``overrides`` applied: dotted keys such as
+    ``can.idle_sync_period``; ``*`` stands for every table at that level
+    (``plcs.*.poll_interval``)."""
     import tomlkit
 
     doc = tomlkit.parse((ROOT / "hwconfig" / name).read_text())
-    if idle_sync is not None:
-        doc["can"]["idle_sync_period"] = idle_sync
+    for key, value in overrides.items():
+        tables, leaf = [doc], key.split(".")
+        for part in leaf[:-1]:
+            tables = [t for table in tables
+                      for t in (table.values() if part == "*" else [table.get(part)])
+                      if hasattr(t, "get")]
+        for table in tables:
+            table[leaf[-1]] = value
     eds = Path(state) / "eds"
     if not eds.exists():
         eds.symlink_to(ROOT / "hwconfig" / "eds")
@@ -203,14 +211,14 @@ def measure(roles: dict[str, int], seconds: float, port: int, period: float = 0.
     return result
 
 
-def run_default(seconds: float, settle: float, state: str, idle_sync: float | None = None) -> dict:
+def run_default(seconds: float, settle: float, state: str, overrides: dict[str, float]) -> dict:
     import tomlkit
 
     port = free_port()
     env = dict(os.environ, XDG_STATE_HOME=state)
-    doc = hardware_file("sim.toml", state, idle_sync)
+    doc = hardware_file("sim.toml", state, overrides)
     extra = []
-    if idle_sync is not None:  # (else no arguments at all: the README's first command)
+    if overrides:  # (else no arguments at all: the README's first command)
         hwfile = Path(state) / "default.toml"
         hwfile.write_text(tomlkit.dumps(doc))
         extra = ["--config", str(hwfile)]
@@ -226,10 +234,10 @@ def run_default(seconds: float, settle: float, state: str, idle_sync: float | No
         server.wait(60)
 
 
-def run_remote(seconds: float, settle: float, state: str, idle_sync: float | None = None) -> dict:
+def run_remote(seconds: float, settle: float, state: str, overrides: dict[str, float]) -> dict:
     import tomlkit
 
-    doc = hardware_file("sim-remote.toml", state, idle_sync)
+    doc = hardware_file("sim-remote.toml", state, overrides)
     port = free_port()
     doc["can"]["port"] = free_port()
     for plc in doc.get("plcs", {}).values():
@@ -273,13 +281,22 @@ def main() -> None:
     ap.add_argument("--idle-sync-period", type=float, default=None,
                     help="replace [can] idle_sync_period of the hardware files (0 = off: the "
                          "SYNC at its full rate; the default run then gets --config)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="replace a number of both hardware files, e.g. plcs.*.poll_interval=0.5 "
+                         "(repeatable; the default run then gets --config)")
     args = ap.parse_args()
+    overrides = {}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        overrides[key.strip()] = float(value)
+    if args.idle_sync_period is not None:
+        overrides["can.idle_sync_period"] = args.idle_sync_period
     results = {}
     for name, fn in (("default", run_default), ("remote", run_remote)):
         if args.only and args.only != name:
             continue
         with tempfile.TemporaryDirectory() as state:
-            r = results[name] = fn(args.seconds, args.settle, state, args.idle_sync_period)
+            r = results[name] = fn(args.seconds, args.settle, state, overrides)
         print(f"{name}: " + ", ".join(f"{role} {pct:.1f} %" for role, pct in r["roles"].items())
               + f" of one core; loop: {r['loop']['cycles']} cycles of {r['loop']['expected_cycles']} "
               f"at {r['loop']['sync_period'] * 1e3:g} ms "
