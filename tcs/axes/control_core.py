@@ -41,6 +41,7 @@ as after a crash of the whole service.
 from __future__ import annotations
 
 import collections
+import gc
 import logging
 import os
 import pickle
@@ -370,6 +371,12 @@ class Core:
                                       can_section.sync_period))
         self.loop = ControlLoop(self.axes, self.can.cycle, self.ut1)
         self.can.cycle.add_callback(self._publish)
+        # What start-up made (configuration, EDS, object dictionaries, the simulated drives)
+        # lives as long as this process: out of the collector's sight, so that a full
+        # collection during the loop walks only what was made since (one over the ~36,000
+        # objects of the simulated telescope took 10-15 ms, a cycle and a half)
+        gc.collect()
+        gc.freeze()
         self.can.start()
         return info
 
