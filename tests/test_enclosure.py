@@ -292,17 +292,22 @@ async def test_dome_follows_a_trajectory(live, c):
     assert failed(lines, "DOME[0].TRAJECTORY.RUN") == 11, lines  # nothing queued: nopoints
 
 
+async def polled_every(driver, interval: float) -> None:
+    """Wait (generously) until the PLC driver polls at ``interval``."""
+    for _ in range(int(WAIT / 0.05)):
+        if driver.stats.interval == interval:
+            return
+        await asyncio.sleep(0.05)
+    assert driver.stats.interval == interval
+
+
 async def test_a_dome_trajectory_keeps_the_plc_at_its_full_poll_rate(live, c):
     """The dome's PLC rests at its idle poll rate (hw_enclosure.toml: 0.5 s); a trajectory is
     sampled at every poll, so while one runs the PLC is polled at the full rate (0.05 s) even
     when its path stands still and nothing is written or moves."""
     await ready(c, "DOME[0]")
     driver = live.telescope.peripherals.drivers["dome"]
-    for _ in range(int(WAIT / 0.05)):
-        if driver.stats.interval == 0.5:
-            break
-        await asyncio.sleep(0.05)
-    assert driver.stats.interval == 0.5
+    await polled_every(driver, 0.5)
     here = await c.num("DOME[0].REALPOS")
     now = float(await c.value("LOCAL.UT1"))
     points = [(now + 0.5 + 0.75 * i, here) for i in range(10)]  # 6.75 s standing still
@@ -319,11 +324,7 @@ async def test_a_dome_trajectory_keeps_the_plc_at_its_full_poll_rate(live, c):
     interval = driver.stats.interval
     assert running == "1" and interval == 0.05, (running, interval)
     assert done_ok(await c.until(cmd), "DOME[0].TRAJECTORY.RUN")
-    for _ in range(int(WAIT / 0.05)):  # the hold is released: at rest again
-        if driver.stats.interval == 0.5:
-            break
-        await asyncio.sleep(0.05)
-    assert driver.stats.interval == 0.5
+    await polled_every(driver, 0.5)  # the hold is released: at rest again
 
 
 async def test_stalled_motor_fails_the_move_until_acknowledged(live, c):

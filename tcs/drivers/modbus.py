@@ -492,8 +492,9 @@ class PlcDriver:
                     job.future.set_result(self._snapshot.cycle)
             now = loop.time()
             wanted = self._interval_at(now)
-            if wanted != interval:  # the idle rate begins or ends: the slots follow
-                due = due - interval + wanted if wanted > interval else max(now, due - interval + wanted)
+            if wanted != interval:  # the idle rate begins or ends: the next slot follows
+                last = due - interval  # (the previous poll's slot)
+                due = last + wanted if wanted > interval else max(now, last + wanted)
                 interval = self.stats.interval = wanted
             if now >= due:
                 late = now - due
