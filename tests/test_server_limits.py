@@ -653,3 +653,44 @@ async def test_a_get_reply_is_reused_only_while_nothing_changed_and_never_across
             await x.close()
     finally:
         await server.stop()
+
+
+async def test_a_polled_reply_is_read_again_ahead_of_the_next_request_and_never_past_its_age():
+    """A kept reply used past half its life is read again right after that answer, so the
+    next request of a fast poller finds a new one instead of reading in its own round trip
+    (issue 27) — and a reply still answers only while younger than ``reuse_reply``. The
+    cache's clock is the test's, so only these rules decide."""
+    from tcs.opentci_server.reply_cache import ReplyCache
+    from tcs.opentci_server.tree import INT, module, var
+
+    hub = EventHub()
+    hub.bind_loop()
+    server = Tpl2Server(ServerSection(port=0, auth_fail_delay=0.01), USERS, hub)
+    now = [100.0]
+    server.replies = ReplyCache(0.2, clock=lambda: now[0])
+    counter = _Counter(server)
+    server.tree = Tree.build((SERVER, module(
+        "COUNT", var("A", INT, get=lambda c: c.tick("A")), bind=lambda root: root)), counter)
+    await server.start("127.0.0.1", 0)
+    try:
+        client, _ = await login(server.port, "admin", "admin-pw")
+        line = "GET COUNT.A"
+
+        async def value() -> str:
+            reply = await client.command(7, line)
+            await asyncio.sleep(0.05)  # (a read ahead, if any, has run)
+            return reply[1].rpartition("=")[2]
+
+        assert await value() == "1"  # read, kept at 100.0
+        now[0] = 100.05
+        assert await value() == "1" and counter.order == ["A"]  # young: used, not read again
+        now[0] = 100.15
+        assert await value() == "1"  # past half its life: used, then read again (kept at 100.15)
+        assert counter.order == ["A", "A"] and server.replies.refreshed == 1
+        now[0] = 100.16
+        assert await value() == "2" and len(counter.order) == 2  # the one read ahead
+        now[0] = 100.5  # older than 0.2 s: read in the request, never answered from the cache
+        assert await value() == "3" and server.replies.refreshed == 1
+        await client.close()
+    finally:
+        await server.stop()

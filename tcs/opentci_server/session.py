@@ -52,6 +52,7 @@ import itertools
 import logging
 import time
 from collections import deque
+from functools import partial
 from time import perf_counter
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -581,7 +582,7 @@ class Session(asyncio.Protocol):
         readers, looked up once per distinct GET text), everything else through
         :meth:`Tree.resolve` and :meth:`Tree.read`; both read the live value at this moment."""
         started = perf_counter()
-        epoch, since = EPOCH.value, time.monotonic()
+        epoch, since = EPOCH.value, self.server.replies.now()
         cacheable, self._cacheable = self._cacheable, None
         keep = cacheable is not None and cacheable[0] is msg
         if keep:  # another connection's same line may have been answered meanwhile
@@ -589,12 +590,23 @@ class Session(asyncio.Protocol):
             if kept is not None:
                 self._send_kept(kept[1], started)
                 return
+        reply, shared = self._read_get(msg)
+        if keep and shared:
+            self.server.replies.keep(cacheable[1], self.rlevel, epoch, since, msg.cmd_id, reply,
+                                     partial(self._read_again, msg, self.rlevel))
+        self.write(reply)
+        self.server.command_stats.record("GET", "complete", perf_counter() - started)
+
+    def _read_get(self, msg: m.Get) -> tuple[bytes, bool]:
+        """The reply to ``msg`` read now, and whether it is the same for every connection of
+        this read level (no per-connection variable: it may then be kept)."""
         tree = self.server.tree
         settings = self.server.settings
         budget, room = settings.max_objects, settings.max_reply_bytes
         rlevel = self.rlevel
+        shared = True
         items = []
-        for ref, wire, reader, level, shared in _get_plan(tree, msg.objects):
+        for ref, wire, reader, level, same in _get_plan(tree, msg.objects):
             if reader is not None and budget >= 1 and allowed(rlevel, level):
                 budget -= 1
                 try:
@@ -605,17 +617,18 @@ class Session(asyncio.Protocol):
                     log.exception("reading %s failed", ref.text)
                     value = "FAILED 13"
             else:
-                keep = keep and shared  # (a per-connection variable: its reply is not kept)
+                shared = shared and same
                 value, budget = self._get_one(tree, ref, budget)
             room -= len(value) + len(ref.text)
             if room < 0:
                 value = "DIMENSION"
             items.append((wire, value))
-        reply = self.proto.get_reply(msg.cmd_id, items)
-        if keep:
-            self.server.replies.keep(cacheable[1], rlevel, epoch, since, msg.cmd_id, reply)
-        self.write(reply)
-        self.server.command_stats.record("GET", "complete", perf_counter() - started)
+        return self.proto.get_reply(msg.cmd_id, items), shared
+
+    def _read_again(self, msg: m.Get, rlevel: int) -> bytes | None:
+        """The kept reply to ``msg`` read anew ahead of the next request (:mod:`.reply_cache`);
+        None once this connection has closed or logged in again at another read level."""
+        return None if self._closed or self.rlevel != rlevel else self._read_get(msg)[0]
 
     def _get_one(self, tree, ref, budget: int) -> tuple[str, int]:
         """The wire value of one object of a GET by the general path, and the budget left."""
