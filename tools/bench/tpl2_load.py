@@ -5,7 +5,11 @@ simulated telescope, in its own process), and the same figures for a minimal asy
 server measured in the same run with the same client as the baseline, with the ratios. The
 last line is one JSON object with the figures.
 
-    python3 tools/bench/tpl2_load.py [--clients 50] [--seconds 5] [--tree opentsi]
+    python3 tools/bench/tpl2_load.py [--clients 50] [--seconds 5] [--tree opentsi] [--control-nice 19]
+
+``--control-nice N`` (a diagnosis, never the goal's figure): every thread of the TCS's control
+process runs at nice N for the run, so the request path's own tail shows without the control
+loop's and the simulated drives' preemptions.
 
 ``--tree opentsi``: pyobs-pilar's 14-variable status GET on the OpenTSI port, and the same 14
 values through their OpenTCI names on the OpenTCI port of the same server, one after the other
@@ -46,6 +50,15 @@ clients, shares of the samples that held the interpreter lock):
   the readback thread, the simulated PLCs). The p99 tail is that background, not the request
   path: at 1 client it is 0.6-0.65 ms with reuse at 0, 1 ms or 5 ms alike, and without the
   simulated PLCs too.
+* sixth pass (2026-11-26 evening; ``tools/bench/README.md``): at 1 client the p99 sat on the
+  1.4 % of requests that found no kept reply (the 5 ms age limit; 50-200 us of server time
+  against 10-20 for a hit). A kept reply used past half its age is now read again right after
+  that answer (``reply_cache.py``), while the client reads it: 114 such requests in 5 s instead
+  of 1,013. What is left is not the request path: with the control process reniced to 19
+  (``--control-nice 19``) the p99 is 1.1-1.4x the echo's, at its default priority 1.8-2.1x — the
+  idle control process (the simulated drives' poll, RPDO and SYNC handling above all, ~480
+  wake-ups a second) preempts about one request in a hundred on the two cores it shares with
+  the server and the bench client.
 """
 
 from __future__ import annotations
@@ -201,6 +214,28 @@ def measured(port: int, tpl2: bool, clients: int, seconds: float, pid: int) -> d
     return result
 
 
+def renice_children(pid: int, nice: int, timeout: float = 30.0) -> None:
+    """Set every thread of ``pid``'s child processes (the control process) to ``nice``."""
+    deadline = time.monotonic() + timeout
+    while True:
+        children = []
+        for entry in filter(str.isdigit, os.listdir("/proc")):
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    if int(f.read().rpartition(")")[2].split()[1]) == pid:
+                        children.append(int(entry))
+            except (OSError, ValueError, IndexError):
+                continue
+        if children or time.monotonic() > deadline:
+            break
+        time.sleep(0.1)
+    if not children:
+        raise SystemExit(f"--control-nice: process {pid} has no child process to renice")
+    for child in children:
+        for task in os.listdir(f"/proc/{child}/task"):
+            os.setpriority(os.PRIO_PROCESS, int(task), nice)
+
+
 def run_server(args: list[str], env: dict | None = None) -> subprocess.Popen:
     return subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
@@ -213,6 +248,10 @@ def main() -> None:
     p.add_argument("--vars", help="comma-separated variables to GET (default: a status display's 20)")
     p.add_argument("--tree", choices=("opentci", "opentsi"), default="opentci",
                    help="opentsi: compare pyobs's status GET on both trees of one server")
+    p.add_argument("--control-nice", type=int, metavar="N",
+                   help="diagnosis, not the goal: renice every thread of the TCS's control process "
+                        "(the control loop and, in the simulated telescope, the simulated drives) to N "
+                        "for the run, to tell the request path's tail from their preemptions")
     args = p.parse_args()
     if args.tree == "opentsi":
         compare_trees(args)
@@ -233,6 +272,8 @@ def main() -> None:
                               env)
             try:
                 wait_port(port)
+                if tpl2 and args.control_nice is not None:
+                    renice_children(proc.pid, args.control_nice)
                 results[name] = measured(port, tpl2, args.clients, args.seconds, proc.pid)
             finally:
                 proc.terminate()
@@ -249,11 +290,14 @@ def main() -> None:
              "p99_ratio_tcs_to_echo": tcs["p99_ms"] / echo["p99_ms"]}
     print(f"ratio tcs/echo: throughput {ratio['requests_ratio_tcs_to_echo']:.2f}, "
           f"p99 latency {ratio['p99_ratio_tcs_to_echo']:.2f}  (goal: >= 0.8 and <= 1.5)")
+    if args.control_nice is not None:
+        print(f"(diagnosis: the control process ran at nice {args.control_nice}; not the goal's figure)")
     print(f"load average at the end: {os.getloadavg()} on {os.cpu_count()} CPUs (shared machine: noisy)")
     print(json.dumps({"benchmark": "tpl2_load", "clients": args.clients, "seconds": args.seconds,
                       "variables_per_get": len(VARIABLES), "tcs": tcs, "echo": echo, **ratio,
-                      "load_average": os.getloadavg(),
-                      "goal_met": ratio["requests_ratio_tcs_to_echo"] >= 0.8 and ratio["p99_ratio_tcs_to_echo"] <= 1.5}))
+                      "load_average": os.getloadavg(), "control_nice": args.control_nice,
+                      "goal_met": args.control_nice is None and ratio["requests_ratio_tcs_to_echo"] >= 0.8
+                      and ratio["p99_ratio_tcs_to_echo"] <= 1.5}))
 
 
 def compare_trees(args) -> None:
