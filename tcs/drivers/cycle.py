@@ -37,7 +37,8 @@ A resting telescope may slow the SYNC: :meth:`CycleSource.set_divider` ``(n)`` s
 runs the callbacks — every ``n``-th period from the next SYNC on (kernel SYNC: the broadcast
 manager's task is replaced by one at ``n × period``); ``1`` is the normal rate again.
 :class:`Cycle` then says when the next SYNC comes, lateness is measured on the slower grid,
-and ``period`` stays the nominal one. Only :mod:`tcs.drivers.idle_sync` calls it, after
+the TPDOs have ``d × n × T`` (the same share of the longer cycle), and ``period`` stays the
+nominal one. Only :mod:`tcs.drivers.idle_sync` calls it, after
 telling the drives (0x1006, RPDO deadlines).
 
 Threads: the runner is one dedicated thread (``tcs-cycle``), optionally with a real-time
@@ -291,8 +292,10 @@ class CycleSource:
         if not self._expected:
             self._arrived.set()
 
-    def _cycle(self, index: int, sync_time: float, next_sync: float) -> None:
-        deadline = sync_time + self.tpdo_deadline * self.period
+    def _cycle(self, index: int, sync_time: float, next_sync: float, step: float) -> None:
+        # (``step``: this cycle's length, the period times the divider — a resting
+        # telescope's slower SYNC leaves its TPDOs the same share of its longer cycle)
+        deadline = sync_time + self.tpdo_deadline * step
         complete = self._arrived.wait(max(0.0, deadline - self._clock()))
         if self._stop.is_set():
             return
@@ -340,7 +343,7 @@ class CycleSource:
                 self._count(sync_failures=1)
             self._late(sent - slot)
             step = period * self._divider
-            self._cycle(index, sent, slot + step)
+            self._cycle(index, sent, slot + step, step)
             index += 1
             slot += step
             now = self._clock()
@@ -373,4 +376,4 @@ class CycleSource:
                 self._count(missed=count - seen - 1)
             seen = count
             self._late(sync_time - (first_time + (count - first_count) * step))
-            self._cycle(count, sync_time, sync_time + step)
+            self._cycle(count, sync_time, sync_time + step, step)

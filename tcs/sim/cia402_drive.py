@@ -24,8 +24,9 @@ CANopen behaviour (CiA-301):
   error behaviour (0x1029 = 0) — drops from operational to pre-operational. It re-arms when
   the heartbeat comes back.
 * SYNC: synchronous RPDOs received since the last SYNC are applied, the drive logic is
-  stepped (CSP target latched), then synchronous TPDOs are sent. An RPDO shorter than its
-  mapping is dropped with EMCY 0x8210.
+  stepped (CSP target latched), then synchronous TPDOs are sent (``tpdo_latency`` s later when
+  :class:`~tcs.sim.drive_params.SimDriveParams` sets one: a drive that answers late, sampled at
+  the SYNC all the same). An RPDO shorter than its mapping is dropped with EMCY 0x8210.
 * The master watched (CiA-402 0x6007, "abort connection"): with a SYNC period in 0x1006, a
   drive enabled in operational that sees no SYNC for :data:`SYNC_LOSS_PERIODS` periods (at
   least :data:`SYNC_LOSS_MIN` s) reacts per 0x6007 with code 0x8250 (see
@@ -504,9 +505,17 @@ class SimDrive:
                 self._csp_gap = False
         else:
             self._csp_gap = True
-        for cob, payload in self.pdo.on_sync(time.monotonic()):
-            if not self._tpdos_muted:
-                self._send(cob, payload)
+        frames = self.pdo.on_sync(time.monotonic())
+        if frames and self.params.tpdo_latency > 0:  # sampled now, sent later (drive_params)
+            self._port.call_later(self.params.tpdo_latency, lambda: self._send_tpdos(frames))
+        else:
+            self._send_tpdos(frames)
+
+    def _send_tpdos(self, frames) -> None:
+        if self._tpdos_muted or self.nmt_state != OPERATIONAL:
+            return
+        for cob, payload in frames:
+            self._send(cob, payload)
 
     # -- timers ------------------------------------------------------------------------------
     def _heartbeat(self) -> None:

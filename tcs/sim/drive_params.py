@@ -54,6 +54,9 @@ class SimDriveParams:
         Whether the PDO event timers (0x1400+n:5, 0x1800+n:5) may be written in operational,
         as CiA 301 allows; False: like some devices, every PDO parameter only in
         pre-operational (abort 0x08000022).
+    tpdo_latency:
+        Seconds from a SYNC to the synchronous TPDOs sampled at it (0: at once, as the
+        simulator's host allows): a drive or gateway that answers late.
     """
 
     increments_per_unit: float = 10000.0
@@ -73,6 +76,7 @@ class SimDriveParams:
     acceleration_scale: float = 1.0
     objects: dict | None = None
     pdo_timer_in_operational: bool = True
+    tpdo_latency: float = 0.0
 
     def problems(self) -> list[str]:
         """What is wrong with these parameters (empty when they are usable)."""
@@ -89,6 +93,8 @@ class SimDriveParams:
             out.append("velocity_scale and acceleration_scale must be positive")
         if self.boot_delay < 0:
             out.append("boot_delay must not be negative")
+        if not 0 <= self.tpdo_latency < 1:
+            out.append("tpdo_latency must be at least 0 and below 1 s")
         if (self.negative_limit_switch is not None and self.positive_limit_switch is not None
                 and self.negative_limit_switch >= self.positive_limit_switch):
             out.append("negative_limit_switch must lie below positive_limit_switch")

@@ -97,3 +97,25 @@ def test_no_idle_sync_without_the_setting(can_channel):
         assert not rig.system.idle.enabled
         rig.wait(lambda: rig.system.cycle.stats().cycles > 10, WAIT, "cycles")
         assert rig.system.cycle.divider == 1 and rig.system.idle.state == "full"
+
+
+def test_at_the_idle_rate_a_late_answer_has_the_longer_cycle_to_come(can_channel):
+    """Under the idle SYNC the TPDOs have the same share of the longer cycle as at the full
+    rate: a drive answering 1.5 full periods after each SYNC — late for a 10 ms cycle, in time
+    for a 50 ms one — is in time at rest. (The wait once stayed ``tpdo_deadline`` × the nominal
+    period, and every idle cycle of such a drive counted a TPDO time-out.) At most half the
+    cycles may time out: a busy host may delay an answer; the old wait timed out every one."""
+    with Rig(can_channel, {"az": AxisSpec(1, section=DEADLINE)}, idle_sync_period=IDLE) as rig:
+        assert rig.boot_and_start() == {}
+        idle, cycle, sim = rig.system.idle, rig.system.cycle, rig.sims["az"]
+        rig.wait(lambda: idle.state == "idle", WAIT, "the idle SYNC")
+        sim.params.tpdo_latency = 1.5 * FULL * SLOWDOWN
+        start = cycle.stats().cycles
+        rig.wait(lambda: cycle.stats().cycles >= start + 2, WAIT, "a cycle with the late answers")
+        before = cycle.stats()
+        rig.wait(lambda: cycle.stats().cycles >= before.cycles + 20, WAIT, "20 idle cycles")
+        after = cycle.stats()
+        sim.params.tpdo_latency = 0.0
+        assert idle.state == "idle" and cycle.divider == round(IDLE / FULL)
+        cycles, timeouts = after.cycles - before.cycles, after.tpdo_timeouts - before.tpdo_timeouts
+        assert timeouts < cycles / 2, f"{timeouts} TPDO time-outs in {cycles} idle cycles"
