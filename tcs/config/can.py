@@ -462,6 +462,14 @@ def check_can_drives(can: CanSection | None, drives: dict[str, DriveSection]) ->
             problems.append((f"drives.{name}.master_loss_timeout",
                              f"must be 0 (off) or at least 2 × can.sync_period "
                              f"({2 * can.sync_period:g} s)"))
+        if can is not None and can.idle_sync_period:
+            for key, index, sub, _ in drive.raw_writes:
+                if (index, sub) == (0x1006, 0) or (0x1400 <= index <= 0x15FF and sub == 5):
+                    problems.append((f"drives.{name}.sdo.{key}",
+                                     "the idle SYNC (can.idle_sync_period) writes this object at "
+                                     "rest and the boot's own value back after: set "
+                                     "can.sync_period or master_loss_timeout instead, or "
+                                     "can.idle_sync_period = 0"))
         if can is not None and drive.heartbeat_consumer_timeout < 1.5 * can.heartbeat_period:
             problems.append((f"drives.{name}.heartbeat_consumer_timeout",
                              f"must be at least 1.5 × can.heartbeat_period "
