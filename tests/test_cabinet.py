@@ -644,13 +644,16 @@ async def test_core_drive_and_cycle_diagnostics(make_rig):
     assert await c.get("CABINET.CORE.DRIVE[1].ERRORCODE") == "0"
 
     assert await c.get("CABINET.CORE.CYCLE.CYCLES") == "0"  # no control loop yet
-    rig.cabinet.loop_stats = lambda: {"cycles": 1200, "late": 2, "missed": 1, "max_lateness": 0.0015}
+    assert await c.get("CABINET.CORE.CYCLE.SYNC_INTERVAL") == "0.0"
+    rig.cabinet.loop_stats = lambda: {"cycles": 1200, "late": 2, "missed": 1, "max_lateness": 0.0015,
+                                      "period": 0.01, "sync_divider": 5}
     state_epoch.bump()  # as the loop's readbacks do (a GET reply just made is not reused)
     assert await c.get("CABINET.CORE.CYCLE.CYCLES") == "1200"
     assert await c.get("CABINET.CORE.CYCLE.LATE") == "2"
     assert await c.get("CABINET.CORE.CYCLE.MISSED") == "1"
     assert await c.get("CABINET.CORE.CYCLE.TPDO_TIMEOUTS") == "0"
     assert await c.get("CABINET.CORE.CYCLE.MAX_LATENESS") == "0.0015"
+    assert await c.get("CABINET.CORE.CYCLE.SYNC_INTERVAL") == "0.05"  # the idle SYNC
 
     def broken():
         raise RuntimeError("loop gone")

@@ -25,8 +25,9 @@ CORE layout (``TYPE`` 1, the CiA-402 cabinet of this project), read live on ever
   else the fault's OpenTCI number, 0 without fault), ``ERRORTEXT``, ``POSITION``, ``VELOCITY``,
   ``FOLLOWING_ERROR`` (user units), ``HEARTBEAT`` (1 while the drive's heartbeat is seen).
 * ``CORE.CYCLE`` — the control loop's counters from ``cabinet.loop_stats``: ``CYCLES``,
-  ``LATE``, ``MISSED``, ``TPDO_TIMEOUTS``, ``MAX_LATENESS`` (s) and ``REALTIME`` (1 when
-  the loop thread runs with its real-time priority); 0 while no loop runs.
+  ``LATE``, ``MISSED``, ``TPDO_TIMEOUTS``, ``MAX_LATENESS`` (s), ``REALTIME`` (1 when
+  the loop thread runs with its real-time priority) and ``SYNC_INTERVAL`` (s between SYNCs
+  now: the period, or the idle SYNC's while every drive rests); 0 while no loop runs.
 
 Nothing here changes state; any thread may read.
 """

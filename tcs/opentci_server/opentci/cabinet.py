@@ -99,6 +99,9 @@ CYCLE = module(
     var("MAX_LATENESS", FLOAT, get=lambda c: c.loop_figure("max_lateness"), info="worst lateness, s"),
     var("REALTIME", INT, get=lambda c: c.loop_figure("realtime"),
         info="1 when the loop thread got its real-time priority (can.realtime_priority)"),
+    var("SYNC_INTERVAL", FLOAT, get=lambda c: c.loop_figure("period") * c.loop_figure("sync_divider"),
+        info="s between SYNCs now: can.sync_period, or can.idle_sync_period while every drive "
+             "rests (the idle SYNC); 0 while no loop runs"),
     info="the cyclic control loop",
 )
 
