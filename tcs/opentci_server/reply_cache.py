@@ -36,7 +36,7 @@ reply nearly always instead of paying a whole read every 5 ms in its own round t
 1-client p99 of ``tools/bench/tpl2_load.py``); the guarantee is unchanged (a reply answers only
 while younger than ``reuse_reply`` and while nothing changed since its values were read), and a
 line nobody asks for again is never read ahead: only a request that used a kept reply starts it.
-Costs at most one read per line and half ``reuse_reply`` while it is being polled that fast.
+It costs at most one read per line every ``reuse_reply / 2`` while the line is polled that fast.
 
 Only :class:`~tcs.opentci_server.server.Tpl2Server` makes one (per server, i.e. per tree);
 its sessions call :meth:`ReplyCache.get` and :meth:`ReplyCache.keep` (on the event loop).
@@ -47,7 +47,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from typing import Callable
+from collections.abc import Callable
 
 from tcs.state_epoch import EPOCH
 
@@ -111,6 +111,7 @@ class ReplyCache:
     def _refresh(self, key: tuple[bytes, int], entry: list) -> None:
         if self._replies.get(key) is not entry:  # kept anew or dropped meanwhile
             return
+        entry[_REFRESH] = None  # (running now: nothing to cancel)
         epoch, started = EPOCH.value, self._clock()
         try:
             reply = entry[_READER]()
