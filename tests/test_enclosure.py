@@ -25,6 +25,7 @@ import pytest
 from support.live import live_service
 from support.opentci_client import WAIT, Client, done_ok, failed
 from support.service import make_config, start_service, tolerant_heartbeats
+from support.waits import until_async
 from tcs.app import Service
 from tcs.config import parse_config
 from tcs.config.hwconfig import PACKAGE_ROOT
@@ -294,11 +295,7 @@ async def test_dome_follows_a_trajectory(live, c):
 
 async def polled_every(driver, interval: float) -> None:
     """Wait (generously) until the PLC driver polls at ``interval``."""
-    for _ in range(int(WAIT / 0.05)):
-        if driver.stats.interval == interval:
-            return
-        await asyncio.sleep(0.05)
-    assert driver.stats.interval == interval
+    await until_async(lambda: driver.stats.interval == interval, f"a poll every {interval} s", WAIT)
 
 
 async def test_a_dome_trajectory_keeps_the_plc_at_its_full_poll_rate(live, c):

@@ -12,6 +12,7 @@ import dataclasses
 
 import pytest
 
+from support.waits import until_async
 from tcs.config import load_config
 from tcs.config.plc import PlcSection
 from tcs.config.schema import build
@@ -289,11 +290,8 @@ async def test_the_driver_counts_the_watchdog_and_the_simulated_plc_stops_withou
 
 async def idle_interval(driver: PlcDriver, interval: float) -> None:
     """Wait (generously) until the driver polls at ``interval``."""
-    for _ in range(int(WAIT / 0.02)):
-        if driver.stats.interval == interval:
-            return
-        await asyncio.sleep(0.02)
-    assert driver.stats.interval == interval
+    await until_async(lambda: driver.stats.interval == interval, f"a poll every {interval} s",
+                      WAIT, 0.02)
 
 
 async def test_a_resting_plc_is_polled_at_the_idle_rate_until_something_moves(plcs, clock):

@@ -1,8 +1,10 @@
-"""Waiting for a state in blocking (thread-side) tests: the Alpaca tests drive the telescope
-through alpyca's synchronous client, so they poll instead of awaiting."""
+"""Waiting for a state: :func:`until` in blocking (thread-side) tests — the Alpaca tests drive
+the telescope through alpyca's synchronous client, so they poll instead of awaiting — and
+:func:`until_async` on a test's event loop (a driver's state that has no event to await)."""
 
 from __future__ import annotations
 
+import asyncio
 import time
 
 
@@ -16,6 +18,17 @@ def until(condition, what: str, timeout: float, period: float = 0.05):
             return value
         assert time.monotonic() < deadline, f"timed out waiting for {what}"
         time.sleep(period)
+
+
+async def until_async(condition, what: str, timeout: float, period: float = 0.05):
+    """:func:`until` on the event loop: the loop runs on between the looks."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = condition()
+        if value:
+            return value
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        await asyncio.sleep(period)
 
 
 def alpaca_address(live) -> str:
