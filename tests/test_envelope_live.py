@@ -351,7 +351,8 @@ def test_alpaca_moveaxis_stops_at_the_sun_cone(live):
             until(lambda: not az.motion_state & 1, "stopped again")
         except InvalidValueException as exc:
             assert "border" in str(exc), exc
-        assert 30.0 <= sep_from_sun(live, t.Azimuth, 90.0 - t.Altitude) < 30.2
+        # (read a moment after the stop at the border: the Sun moves ~0.004°/s meanwhile)
+        assert 30.0 - 1e-4 <= sep_from_sun(live, t.Azimuth, 90.0 - t.Altitude) < 30.2
         t.MoveAxis(TelescopeAxes.axisPrimary, -10.0)
         until(lambda: sep_from_sun(live, t.Azimuth, 90.0 - t.Altitude) > 32.0, "away from the Sun")
         t.MoveAxis(TelescopeAxes.axisPrimary, 0.0)
