@@ -9,21 +9,30 @@ port was given) and one timer thread, whatever N is.
 * ``send(cob_id, data)`` — thread-safe.
 * ``call_later(delay, callback)`` / ``call_every(period, callback)`` — run ``callback()`` in
   the timer thread (real time: heartbeats, boot delays); they return a handle whose
-  ``cancel()`` stops it. ``add_poller(callback)`` runs ``callback()`` every
-  :data:`POLL_PERIOD`, all the pollers of the bus in one wake-up.
+  ``cancel()`` stops it. A periodic timer runs on the grid of its period (multiples of it on
+  the monotonic clock), so timers of one period — every drive's heartbeat — and the poll
+  share one wake-up of the timer thread instead of one each.
+* ``add_poller(callback)`` runs ``callback()`` every :data:`POLL_PERIOD`, all the pollers of
+  the bus in one wake-up. A poller returns whether it needs that rate: when none does (every
+  drive of the bus rests: no power stage, nothing moving, nothing changed lately) the poll
+  slows to :data:`REST_POLL_PERIOD` (``poll_period`` tells which); a node that changes
+  (a new RPDO payload, an SDO request, NMT, fault injection) calls ``hurry()``, and the full
+  rate is back from the next :data:`POLL_PERIOD` grid point. A resting bus of seven drives
+  then wakes the simulator a fifth as often (issue 27: the idle simulated telescope's wake-ups
+  preempted the TPL2 server's requests).
 * ``lock`` — one re-entrant lock held around every callback (received frames and timers), so
   the nodes' state is only ever touched by one thread at a time; code outside the port that
   touches a node (tests, fault injection) takes it too.
 * Host stalls — real drive hardware never stops; the simulator's threads do when their host
   is busy (or the process is stopped). The port notices: when none of its threads ran for
   more than :data:`HOST_STALL` s (the gap between two wake-ups of the poll timer or the
-  receive thread), or a frame is handled more than :data:`HOST_STALL` s after it was sent
-  (the receive thread fell behind), it counts a stall in ``stalls`` (``last_stall``: its
-  length). The nodes restart their supervision windows on it (see
+  receive thread; normally at most a :data:`REST_POLL_PERIOD`), or a frame is handled more
+  than :data:`HOST_STALL` s after it was sent (the receive thread fell behind), it counts a
+  stall in ``stalls`` (``last_stall``: its length). The nodes restart their supervision windows on it (see
   :class:`tcs.sim.cia402_drive.SimDrive`). ``receive_backlog()`` tells whether frames wait
   unread (python-can's ``virtual`` bus; 0 where it cannot be known). ``awake`` is the port's
-  *awake clock* (s): real time, except that a wake-up late by more than
-  :data:`AWAKE_STEP` counts only that much — on a starved host (where a master in the same
+  *awake clock* (s): real time, except that a wake-up later than :data:`AWAKE_STEPS` poll
+  periods counts only that much — on a starved host (where a master in the same
   process starves as well) supervision windows measured on it run slower, on an idle host at
   real speed.
 
@@ -38,6 +47,7 @@ from __future__ import annotations
 import heapq
 import itertools
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -55,20 +65,30 @@ FrameCallback = Callable[[int, bytes], None]
 RECEIVE_CYCLE = 0.05
 #: Real-time period (s) of the pollers (one timer wake-up for all the nodes of a bus).
 POLL_PERIOD = 0.01
+#: The pollers' period (s) while none of them needs :data:`POLL_PERIOD` (a resting bus).
+REST_POLL_PERIOD = 0.05
 #: A gap (s) in the port's own threads longer than this is a stall of the simulator's host.
 HOST_STALL = 0.1
-#: Most (s) the awake clock advances from one wake-up of the port's threads to the next.
-AWAKE_STEP = 2 * POLL_PERIOD
+#: Most the awake clock advances from one wake-up of the port's threads to the next, in
+#: periods of the poll (the slower one's while the bus rests).
+AWAKE_STEPS = 2
+
+
+def _next_on_grid(t: float, period: float) -> float:
+    """The first multiple of ``period`` after ``t`` (by more than a microsecond: a timer that
+    ran a hair early does not run twice)."""
+    return (math.floor((t + 1e-6) / period) + 1) * period
 
 
 class TimerHandle:
     """A scheduled timer callback; ``cancel()`` makes sure it never runs again."""
 
-    __slots__ = ("callback", "period", "cancelled")
+    __slots__ = ("callback", "period", "on_grid", "cancelled")
 
-    def __init__(self, callback: Callable[[], None], period: float | None):
+    def __init__(self, callback: Callable[[], None], period: float | None, on_grid: bool = False):
         self.callback = callback
         self.period = period
+        self.on_grid = on_grid
         self.cancelled = False
 
     def cancel(self) -> None:
@@ -117,8 +137,10 @@ class SimCanPort:
         self._closed = False
         self._users = 0
         self._send_lock = threading.Lock()
-        self._pollers: list[Callable[[], None]] = []
+        self._pollers: list[Callable[[], object]] = []
         self._poll_timer: TimerHandle | None = None
+        self.poll_period = POLL_PERIOD  # the pollers' period now (POLL_PERIOD or REST_POLL_PERIOD)
+        self._awake_step = AWAKE_STEPS * POLL_PERIOD
         self._notifier: can.Notifier | None = None
         if network is not None:
             self._bus = None
@@ -195,13 +217,25 @@ class SimCanPort:
             log.warning("simulated node could not send 0x%03X: %s", cob_id, exc)
 
     # -- timers ------------------------------------------------------------------------------
-    def add_poller(self, callback: Callable[[], None]) -> None:
-        """Run ``callback()`` every :data:`POLL_PERIOD` together with every other poller."""
+    def add_poller(self, callback: Callable[[], object]) -> None:
+        """Run ``callback()`` every :data:`POLL_PERIOD` together with every other poller, or
+        every :data:`REST_POLL_PERIOD` while every poller returned a false value."""
         with self.lock:
             self._pollers.append(callback)
             if self._poll_timer is None:
                 self._alive = None  # (the time without pollers was no stall)
                 self._poll_timer = self.call_every(POLL_PERIOD, self._poll_all)
+                self.poll_period = POLL_PERIOD
+            else:
+                self.hurry()
+
+    def hurry(self) -> None:
+        """A node changed: poll at :data:`POLL_PERIOD` again, from its next grid point on
+        (nothing when the poll already runs at that rate). Under the lock."""
+        if self.poll_period != POLL_PERIOD and self._poll_timer is not None and not self._closed:
+            self._poll_timer.cancel()
+            self._poll_timer = self.call_every(POLL_PERIOD, self._poll_all)
+            self.poll_period = POLL_PERIOD
 
     def remove_poller(self, callback: Callable[[], None]) -> None:
         with self.lock:
@@ -217,7 +251,7 @@ class SimCanPort:
         now = time.monotonic()
         gap = 0.0 if self._alive is None else now - self._alive
         self._alive = now
-        self.awake += min(gap, AWAKE_STEP)
+        self.awake += min(gap, self._awake_step)
         stall = max(gap, lag if lag < 60.0 else 0.0)  # (a frame stamped by another clock)
         if stall > HOST_STALL and now - self._stall_noted > HOST_STALL:
             self._stall_noted = now  # (one stall, not one per frame of the backlog behind it)
@@ -237,22 +271,32 @@ class SimCanPort:
 
     def _poll_all(self) -> None:
         self._note_alive()
+        busy = False
         for callback in list(self._pollers):
             try:
-                callback()
+                busy = bool(callback()) or busy
             except Exception:
+                busy = True
                 log.exception("simulated node poll failed")
+        period = POLL_PERIOD if busy else REST_POLL_PERIOD
+        self._awake_step = AWAKE_STEPS * period
+        if period != self.poll_period and self._poll_timer is not None:
+            self._poll_timer.period = period  # (the timer thread reschedules it on that grid)
+            self.poll_period = period
 
     def call_later(self, delay: float, callback: Callable[[], None]) -> TimerHandle:
         """Run ``callback()`` once in the timer thread after ``delay`` seconds (real time)."""
         return self._schedule(time.monotonic() + max(0.0, delay), TimerHandle(callback, None))
 
     def call_every(self, period: float, callback: Callable[[], None], first: float | None = None) -> TimerHandle:
-        """Run ``callback()`` every ``period`` seconds (real time) until cancelled."""
+        """Run ``callback()`` every ``period`` seconds (real time) until cancelled: at the next
+        multiple of ``period`` on the monotonic clock and every one after it (the grid timers
+        of one period share), or ``first`` seconds from now and then every ``period``."""
         if period <= 0:
             raise ValueError("timer period must be positive")
-        start = time.monotonic() + (period if first is None else max(0.0, first))
-        return self._schedule(start, TimerHandle(callback, period))
+        now = time.monotonic()
+        start = _next_on_grid(now, period) if first is None else now + max(0.0, first)
+        return self._schedule(start, TimerHandle(callback, period, on_grid=first is None))
 
     def _schedule(self, when: float, handle: TimerHandle) -> TimerHandle:
         with self._cond:
@@ -281,11 +325,15 @@ class SimCanPort:
                 except Exception:
                     log.exception("simulated node timer failed")
             if handle.period is not None and not handle.cancelled:
-                # Keep the phase, but never try to catch up on a backlog of missed periods.
-                nxt = when + handle.period
+                # Keep the phase (the grid), but never catch up on a backlog of missed periods.
+                period = handle.period
                 now = time.monotonic()
-                if nxt < now:
-                    nxt = now + handle.period - ((now - when) % handle.period)
+                if handle.on_grid:
+                    nxt = _next_on_grid(max(when, now), period)
+                else:
+                    nxt = when + period
+                    if nxt < now:
+                        nxt = now + period - ((now - when) % period)
                 self._schedule(nxt, handle)
 
     # -- life cycle --------------------------------------------------------------------------

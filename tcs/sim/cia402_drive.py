@@ -9,6 +9,13 @@ Threads: none of its own. Every drive on a bus shares the bus's
 :class:`~tcs.sim.can_port.SimCanPort` (one receive thread, one timer thread); all handlers
 run under the port's lock. Physics follows the injectable ``clock``; heartbeats, the heartbeat
 consumer, event-TPDO timing and the poll that notices events between SYNCs use real time.
+The poll runs every 10 ms while the drive may change by itself (power stage on, the motor
+moving, homing or a stop ramp under way), was changed lately (:data:`LIVELY_FOR` s after an
+RPDO with a new payload, an SDO request, an NMT command or fault injection) or sends an
+event-driven TPDO on a timer shorter than :data:`REST_EVENT_TIMER`. A drive that rests lets
+the bus's poll slow to 50 ms (:data:`tcs.sim.can_port.REST_POLL_PERIOD`): the supervision
+below then notices a silent master up to that much later, and an event TPDO after a change
+nobody sent over the bus (a test poking the logic) comes up to that much later.
 
 CANopen behaviour (CiA-301):
 
@@ -33,7 +40,7 @@ CANopen behaviour (CiA-301):
   :meth:`tcs.sim.drive_logic.DriveLogic.connection_lost`); so it does when NMT stop /
   pre-operational takes it out of operational while enabled, and when an RPDO with an event
   timer (0x1400:5, deadline monitoring) has not come for that long since its last reception
-  (watched by the 10 ms poll, in real time: SYNC may have stopped with the master). Missing
+  (watched by the poll, in real time: SYNC may have stopped with the master). Missing
   RPDOs: see drive_logic.
 * EMCY (0x1014, default 0x80 + id): ``[code lo, code hi, error register, 0, 0, 0, 0, 0]``.
 
@@ -70,7 +77,7 @@ from typing import Any
 
 import canopen
 
-from tcs.sim.can_port import POLL_PERIOD, SimCanPort, TimerHandle, open_port
+from tcs.sim.can_port import SimCanPort, TimerHandle, open_port
 from tcs.sim.drive_logic import (
     EMCY_ENCODER,
     EMCY_FOLLOWING_ERROR,
@@ -109,6 +116,11 @@ FAULT_CODES: dict[str, int] = {
 #: SYNC silence (in 0x1006 periods, and at least SYNC_LOSS_MIN s) that counts as a lost master.
 SYNC_LOSS_PERIODS = 10
 SYNC_LOSS_MIN = 0.5
+#: Seconds a drive keeps the bus's poll at its full rate after a change it was sent.
+LIVELY_FOR = 1.0
+#: An event-driven TPDO timer (s) shorter than this keeps the poll at its full rate (at the
+#: resting rate it would come up to a REST_POLL_PERIOD late).
+REST_EVENT_TIMER = 0.25
 
 # NMT states as the heartbeat reports them.
 INITIALISING, STOPPED, OPERATIONAL, PRE_OPERATIONAL = 0x00, 0x04, 0x05, 0x7F
@@ -180,6 +192,8 @@ class SimDrive:
         self._rpdo_since_sync = False
         self._last_sync: float | None = None  # real time of the last SYNC while operational
         self._rpdo_seen: dict[int, float] = {}  # RPDO → last reception (port's awake clock), deadline armed
+        self._rpdo_payload: dict[int, bytes] = {}  # COB-ID → last payload (a new one livens the poll)
+        self._lively_until = 0.0  # monotonic time until which the poll keeps its full rate
         self._subscribed: dict[int, str] = {}
         self._rpdo_numbers: dict[int, int] = {}  # COB-ID -> RPDO number (by _update_comm)
         self._sync_cob = 0x080
@@ -223,6 +237,7 @@ class SimDrive:
                 return
             self._started = True
             self._stalls_seen = self._port.stalls
+            self._lively_until = time.monotonic() + LIVELY_FOR
             self._port.add_poller(self._poll)
             if self.params.boot_delay > 0 and not powered:
                 self._timers.append(self._port.call_later(self.params.boot_delay, self._boot))
@@ -266,28 +281,33 @@ class SimDrive:
         if code is None:
             raise ValueError(f"unknown fault kind {kind!r}; known: {', '.join(FAULT_CODES)}")
         with self.lock:
+            self._liven()
             self.logic.update(self.clock())
             self._raise_fault(code)
 
     def set_responding(self, responding: bool) -> None:
         """False: the node is dead on the bus (no heartbeat, PDO, EMCY or SDO answer)."""
         with self.lock:
+            self._liven()
             self.responding = bool(responding)
             self._consumer_seen.clear()
 
     def mute_tpdos(self, muted: bool) -> None:
         """True: send no TPDO (the node otherwise works: heartbeat, SDO, RPDOs)."""
         with self.lock:
+            self._liven()
             self._tpdos_muted = bool(muted)
 
     def hold_heartbeat(self, seconds: float) -> None:
         """Send no heartbeat for ``seconds`` (a late heartbeat; the node keeps working)."""
         with self.lock:
+            self._liven()
             self._heartbeat_hold = time.monotonic() + seconds
 
     def set_refuse_sdo(self, refuse: bool) -> None:
         """True: abort every SDO request with 0x08000020 ("cannot be stored/transferred")."""
         with self.lock:
+            self._liven()
             self.refuse_sdo = bool(refuse)
             self.sdo.refuse_code = ABORT_STORE if refuse else None
 
@@ -344,6 +364,12 @@ class SimDrive:
     def rpdo_missed(self) -> int:
         with self.lock:
             return self.logic.rpdo_missed
+
+    @property
+    def port(self) -> SimCanPort:
+        """The bus's port, shared with every simulated node on the bus (``poll_period``,
+        ``stalls``)."""
+        return self._port
 
     @property
     def nmt_state_name(self) -> str:
@@ -436,6 +462,7 @@ class SimDrive:
         if len(data) < 2 or data[1] not in (0, self.node_id) or self.nmt_state == INITIALISING:
             return
         command = data[0]
+        self._liven()
         if command in (0x02, 0x80) and self.nmt_state == OPERATIONAL:
             self.logic.update(self.clock())
             self.logic.connection_lost(None)  # leaving operational while enabled: 0x6007
@@ -466,6 +493,7 @@ class SimDrive:
         self._update_comm()
 
     def _on_sdo(self, data: bytes) -> None:
+        self._liven()
         self.logic.update(self.clock())
         response = self.sdo.handle(data)
         if response is not None:
@@ -477,6 +505,9 @@ class SimDrive:
         n = self._rpdo_numbers.get(cob_id)
         if n is None:
             return
+        if self._rpdo_payload.get(cob_id) != data:  # (the same payload again changes nothing)
+            self._rpdo_payload[cob_id] = data
+            self._liven()
         if not self.pdo.rpdo_synchronous(n):  # (applied now; a synchronous one at the SYNC)
             self.logic.update(self.clock())
         before = self.pdo.rpdo_length_errors
@@ -522,13 +553,25 @@ class SimDrive:
         if self.nmt_state != INITIALISING and time.monotonic() >= self._heartbeat_hold:
             self._send(0x700 + self.node_id, bytes([self.nmt_state]))
 
-    def _poll(self) -> None:
+    def _liven(self) -> None:
+        """The drive was sent a change: the bus's poll at its full rate for :data:`LIVELY_FOR` s."""
+        self._lively_until = time.monotonic() + LIVELY_FOR
+        self._port.hurry()
+
+    def _poll(self) -> bool:
+        """The bus's poll (timer thread, under the lock): events between SYNCs, supervision,
+        event TPDOs. Returns whether the drive needs the poll's full rate (see the module
+        docstring)."""
         if self._stopped or self.nmt_state == INITIALISING:
-            return
+            return False
         self._check_stall()
         self.logic.update(self.clock())
-        if not self.responding or self._port.receive_backlog():
-            return  # (frames wait unread: the master is not judged silent meanwhile)
+        if self.responding and not self._port.receive_backlog():
+            self._supervise()  # (frames wait unread: the master is not judged silent meanwhile)
+        return (time.monotonic() < self._lively_until or not self.logic.resting()
+                or (self.nmt_state == OPERATIONAL and self.pdo.shortest_event_timer() < REST_EVENT_TIMER))
+
+    def _supervise(self) -> None:
         now = self._port.awake  # supervision runs on the port's awake clock
         if self.nmt_state == OPERATIONAL:
             self._watch_rpdos(now)
@@ -558,8 +601,9 @@ class SimDrive:
         port ran): no silence of the master. Restart the supervision windows; leave the time
         nothing ran out of the physics (see the module docstring)."""
         now = self._port.awake
-        if self._compensate and gap > POLL_PERIOD:
-            self._stall_offset += gap - POLL_PERIOD
+        period = self._port.poll_period  # (the gap the poll leaves anyway)
+        if self._compensate and gap > period:
+            self._stall_offset += gap - period
         if self._last_sync is not None:
             self._last_sync = now
         for node in self._consumer_seen:

@@ -673,6 +673,13 @@ class DriveLogic:
         ax = self.axis
         return ax.v == 0 and ax.locked and ax.t >= ax.reference.end_time and ax.reference.segments[-1].v0 == 0
 
+    def resting(self) -> bool:
+        """Nothing happens here until a command comes: power stage off, the motor still, no
+        homing running and no alarm due (the simulated drive's poll may then slow down)."""
+        homing = self.homing
+        return (self.state not in POWERED and self.axis.alarm is None and self._at_rest()
+                and (homing is None or homing.state != "running"))
+
     def digital_inputs(self) -> int:
         x = self.axis.x
         return (int(self.sw.active(hm.NEG, x)) | int(self.sw.active(hm.POS, x)) << 1

@@ -299,6 +299,12 @@ class PdoEngine:
                 rt.last_data, rt.last_sent = data, now
         return frames
 
+    def shortest_event_timer(self) -> float:
+        """The shortest event timer (s) of the valid event-driven TPDOs (inf: none)."""
+        timers = [timer for cob, ttype, _inhibit, timer in map(self._tpdo_comm, range(COUNT))
+                  if cob is not None and ttype >= 254 and timer > 0]
+        return min(timers, default=float("inf"))
+
     def poll_events(self, now: float) -> list[tuple[int, bytes]]:
         """Event-driven TPDO frames due now (``now`` in seconds, any monotonic clock)."""
         frames = []

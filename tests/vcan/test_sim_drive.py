@@ -15,6 +15,8 @@ import canopen
 import pytest
 
 from tcs.sim import DEFAULT_EDS, SimDrive, SimDriveParams, start_sim_drives
+from tcs.sim.can_port import POLL_PERIOD, REST_POLL_PERIOD
+from tcs.sim.cia402_drive import LIVELY_FOR
 from cia402_rig import SLOWDOWN
 
 NODE = 5
@@ -450,6 +452,46 @@ def test_heartbeat_consumer_fault(rig):
     wait_for(lambda: 0x8130 in m.emcy_codes(), what="EMCY 0x8130")
     assert sim.state == "FAULT" and sim.nmt_state == 0x7F   # CiA-301: back to pre-operational
     assert m.sdo_read(0x1001, 0, "<B") & 0x11 == 0x11      # generic + communication
+
+
+def test_a_resting_drive_slows_the_poll_and_a_command_brings_its_rate_back(rig):
+    """The bus's poll slows while its drive rests (issue 27: the idle simulated telescope's
+    wake-ups); an SDO request, an enable, a power stage on keep or bring the full rate."""
+    sim, m = rig()
+    m.send(0x000, bytes([0x01, NODE]))
+    wait_for(lambda: sim.port.poll_period == REST_POLL_PERIOD, what="the resting poll")
+    assert m.statusword() & 0x4F == 0x40                  # an SDO request: full rate again
+    assert sim.port.poll_period == POLL_PERIOD
+    wait_for(lambda: sim.port.poll_period == REST_POLL_PERIOD, what="the resting poll again")
+    enable(m, 1)
+    time.sleep(LIVELY_FOR + 0.5)                          # powered: never the resting rate
+    assert sim.state == "OPERATION ENABLED" and sim.port.poll_period == POLL_PERIOD
+    m.controlword(0x06)                                   # power stage off: rests again
+    wait_for(lambda: sim.port.poll_period == REST_POLL_PERIOD, what="the resting poll after disable")
+
+
+def test_a_resting_drive_still_notices_a_silent_master(rig):
+    sim, m = rig()
+    m.sdo_write(0x1016, 1, (MASTER << 16) | 300, "<I")
+    m.send(0x000, bytes([0x01, NODE]))
+    beating = threading.Event()
+    beating.set()
+
+    def beat():
+        while beating.is_set():
+            m.send(0x700 + MASTER, b"\x05")
+            time.sleep(0.05)
+
+    beater = threading.Thread(target=beat, daemon=True)
+    beater.start()
+    try:
+        wait_for(lambda: sim.port.poll_period == REST_POLL_PERIOD, what="the resting poll")
+        assert m.emcy_codes() == []
+    finally:
+        beating.clear()
+        beater.join()
+    wait_for(lambda: 0x8130 in m.emcy_codes(), what="EMCY 0x8130 at the resting rate")
+    assert sim.state == "FAULT" and sim.nmt_state == 0x7F
 
 
 @pytest.mark.parametrize("kind,code", [("overcurrent", 0x2310), ("following_error", 0x8611),
