@@ -83,12 +83,11 @@ def _next_on_grid(t: float, period: float) -> float:
 class TimerHandle:
     """A scheduled timer callback; ``cancel()`` makes sure it never runs again."""
 
-    __slots__ = ("callback", "period", "on_grid", "cancelled")
+    __slots__ = ("callback", "period", "cancelled")
 
-    def __init__(self, callback: Callable[[], None], period: float | None, on_grid: bool = False):
+    def __init__(self, callback: Callable[[], None], period: float | None):
         self.callback = callback
         self.period = period
-        self.on_grid = on_grid
         self.cancelled = False
 
     def cancel(self) -> None:
@@ -224,8 +223,7 @@ class SimCanPort:
             self._pollers.append(callback)
             if self._poll_timer is None:
                 self._alive = None  # (the time without pollers was no stall)
-                self._poll_timer = self.call_every(POLL_PERIOD, self._poll_all)
-                self.poll_period = POLL_PERIOD
+                self._start_poll()
             else:
                 self.hurry()
 
@@ -234,8 +232,11 @@ class SimCanPort:
         (nothing when the poll already runs at that rate). Under the lock."""
         if self.poll_period != POLL_PERIOD and self._poll_timer is not None and not self._closed:
             self._poll_timer.cancel()
-            self._poll_timer = self.call_every(POLL_PERIOD, self._poll_all)
-            self.poll_period = POLL_PERIOD
+            self._start_poll()
+
+    def _start_poll(self) -> None:
+        self._poll_timer = self.call_every(POLL_PERIOD, self._poll_all)
+        self.poll_period = POLL_PERIOD
 
     def remove_poller(self, callback: Callable[[], None]) -> None:
         with self.lock:
@@ -288,15 +289,13 @@ class SimCanPort:
         """Run ``callback()`` once in the timer thread after ``delay`` seconds (real time)."""
         return self._schedule(time.monotonic() + max(0.0, delay), TimerHandle(callback, None))
 
-    def call_every(self, period: float, callback: Callable[[], None], first: float | None = None) -> TimerHandle:
+    def call_every(self, period: float, callback: Callable[[], None]) -> TimerHandle:
         """Run ``callback()`` every ``period`` seconds (real time) until cancelled: at the next
         multiple of ``period`` on the monotonic clock and every one after it (the grid timers
-        of one period share), or ``first`` seconds from now and then every ``period``."""
+        of one period share)."""
         if period <= 0:
             raise ValueError("timer period must be positive")
-        now = time.monotonic()
-        start = _next_on_grid(now, period) if first is None else now + max(0.0, first)
-        return self._schedule(start, TimerHandle(callback, period, on_grid=first is None))
+        return self._schedule(_next_on_grid(time.monotonic(), period), TimerHandle(callback, period))
 
     def _schedule(self, when: float, handle: TimerHandle) -> TimerHandle:
         with self._cond:
@@ -325,16 +324,8 @@ class SimCanPort:
                 except Exception:
                     log.exception("simulated node timer failed")
             if handle.period is not None and not handle.cancelled:
-                # Keep the phase (the grid), but never catch up on a backlog of missed periods.
-                period = handle.period
-                now = time.monotonic()
-                if handle.on_grid:
-                    nxt = _next_on_grid(max(when, now), period)
-                else:
-                    nxt = when + period
-                    if nxt < now:
-                        nxt = now + period - ((now - when) % period)
-                self._schedule(nxt, handle)
+                # Keep the grid, but never catch up on a backlog of missed periods.
+                self._schedule(_next_on_grid(max(when, time.monotonic()), handle.period), handle)
 
     # -- life cycle --------------------------------------------------------------------------
     def close(self) -> None:
