@@ -85,6 +85,28 @@ def complete_futures(batch) -> None:
             future.set_exception(error)
 
 
+#: homing methods (CiA-402 0x6098) and the directions, in the drive's own sense, their search
+#: may sweep from where the axis stands: 1/17/33 down, 2/18/34 up; 19/21 towards the home switch
+#: or, started on it, away from it (the TCS does not read the switch): both; 35/37 none
+HOMING_DIRECTIONS = {1: (-1,), 17: (-1,), 33: (-1,), 2: (1,), 18: (1,), 34: (1,),
+                     19: (1, -1), 21: (-1, 1), 35: (), 37: ()}
+
+
+def homing_search(drive_section) -> tuple[tuple[int, ...], float, float] | None:
+    """How a drive's homing run searches, for the envelope's judgment: (directions in user
+    units — a negative ``increments_per_unit`` reverses them —, the fastest search speed,
+    the homing acceleration), or None when the run does not move (an absolute encoder)."""
+    if drive_section is None or getattr(drive_section, "absolute", False):
+        return None
+    home = drive_section.homing
+    sign = -1 if drive_section.increments_per_unit < 0 else 1
+    directions = tuple(d * sign for d in HOMING_DIRECTIONS.get(int(home.method), (1, -1)))
+    if not directions:
+        return None
+    speed = max(abs(home.speed_switch), abs(home.speed_zero))
+    return directions, speed, abs(home.acceleration)
+
+
 class BufferSlot:
     """One element of ``TRAJECTORY.BUFFER[]``: a staged (TIME, TARGETPOS) pair."""
 
@@ -282,6 +304,11 @@ class Axis(ModuleHealth):
         #: installed by the POINTING module: judges TARGETPOS, OFFSET, RUN and moves
         #: (``guard(axis, kind, value, **kw)``, raises TcsError 9); None: software limits only
         self.envelope: Callable[..., Any] | None = None
+        #: how this axis's homing run searches (:func:`homing_search` of its drive section, set
+        #: by the telescope): the envelope bounds the search; None: the run does not move
+        self.homing_search: tuple[tuple[int, ...], float, float] | None = None
+        self._homing_border: tuple | None = None   # (lo, hi, acceleration) the run is watched at
+        self._homing_stopped: TcsError | None = None  # why the watch halted the run
 
     # ================================================================ asyncio side
 
@@ -476,11 +503,36 @@ class Axis(ModuleHealth):
             if self.motion_state & 1 and not self._homing:
                 raise TcsError(f"{self.module_name}: cannot reference while moving (STOP first)",
                                ErrorNumber.INVMODE)
+            bounds = None if self._homing else self._homing_bounds()
             self.referenced = 0.0  # from now on, until the new run has ended (read at once)
-            self._send("reference", force, future)
+            self._send("reference", force if bounds is None else (force, bounds), future)
         if not wait:
             future.add_done_callback(lambda f: f.cancelled() or f.exception())
         return future
+
+    def _homing_bounds(self) -> tuple | None:
+        """The safety envelope on the homing search (main axes): each way the search may
+        sweep (:data:`HOMING_DIRECTIONS`), with the other axis where it stands, judged up to
+        the software limit at the search speed. A border within the run's stopping distance
+        refuses the referencing (``EnvelopeError``, 9 SOFTLIMIT, nothing starts); farther
+        ones are returned as ``(lo, hi, acceleration)`` (``(position, words)`` or None each),
+        where the control loop halts the run (:meth:`_watch_homing_border`)."""
+        if self.envelope is None or self.discrete or self.homing_search is None:
+            return None
+        directions, speed, acc = self.homing_search
+        if speed <= 0.0 or acc <= 0.0:
+            return None
+        reach = speed * speed / (2.0 * acc) + speed * max(0.1, 5.0 * self.dt)
+        lo = hi = None
+        for direction in directions:
+            border = self.envelope(self, "homing", direction, speed=speed, reach=reach)
+            if direction > 0:
+                hi = border
+            else:
+                lo = border
+        if lo is None and hi is None:
+            return None
+        return lo, hi, acc
 
     def set_run(self, value: int, shift: float | None = None):
         """``TRAJECTORY.RUN``: 1 runs (long-running until the queue ran empty or was
@@ -742,6 +794,7 @@ class Axis(ModuleHealth):
             if self.follower is not None:
                 self.follower.set_speed(value)
         elif kind == "reference":
+            bounds = value[1] if isinstance(value, tuple) else None
             if future is not None:  # a request while homing runs joins it and ends with it
                 if "reference" in self._pending:
                     self._joined.setdefault("reference", []).append(future)
@@ -752,6 +805,7 @@ class Axis(ModuleHealth):
             self._homing = True
             self._homing_started = False
             self._homing_since = now
+            self._homing_border, self._homing_stopped = bounds, None
             self._reference_cause = cause
             self.referenced = 0.0
             self.drive.start_homing()
@@ -892,10 +946,13 @@ class Axis(ModuleHealth):
                 if st.homing is Progress.FAILED:  # the drive refused it: reported below
                     self._homing_started = True
                 else:
-                    self._homing = False
+                    self._homing, self._after_homing = False, True
+                    self.drive.halt()   # (a late start must not search on unwatched)
                     error = TcsError(f"{self.module_name}: homing did not start", ErrorNumber.TIMEOUT)
                     self._resolve("reference", error)
                     self.emit(ERROR, ErrorNumber.REFERENCE_BAD, error.message, self._reference_cause)
+        if self._homing and self._homing_border is not None and self._homing_stopped is None:
+            self._watch_homing_border(st)
         if self._homing and not self._homing_started:
             self.referenced = 0.0
         elif self._homing:
@@ -924,13 +981,35 @@ class Axis(ModuleHealth):
                 self._homing = False
                 self._after_homing = True
                 self.referenced = 0.0
-                error = st.request_error or TcsError(f"{self.module_name}: homing failed", ErrorNumber.TIMEOUT)
+                error = self._homing_stopped or st.request_error or TcsError(
+                    f"{self.module_name}: homing failed", ErrorNumber.TIMEOUT)
                 self._resolve("reference", error)
                 self.emit(ERROR, ErrorNumber.REFERENCE_BAD, error.message, self._reference_cause)
             else:
                 self.referenced = min(0.99, st.homing_progress)
         if self._settle:
             self._watch_settle(st, now)
+
+    def _watch_homing_border(self, st: DriveStatus) -> None:
+        """A homing run heading for a border of the safety envelope (:meth:`_homing_bounds`)
+        is halted where the drive's homing deceleration stops it before the border (the
+        distance it still runs at this speed, plus three cycles of latency); the reference
+        request fails with 9 SOFTLIMIT naming the border."""
+        lo, hi, acc = self._homing_border
+        v = st.velocity
+        reach = v * v / (2.0 * acc) + abs(v) * 3.0 * self.dt + max(self.section.tolerance, 1e-9)
+        for edge, direction in ((hi, 1), (lo, -1)):
+            if edge is None:
+                continue
+            border, words = edge
+            left = (border - st.position) * direction
+            if left <= reach and (v * direction > 0.0 or left <= 0.0):
+                text = (f"referencing stopped at the safety envelope's border: the homing search "
+                        f"would have entered {words}")
+                self._homing_stopped = TcsError(f"{self.module_name}: {text}", ErrorNumber.SOFTLIMIT)
+                self.drive.halt()
+                self.emit(ERROR, ErrorNumber.SOFTLIMIT, text, self._reference_cause)
+                return
 
     def _referenced_now(self) -> None:
         self.referenced = 1.0
@@ -966,13 +1045,19 @@ class Axis(ModuleHealth):
 
     def _motion(self, st: DriveStatus, t: float) -> Setpoint | None:
         if self._after_homing and st.mode == self.cyclic_mode and abs(st.velocity) <= self._standstill:
+            # a homing run that ended early (STOP, ABORT, time-out, refused, stopped at the
+            # envelope's border): the planner starts from where the drive came to rest — never
+            # from the setpoint it held before the run (a return slew nobody asked for)
             self._after_homing = False
+            self._sp = Setpoint(st.position)
+            self.planner.take_over(self._sp)
         if not self._powered or self._homing or self.discrete or not st.enabled or self._after_homing:
             # (after a homing run that ended early the drive brakes in HM while the mode
             # switches back: the setpoint follows where it stands, never a stale one)
             if not self._homing:
                 self._sp = Setpoint(st.position)
-                if self.planner.moving:  # power lost mid-move: the demand is where it stands
+                if self.planner.moving or self._after_homing:
+                    # power lost mid-move, a homing run that ended: the demand is where it stands
                     self.planner.take_over(self._sp)
                 if self._running:  # (the follower was aborted by _stop_motion)
                     self._running = False

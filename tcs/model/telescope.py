@@ -154,7 +154,7 @@ class Telescope:
         self.can = can
 
     async def _start_can(self) -> None:
-        from tcs.axes.axis import Axis
+        from tcs.axes.axis import Axis, homing_search
         from tcs.axes.control_loop import ControlLoop
         from tcs.drivers.can_system import CanDrives
 
@@ -179,6 +179,7 @@ class Telescope:
                         config.can.sync_period, status_sink=self.status_sink,
                         main_power=lambda: self.main_power)
             axis.bind_loop(loop)
+            axis.homing_search = homing_search(config.drives.get(section.drive))
             if section.drive in failures:
                 axis.raise_condition("drive offline", ERROR, failures[section.drive].message)
             report = self.can.eds_reports.get(section.drive)
@@ -197,6 +198,7 @@ class Telescope:
     async def _start_control_process(self) -> None:
         """``[can] control_process``: bus, drives, simulated drives and the loop in a child
         process (:mod:`tcs.axes.control_core`); the axes here are its asyncio side."""
+        from tcs.axes.axis import homing_search
         from tcs.axes.control_process import RemoteAxis, RemoteLoop, rebuild_error
 
         config = self.config
@@ -212,6 +214,7 @@ class Telescope:
                               config.can.sync_period, status_sink=self.status_sink,
                               main_power=lambda: self.main_power)
             axis.bind_loop(loop)
+            axis.homing_search = homing_search(config.drives.get(section.drive))
             failure = info.get("failures", {}).get(section.drive)
             if failure is not None:
                 axis.raise_condition("drive offline", ERROR, rebuild_error(failure).message)

@@ -408,10 +408,13 @@ class Envelope:
         raises :class:`EnvelopeError`. ``kind``: "target" (TARGETPOS value, offset excluded),
         "offset", "run" (the queued TRAJECTORY), "points" (value: (times, positions) added by
         ADDPOINTS to a running trajectory), "jog" (value: direction; returns the
-        (lo, hi) drive bound where the move must stop; ``sky=True``: the horizon too)."""
+        (lo, hi) drive bound where the move must stop; ``sky=True``: the horizon too),
+        "homing" (value: a direction the homing search may sweep; see :meth:`_homing_bound`)."""
         a_first = axis is self.axes[0]
         other = self.axes[1] if a_first else self.axes[0]
         ut1 = self.utc() + self.ut1_utc()
+        if kind == "homing":
+            return self._homing_bound(axis, other, int(value), ut1, kw.get("speed"), kw.get("reach", 0.0))
         if kind == "jog":
             return self._jog_bound(axis, other, int(value), ut1, bool(kw.get("sky")), kw.get("speed"))
         if kind == "points":   # ADDPOINTS while the trajectory runs: the new points
@@ -517,6 +520,34 @@ class Envelope:
             else:
                 bad = mid
         return good
+
+    def _homing_bound(self, axis, other, direction: int, ut1: float, speed, reach: float):
+        """A homing (referencing) search of ``axis`` sweeping in ``direction`` at ``speed``
+        from where it stands, the other axis where it is: every border (Sun cone, horizon,
+        keep-outs) on the way up to the software limit. Returns None (none), or
+        ``(border, words)``: the drive position where the sweep would enter and what it would
+        enter (the axis stops the run there); raises :class:`EnvelopeError` when the border is
+        within ``reach`` (the run's stopping distance) — refused before it starts."""
+        way = "up" if direction > 0 else "down"
+        try:
+            border = self._jog_bound(axis, other, direction, ut1, True, speed)
+        except EnvelopeError as exc:
+            text = exc.message.split(" would enter ", 1)[-1]
+            raise EnvelopeError(f"{axis.module_name}: referencing refused: its homing search ({way}) "
+                                f"would enter {text} at once") from None
+        if border is None:
+            return None
+        here, still = float(axis.real_position), float(other.real_position)
+        beyond = border + direction * STEP / 2.0
+        first = axis is self.axes[0]
+        _m, why = self.margins(*((beyond, still) if first else (still, beyond)),
+                               ut1 + STEP / 2.0 / float(speed or axis.section.max_velocity) - self.ut1_utc())
+        words = self.describe(self.reason(why[0]), *((beyond, still) if first else (still, beyond)))
+        if (border - here) * direction <= reach:
+            raise EnvelopeError(f"{axis.module_name}: referencing refused: its homing search ({way}) "
+                                f"would enter {words} {abs(border - here):.2f}° from here, within its "
+                                f"stopping distance {reach:.2f}° (move the other axis away first)")
+        return border, words
 
     async def run_route(self, route: Route, axis1, axis2) -> None:
         """Move through ``route.waypoints`` (each a TARGETPOS of both axes, awaited) — the
