@@ -52,7 +52,9 @@ def connected_telescope(live) -> Telescope:
 
 
 def ready(live, t: Telescope) -> None:
-    """Unparked, powered and referenced, not tracking."""
+    """Unparked, powered and referenced, not tracking (a drive fault of a loaded machine
+    acknowledged first, as an operator would: Unpark refuses while one is latched)."""
+    t.Action("AcknowledgeFaults", "")
     t.Unpark()
     until(lambda: live.telescope.operations.ready_state == 1.0, "READY_STATE 1", timeout=WAIT)
     if t.Tracking:

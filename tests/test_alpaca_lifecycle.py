@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 alpaca = pytest.importorskip("alpaca", reason="alpyca (the 'dev' extra) is not installed")
-from alpaca.exceptions import DriverException, ParkedException  # noqa: E402
+from alpaca.exceptions import DriverException, InvalidOperationException, ParkedException  # noqa: E402
 from alpaca.telescope import Telescope  # noqa: E402
 
 from support.live import live_service  # noqa: E402
@@ -44,6 +44,7 @@ def make_ready(live, t: Telescope) -> None:
         except DriverException:
             return True
     parked()
+    t.Action("AcknowledgeFaults", "")   # (a drive fault of a loaded machine: as an operator would)
     t.Unpark()
     until(lambda: not t.AtPark, "unparked and ready")
     assert live.telescope.operations.ready_state == 1.0
@@ -121,7 +122,9 @@ def test_cold_start_life_cycle(live):
 
 def test_a_slew_ended_by_a_fault_is_reported_and_unpark_makes_ready(live):
     """A drive fault ends a slew: the next Slewing read answers the failure (DriverError 0x500)
-    instead of a silent False; Unpark acknowledges the fault and makes the telescope ready."""
+    instead of a silent False. Unpark does not acknowledge the drive fault behind the operator's
+    back: it is refused (InvalidOperation naming the fault and how to acknowledge it) and the
+    fault stays latched; after Action("AcknowledgeFaults") it makes the telescope ready."""
     t = Telescope(address(live), 0)
     t.Connect()
     make_ready(live, t)
@@ -146,6 +149,11 @@ def test_a_slew_ended_by_a_fault_is_reported_and_unpark_makes_ready(live):
     assert not t.Tracking
     until(lambda: live.telescope.cabinet.error_state & 2, "the fault latched")
 
+    with pytest.raises(InvalidOperationException) as refused:
+        t.Unpark()                       # the make-ready does not hide the fault
+    assert "drive fault" in str(refused.value) and "AcknowledgeFaults" in str(refused.value), refused.value
+    assert live.telescope.cabinet.error_state & 2 and t.AtPark
+    assert t.Action("AcknowledgeFaults", "") == "acknowledged"   # the operator saw it
     t.Unpark()                           # the operator's "make ready"
     until(lambda: not t.AtPark, "ready again after the fault")
     assert live.telescope.operations.ready_state == 1.0

@@ -18,8 +18,10 @@ What maps to what
   hardware file, or the ones SetPark saved — shared with OpenTSI's READY=0). Park keeps the
   power on. **Life cycle:** ``AtPark`` is True while the telescope cannot move: parked, or cold
   (a main axis unpowered or unreferenced — a fresh service), or while an ``Unpark`` runs.
-  ``Unpark`` is the operator's "make ready" and an asynchronous initiator: it acknowledges
-  recoverable faults (not an emergency off), powers on and references what is not (READY=1)
+  ``Unpark`` is the operator's "make ready" and an asynchronous initiator: it refuses while a
+  fault an operator must see is there (a drive fault, a control-process crash, an emergency off:
+  InvalidOperation naming it; docs/safety.md), acknowledges the other latched conditions,
+  powers on and references what is not (READY=1)
   in the background and returns at once; ``Slewing`` is True meanwhile (ITelescopeV4's
   completion property), ``AtPark`` too; both go False when the telescope is ready.
   Connecting the telescope moves and powers nothing.
@@ -769,26 +771,22 @@ class TelescopeDevice(Device):
         self.start_operation("park", self.ops.park(), "Park")
 
     def put_unpark(self, r) -> None:
-        """Make ready (asynchronous): acknowledge recoverable faults, then READY=1 when the
-        telescope is not operational; AtPark stays True until it is."""
+        """Make ready (asynchronous): READY=1 when the telescope is not operational — refused
+        (InvalidOperation, naming them) while a fault an operator must see is active or latched
+        (a drive fault, a control-process crash, an emergency off: the operator acknowledges
+        those, e.g. Action AcknowledgeFaults); other latched conditions it acknowledges
+        (:meth:`~tcs.model.operations.Operations.check_make_ready`). AtPark stays True until
+        the telescope is ready."""
         if self.running("unpark"):
             return
-        ops, cab = self.ops, self.telescope.cabinet
-        if cab.power_state == -1.0:
-            raise AscomError(Code.INVALID_OPERATION, "Unpark: emergency off is active")
+        ops = self.ops
+        try:
+            ops.check_make_ready("Unpark")
+        except TcsError as exc:
+            raise AscomError(Code.INVALID_OPERATION, exc.message) from None
         self._failure = None
-        ack = cab.acknowledge_errors(0) if cab.error_state & 0x3 else None   # PANIC, ERROR
-        if ack is None:
-            job = ops.unpark()       # raises at once when it cannot start
-            self.start_operation("unpark", job, "Unpark")
-            return
-
-        async def make_ready() -> None:
-            await ack                # the drives' fault resets, then READY=1
-            job = ops.unpark()
-            if job is not None:
-                await job
-        self.start_operation("unpark", make_ready(), "Unpark")
+        job = ops.unpark()       # raises at once when it cannot start
+        self.start_operation("unpark", job, "Unpark")
 
     def put_setpark(self, r) -> None:
         self.ops.set_park_here()

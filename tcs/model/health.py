@@ -106,6 +106,12 @@ class ModuleHealth:
         with self._health_lock:
             return {n: (e[0], e[1]) for n, e in self._conditions.items()}
 
+    def standing(self) -> dict[str, int]:
+        """The conditions that count in ``error_state`` now (active, or latched until an
+        acknowledge): name -> bits."""
+        with self._health_lock:
+            return {n: e[0] for n, e in self._conditions.items() if e[1] or e[2]}
+
     def _changed(self, before: int, text: str) -> None:
         after = self.error_state
         if after != before and self._events is not None:

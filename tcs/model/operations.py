@@ -49,6 +49,19 @@ from tcs.pointing.targets import BodyTarget
 log = logging.getLogger(__name__)
 
 MOVING, TRAJECTORY, ON_TARGET, PARKING = 1, 2, 8, 32
+#: Error conditions an operator must see and acknowledge himself (CABINET.ERROR_STATE=0, OpenTSI
+#: STATUS.CLEAR, Alpaca Action("AcknowledgeFaults")) before a make-ready (READY=1, Alpaca
+#: Unpark) may power and reference the telescope: active or latched, they refuse it. Every
+#: other latched condition (a verb that failed, a PLC or the GPS receiver that was lost and
+#: came back, warnings) the make-ready acknowledges itself. Any condition with the PANIC bit
+#: counts as one of these too. docs/safety.md keeps the list for operators.
+OPERATOR_FAULTS = {
+    "emergency_off": "emergency off",
+    "drive fault": "drive fault",
+    "control process": "control process crashed",
+    "drive offline": "drive offline",
+    "axis fault": "axis fault",
+}
 MAIN_AXES = {"AZ-ZD": ("AZ", "ZD"), "RA-DEC": ("HA", "DEC")}
 
 
@@ -222,17 +235,61 @@ class Operations(ModuleHealth):
                 raise stale
 
     # -- READY -------------------------------------------------------------------------------------
+    def operator_faults(self) -> list[str]:
+        """The conditions (active or latched) of :data:`OPERATOR_FAULTS` — and any PANIC — of
+        the cabinet and its modules, as ``"MODULE: what (text)"``."""
+        cab = self.cabinet
+        found = []
+        for member in (cab, *cab.members()):
+            standing = getattr(member, "standing", None)
+            if not callable(standing):
+                continue
+            for name, bits in standing().items():
+                if name in OPERATOR_FAULTS or bits & PANIC:
+                    what = OPERATOR_FAULTS.get(name, name)
+                    fault = getattr(member, "fault", None) if name == "drive fault" else None
+                    text = f" ({fault.message})" if fault is not None and getattr(fault, "message", "") else ""
+                    found.append(f"{getattr(member, 'module_name', '?')}: {what}{text}")
+        return found
+
+    def check_make_ready(self, what: str = "READY=1") -> None:
+        """Refuse a make-ready (``what``) while a fault an operator must see is active or
+        latched (:data:`OPERATOR_FAULTS`): the error names them and how to acknowledge."""
+        if self.cabinet.power_state == -1.0:
+            raise TcsError(f"{what} refused: emergency off is active (release it, then acknowledge "
+                           "with CABINET.ERROR_STATE=0)", ErrorNumber.INVMODE)
+        faults = self.operator_faults()
+        if faults:
+            raise TcsError(f"{what} refused: {'; '.join(faults)} — an operator acknowledges it first "
+                           "(CABINET.ERROR_STATE=0, OpenTSI TELESCOPE.STATUS.CLEAR, Alpaca "
+                           "Action AcknowledgeFaults)", ErrorNumber.INVMODE)
+
+    def acknowledge_harmless(self):
+        """Acknowledge the latched conditions a make-ready may (none of
+        :data:`OPERATOR_FAULTS`: :meth:`check_make_ready` ran before): None, or the awaitable
+        of CABINET.ERROR_STATE=0."""
+        cab = self.cabinet
+        if not cab.error_state & (PANIC | ERROR):
+            return None
+        return cab.acknowledge_errors(0)
+
     def set_ready(self, value: int):
-        """``READY`` 1 / 0 (long-running; a newer one supersedes the older)."""
+        """``READY`` 1 / 0 (long-running; a newer one supersedes the older). READY=1 is the
+        make-ready: refused while a fault an operator must see is there
+        (:meth:`check_make_ready`); other latched conditions it acknowledges."""
         on = bool(int(value))
-        if on and self.cabinet.power_state == -1.0:
-            raise TcsError("emergency off is active", ErrorNumber.INVMODE)
+        ack = None
+        if on:
+            self.check_make_ready("READY=1")
+            ack = self.acknowledge_harmless()
         self._ready_demand = int(on)
         if on:
             self._parked = False   # READY=1 is OpenTSI's unpark
-        return self._start("ready" if on else "park", self._ready_on() if on else self._park_off())
+        return self._start("ready" if on else "park", self._ready_on(ack) if on else self._park_off())
 
-    async def _ready_on(self) -> None:
+    async def _ready_on(self, ack=None) -> None:
+        if ack is not None:
+            await ack
         cab = self.cabinet
         if cab.power_state != 1.0 or any(a.power_state != 1.0 for a in self.telescope.axes):
             await cab.set_power(1)   # (ended: the power sequence stops; what is on stays on)
