@@ -36,6 +36,7 @@ def build_alpaca_server(config, telescope, commands=None) -> AlpacaServer:
     devices = build_devices(telescope, commands)
     for device in devices:  # a state read's value answers the same read again while nothing changed
         device.reuse_value = config.server.reuse_reply
+        device.read_only = section.read_only
     return AlpacaServer(devices, manufacturer=config.cabinet.manufacturer,
                         server_name=section.server_name, location=section.location)
 

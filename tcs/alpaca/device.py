@@ -77,6 +77,9 @@ COMMON_RULES: dict[str, str] = {
     "commandstring": "synchronous: as CommandBlind",
 }
 #: Members answered while not connected (everything else: NotConnected 0x407).
+#: The PUT members a read-only server (``[alpaca] read_only``) still takes: the connection flag
+#: (Connect then only sets it), without which a client cannot read.
+READ_ONLY_PUTS = frozenset({"connect", "disconnect", "connected"})
 UNCONNECTED = {"connected", "connecting", "connect", "disconnect", "description", "driverinfo",
                "driverversion", "interfaceversion", "name", "supportedactions"}
 
@@ -135,6 +138,9 @@ class Device:
         self.unique_id = str(uuid.uuid5(uuid.NAMESPACE_URL, f"tcs-alpaca:{unique_seed}:{self.TYPE}:{number}"))
         #: ``[server] reuse_reply``: seconds a state read's value answers the same member again
         self.reuse_value = 0.0
+        #: ``[alpaca] read_only``: every PUT but the connection's own answers InvalidOperation
+        #: (reads work; Connect sets the flag and powers nothing)
+        self.read_only = False
         self._values: dict[str, tuple[int, float, Any]] = {}  # member -> (epoch, time, value)
         self._handlers: dict[tuple[str, str], Any] = {}  # (method, member) -> bound handler
 
@@ -160,6 +166,11 @@ class Device:
                 raise not_implemented(f"{self.NAME}.{member}")
             handlers[(method, member)] = handler
         self.check_parameters(handler.__name__, request)
+        if self.read_only and method == "PUT" and member not in READ_ONLY_PUTS:
+            raise AscomError(Code.INVALID_OPERATION,
+                             f"{self.NAME}.{member} refused: this Alpaca server is read-only "
+                             f"([alpaca] read_only = true in the hardware file); it reads the "
+                             f"telescope, moving and changing it is for OpenTCI/OpenTSI clients")
         if member not in UNCONNECTED and member not in self.ALWAYS and not self.connected:
             raise AscomError(Code.NOT_CONNECTED, f"{self.NAME} {self.number} is not connected")
         reusable = method == "GET" and self.reuse_value > 0 and not self._takes_parameters(handler.__name__)
@@ -228,7 +239,8 @@ class Device:
         self._want_connected = True
         if self._connecting is not None and not self._connecting.done():
             return self._connecting
-        if not self.needs_preparing():   # connected before the reply: nothing to wait for
+        if self.read_only or not self.needs_preparing():   # connected before the reply: nothing
+            # to wait for (read-only: Connect powers nothing)
             self.connected = True
             done = asyncio.get_running_loop().create_future()
             done.set_result(None)
