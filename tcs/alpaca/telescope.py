@@ -20,7 +20,7 @@ What maps to what
   (a main axis unpowered or unreferenced — a fresh service), or while an ``Unpark`` runs.
   ``Unpark`` is the operator's "make ready" and an asynchronous initiator: it refuses while a
   fault an operator must see is there (a drive fault, a control-process crash, an emergency off:
-  InvalidOperation naming it; docs/safety.md), acknowledges the other latched conditions,
+  InvalidOperation naming it; docs/homing-and-make-ready.md), acknowledges the other latched conditions,
   powers on and references what is not (READY=1)
   in the background and returns at once; ``Slewing`` is True meanwhile (ITelescopeV4's
   completion property), ``AtPark`` too; both go False when the telescope is ready.

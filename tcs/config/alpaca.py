@@ -11,7 +11,7 @@ Tracking, sync …) answers InvalidOperation (0x40B) naming the setting; reads, 
 connection flag (Connect only sets it, it powers nothing), still work. The default is
 ``false``: the front end is already off unless the file gives it a port, and whoever gives it
 one does so for an Alpaca client (NINA, a scheduler) to drive the telescope; the safety
-envelope and the make-ready policy (docs/safety.md) bound what such a client can do. An
+envelope and the make-ready policy (docs/homing-and-make-ready.md) bound what such a client can do. An
 observatory that serves Alpaca for displays, dashboards or monitoring only sets it true.
 """
 

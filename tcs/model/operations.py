@@ -54,7 +54,7 @@ MOVING, TRAJECTORY, ON_TARGET, PARKING = 1, 2, 8, 32
 #: Unpark) may power and reference the telescope: active or latched, they refuse it. Every
 #: other latched condition (a verb that failed, a PLC or the GPS receiver that was lost and
 #: came back, warnings) the make-ready acknowledges itself. Any condition with the PANIC bit
-#: counts as one of these too. docs/safety.md keeps the list for operators.
+#: counts as one of these too. docs/homing-and-make-ready.md keeps the list for operators.
 OPERATOR_FAULTS = {
     "emergency_off": "emergency off",
     "drive fault": "drive fault",
