@@ -11,7 +11,8 @@ Checked over the real protocols (TPL2, OpenTSI, Alpaca HTTP; drives on the simul
 
 * a STOP during referencing, and a homing time-out, leave AZ where it came to rest — no slew
   back to the position the planner held before the run (``AZ.TARGETPOS=-30``, ``REINIT=1``,
-  ``STOP=1`` drove back to −30 with no command);
+  ``STOP=1`` drove back to −30 with no command) — in the threaded loop and over the control
+  process (``sim.toml`` as shipped);
 * a homing search that would sweep into the Sun cone is halted at its border (REINIT fails
   with 9 naming the cone), and one that starts at the border is refused before it moves —
   also when Alpaca's Unpark or OpenTSI's READY=1 start it;
@@ -299,48 +300,78 @@ async def test_unpark_and_ready_refuse_a_latched_drive_fault(live):
 
 # ------------------------------------------------------------------ services of their own
 
-async def test_unpark_and_ready_refuse_a_latched_control_process_crash(tmp_path):
+@pytest.fixture(scope="module")
+def proc_live(tmp_path_factory):
+    """The shipped ``sim.toml`` as it is (the loop in a control process; Sun cone off)."""
+    from tcs.config import DEFAULT_CONFIG
+    base = tmp_path_factory.mktemp("proc")
+    service = LiveService(DEFAULT_CONFIG, base / "state").start()
+    try:
+        yield service
+    finally:
+        service.stop()
+
+
+async def test_control_process_stop_during_referencing_leaves_az_where_it_halted(proc_live):
+    """The same over the control process (``sim.toml``: AZ homes upward to its switch at 11°
+    at 2°/s): ``AZ.TARGETPOS=5``, ``REINIT=1``, ``STOP=1`` during the search — AZ stays where
+    it halted, TARGETPOS reads that, no slew back to 5."""
+    c = await Client.connect(proc_live.port)
+    try:
+        await c.set("CABINET.POWER=1")
+        await c.set("AZ.REINIT=0")
+        await c.wait("AZ.REFERENCED", lambda v: v == 1.0)
+        assert ok(await c.set("AZ.TARGETPOS=5"), "AZ.TARGETPOS")
+        c.forget()
+        await c.set("AZ.REINIT=1")
+        await c.wait("AZ.REALPOS", lambda v: v > 6.5)
+        await c.set("AZ.STOP=1")
+        await c.event(r"EVENT ERROR AZ:20 ")
+        halted = await at_rest(c)
+        assert halted > 6.5 and await c.num("AZ.REFERENCED") == 0.0
+        await stays(c, "AZ.REALPOS", halted)
+        assert abs(await c.num("AZ.TARGETPOS") - halted) < 0.01
+    finally:
+        await c.close()
+
+
+async def test_unpark_and_ready_refuse_a_latched_control_process_crash(proc_live):
     """``sim.toml`` (the loop in a control process): kill -9 of the control process, a new one
     is started; the crash stays latched, and Alpaca ``Unpark`` / OpenTSI ``READY=1`` refuse,
     naming it, until it is acknowledged — then Unpark starts the make-ready."""
     pytest.importorskip("alpaca", reason="alpyca (the 'dev' extra) is not installed")
     from alpaca.exceptions import InvalidOperationException
     from alpaca.telescope import Telescope
-    from tcs.app import Service
     from test_control_process import _children
 
-    service = Service(make_config(tmp_path / "state"))
-    await service.start()
+    service = proc_live.service
+    (child,) = _children(os.getpid())
+    os.kill(child, signal.SIGKILL)
+    process = service.telescope.can
+    deadline = time.monotonic() + 120
+    while _children(os.getpid()) in ([], [child]) or process.respawning or \
+            process._gone is not None or not service.telescope.control_loop.healthy():
+        assert time.monotonic() < deadline and not process.given_up, "not restarted"
+        await asyncio.sleep(0.1)
+    t = Telescope(f"127.0.0.1:{service.alpaca_port}", 0)
+    await asyncio.to_thread(t.Connect)
     try:
-        (child,) = _children(os.getpid())
-        os.kill(child, signal.SIGKILL)
-        process = service.telescope.can
-        deadline = time.monotonic() + 120
-        while _children(os.getpid()) in ([], [child]) or process.respawning or \
-                process._gone is not None or not service.telescope.control_loop.healthy():
-            assert time.monotonic() < deadline and not process.given_up, "not restarted"
-            await asyncio.sleep(0.1)
-        t = Telescope(f"127.0.0.1:{service.alpaca_port}", 0)
-        await asyncio.to_thread(t.Connect)
+        with pytest.raises(InvalidOperationException) as refused:
+            await asyncio.to_thread(t.Unpark)
+        assert "control process crashed" in str(refused.value), refused.value
+        tsi = await Client.connect(service.opentsi_port)
         try:
-            with pytest.raises(InvalidOperationException) as refused:
-                await asyncio.to_thread(t.Unpark)
-            assert "control process crashed" in str(refused.value), refused.value
-            tsi = await Client.connect(service.opentsi_port)
-            try:
-                lines = await tsi.set("TELESCOPE.READY=1")
-                assert any("DATA ERROR TELESCOPE.READY" in x for x in lines), lines
-                assert any("control process" in x for x in lines), lines
-            finally:
-                await tsi.close()
-            assert service.telescope.cabinet.error_state & 2
-            assert await asyncio.to_thread(t.Action, "AcknowledgeFaults", "") == "acknowledged"
-            await asyncio.to_thread(t.Unpark)                  # accepted now (runs in the background)
-            await asyncio.to_thread(t.AbortSlew)
+            lines = await tsi.set("TELESCOPE.READY=1")
+            assert any("DATA ERROR TELESCOPE.READY" in x for x in lines), lines
+            assert any("control process" in x for x in lines), lines
         finally:
-            await asyncio.to_thread(t.Disconnect)
+            await tsi.close()
+        assert service.telescope.cabinet.error_state & 2
+        assert await asyncio.to_thread(t.Action, "AcknowledgeFaults", "") == "acknowledged"
+        await asyncio.to_thread(t.Unpark)                  # accepted now (runs in the background)
+        await asyncio.to_thread(t.AbortSlew)
     finally:
-        await service.stop()
+        await asyncio.to_thread(t.Disconnect)
 
 
 async def test_read_only_alpaca_refuses_motion_and_answers_reads(tmp_path):

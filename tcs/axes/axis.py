@@ -22,7 +22,10 @@ starts (RANGE, nothing moves) and again on every setpoint (the planner's limit g
 a quick stop of the planner/follower and always accepted; a drive fault stops the axis, fails
 its pending SETs and powers it off — nothing re-enables it but an explicit POWER=1 after the
 fault was acknowledged (ERROR_STATE=0); an unreferenced axis refuses TARGETPOS, OFFSET and
-trajectories (5 invmode) and moves only to reference. A TPL2 ABORT of the command that started a
+trajectories (5 invmode) and moves only to reference. However a homing run ends (done, STOP,
+ABORT, time-out, a fault, a run that never started, the envelope's border), the planner
+continues from where the drive came to rest, never from a setpoint held before the run; the
+envelope bounds the homing search of a main axis (:meth:`Axis._homing_bounds`). A TPL2 ABORT of the command that started a
 motion (``abort_request``, matched by the command's cause) stops it with the normal deceleration;
 ``move_toward`` (Alpaca MoveAxis) runs to a drive-frame end at its own speed, never the other
 way; every sent setpoint step is cut to the speed and acceleration limits (``_limit_step``).

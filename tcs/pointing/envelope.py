@@ -43,8 +43,11 @@ consecutive TARGETPOS moves of both axes.
 judges every other motion request before the axis takes it: TARGETPOS and OFFSET (Sun cone
 and keep-outs — engineering moves keep the software limits as before, no horizon), a client
 TRAJECTORY run (the whole queued path, all borders), ``move_toward`` (Alpaca MoveAxis, jogs:
-the move is bounded to stop at the border). The other axis is predicted as it will move: its
-approved move (recorded here), its queued trajectory, its planner target, or at rest.
+the move is bounded to stop at the border), a homing search (each way its method may sweep,
+at its search speed, the other axis where it stands, all borders: refused when a border is
+within its stopping distance, else the border where the axis halts the run). The other axis is
+predicted as it will move: its approved move (recorded here), its queued trajectory, its
+planner target, or at rest.
 
 What may touch it
 -----------------
