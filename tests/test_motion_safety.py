@@ -104,6 +104,9 @@ async def ready(live, c: Client, *axes: str) -> None:
     not tracking."""
     assert (await aput(live, "connected", Connected="true"))["ErrorNumber"] == 0
     if live.telescope.operations.at_park:
+        # (Unpark refuses while a drive fault an earlier test left is latched: acknowledged
+        # first, as an operator would)
+        await aput(live, "action", Action="AcknowledgeFaults", Parameters="")
         assert (await aput(live, "unpark"))["ErrorNumber"] == 0
     if await c.get("CABINET.POWER_STATE") != "1.0":
         assert done_ok(await c.set("CABINET.POWER=1", 60), "CABINET.POWER")
