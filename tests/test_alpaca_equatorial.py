@@ -100,6 +100,7 @@ def test_moveaxis_on_an_equatorial_mount_stops_at_the_horizon_limit(live):
 
     t = Telescope(f"127.0.0.1:{live.service.alpaca_port}", 0)
     t.Connect()
+    t.Action("AcknowledgeFaults", "")   # (Unpark refuses while a drive fault is latched)
     t.Unpark()
     until(lambda: live.telescope.operations.ready_state == 1.0, "READY_STATE 1")
     t.Tracking = False
@@ -137,6 +138,7 @@ def test_destination_side_of_pier_is_the_side_the_slew_ends_on(live):
 
     t = Telescope(f"127.0.0.1:{live.service.alpaca_port}", 0)
     t.Connect()
+    t.Action("AcknowledgeFaults", "")   # (Unpark refuses while a drive fault is latched)
     t.Unpark()
     until(lambda: live.telescope.operations.ready_state == 1.0, "READY_STATE 1")
     try:
