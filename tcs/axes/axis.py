@@ -25,8 +25,8 @@ fault was acknowledged (ERROR_STATE=0); an unreferenced axis refuses TARGETPOS, 
 trajectories (5 invmode) and moves only to reference. However a homing run ends (done, STOP,
 ABORT, time-out, a fault, a run that never started, the envelope's border), the planner
 continues from where the drive came to rest, never from a setpoint held before the run; the
-envelope bounds the homing search of a main axis (:meth:`Axis._homing_bounds`). A TPL2 ABORT of the command that started a
-motion (``abort_request``, matched by the command's cause) stops it with the normal deceleration;
+envelope bounds the homing search of a main axis (:meth:`Axis._homing_bounds`). A TPL2 ABORT
+of the command that started a motion (``abort_request``, matched by the command's cause) stops it with the normal deceleration;
 ``move_toward`` (Alpaca MoveAxis) runs to a drive-frame end at its own speed, never the other
 way; every sent setpoint step is cut to the speed and acceleration limits (``_limit_step``).
 

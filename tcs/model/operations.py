@@ -248,7 +248,8 @@ class Operations(ModuleHealth):
                 if name in OPERATOR_FAULTS or bits & PANIC:
                     what = OPERATOR_FAULTS.get(name, name)
                     fault = getattr(member, "fault", None) if name == "drive fault" else None
-                    text = f" ({fault.message})" if fault is not None and getattr(fault, "message", "") else ""
+                    message = getattr(fault, "message", "") if fault is not None else ""
+                    text = f" ({message})" if message else ""
                     found.append(f"{getattr(member, 'module_name', '?')}: {what}{text}")
         return found
 
