@@ -100,6 +100,19 @@ def test_scan_identifies_every_configured_drive(hw, capsys):
     assert "0x6502" in az["tcs_mode_reason"]
 
 
+def test_scan_says_discrete_axes_run_in_profile_position(capsys):
+    """The shipped telescope's filter wheel and M3 make profile moves (PP), whatever their
+    drives offer: scan says so instead of the streaming mode their drives would be given."""
+    code, out = run(capsys, "scan", "--nodes", "1,6-7")
+    assert code == 0, out
+    nodes = {n["node_id"]: n for n in out["nodes"]}
+    assert nodes[6]["drive"] == "filter" and nodes[7]["drive"] == "m3"
+    for n in (6, 7):
+        assert nodes[n]["tcs_mode"] == "PP", nodes[n]
+        assert "discrete positions" in nodes[n]["tcs_mode_reason"]
+    assert nodes[1]["tcs_mode"] == "CSP"      # the azimuth streams
+
+
 def test_scan_reports_missing_and_foreign_nodes(hw, capsys, monkeypatch):
     # A configured drive nobody simulates (node 9), and at node 10 a device of another product.
     text = hw.read_text()
@@ -141,6 +154,13 @@ def test_info_reads_configuration_and_live_values(hw, capsys):
     assert out["live"]["state"] == "switch on disabled"
     assert out["live"]["position"] == pytest.approx(10.0)   # the simulated motor's start
     assert out["live"]["negative_limit"] is False
+    # A drive the service has not booted since its power-up holds its own defaults: that is
+    # said, and its differences are not flagged as wrong.
+    assert out["configured_by_service"] is False and "0x6098:0" in out["differing"]
+    captured = main(["info", "focus", "--config", str(hw)])
+    text = capsys.readouterr().out
+    assert captured == 0 and "≠" not in text, text
+    assert "· 0x6098:0" in text and "has not booted it since it powered up" in text, text
 
 
 # ------------------------------------------------------------------------------ home
@@ -179,13 +199,14 @@ def test_home_without_drives_is_hardware_error(hw, capsys):
 def test_limit_search_writes_limits_keeping_comments(hw, capsys):
     before = hw.read_text()
     code, out = run(capsys, "limits", "az", "--config", hw, "--speed", "8", "--overtravel", "2",
-                    "--margin", "0.5", "--write")
+                    "--margin", "0.5", "--write", "--force")   # --force: the file's are narrower
     assert code == 0, out
     sides = {s["side"]: s for s in out["sides"]}
+    assert len(out["widening"]) == 4
     # Switches at physical ±6; homing put 0 at the home switch (physical 0.5).
     neg, pos = sides["negative"]["position"], sides["positive"]["position"]
     assert neg == pytest.approx(-6.5, abs=0.15) and pos == pytest.approx(5.5, abs=0.15)
-    assert "0x8612" in sides["positive"]["detected_by"] or "0x60FD" in sides["positive"]["detected_by"]
+    assert "0x60FD" in sides["positive"]["detected_by"] and "0x60FD" in sides["negative"]["detected_by"]
     assert out["proposal"] == {"axis": {"min": round(neg + 0.5, 4), "max": round(pos - 0.5, 4)},
                                "drive": {"min_position": round(neg + 0.25, 4),
                                          "max_position": round(pos - 0.25, 4)}}
@@ -201,6 +222,20 @@ def test_limit_search_writes_limits_keeping_comments(hw, capsys):
     assert config.drives["az"].max_position == round(pos - 0.25, 4)
     assert config.axes["zd"].min == -85.0                     # nothing else touched
     assert len(after.splitlines()) == len(before.splitlines())
+
+
+def test_limit_search_never_widens_the_files_limits_without_force(hw, capsys):
+    """The switch at +5.5 proposes max 5.0 (axis) and 5.25 (drive); the file's axis max 4.5 is
+    narrower and stays, the drive's max_position 5.0 is narrower too: nothing is written."""
+    before = hw.read_text()
+    code, out = run(capsys, "limits", "az", "--config", hw, "--speed", "8", "--side", "positive",
+                    "--margin", "0.5", "--write")
+    assert code == 0, out
+    assert out["sides"][0]["found"] and "0x60FD" in out["sides"][0]["detected_by"]
+    widened = {w["key"] for w in out["widening"]}
+    assert widened == {"axes.az.max", "drives.az.max_position"}, out["widening"]
+    assert out["written"] is None and hw.read_text() == before
+    assert out["sides"][0]["position"] == pytest.approx(5.5, abs=0.15)
 
 
 def test_limit_search_never_writes_a_shipped_file(capsys):
@@ -235,7 +270,7 @@ def test_limit_search_without_switch_fails_and_writes_nothing(hw, capsys):
 
 
 def test_switch_watch_takes_input_or_limit_fault():
-    # The two ways a drive reports its limit switch (the simulator only ever faults).
+    # The two ways a drive reports its limit switch (the simulator faults, and sets 0x60FD).
     watch = SwitchWatch("limit_positive")
     assert not watch(DriveStatus("az", DriveState.OPERATION_ENABLED, position=1.0))
     assert watch(DriveStatus("az", DriveState.OPERATION_ENABLED, position=2.5, limit_positive=True))
@@ -246,6 +281,12 @@ def test_switch_watch_takes_input_or_limit_fault():
     fault = DriveFault("drive az (node 1)", 0x8612)
     assert watch(DriveStatus("az", DriveState.FAULT, position=-3.0, fault=fault))
     assert watch.position == -3.0 and "0x8612" in watch.detected_by
+    # a limit fault alone is not a switch: only the input, seen once the drive stopped, is
+    assert not watch.confirmed
+    assert not watch.confirm(DriveStatus("az", DriveState.FAULT, position=-3.1, fault=fault))
+    assert watch.confirm(DriveStatus("az", DriveState.FAULT, position=-3.1, fault=fault,
+                                     limit_negative=True))
+    assert watch.position == -3.0 and "0x60FD" in watch.detected_by
     other = SwitchWatch("limit_negative")
     assert not other(DriveStatus("az", DriveState.FAULT, position=-3.0,
                                  fault=DriveFault("drive az (node 1)", 0x8611)))

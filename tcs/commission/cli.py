@@ -46,7 +46,8 @@ def common_options() -> argparse.ArgumentParser:
                      help="never start simulated drives")
     g.add_argument("--force", action="store_true",
                    help="go on although another master (tcs-server?) is seen on the bus; "
-                        "pointing: fit although there are fewer than 3 samples per term")
+                        "pointing: fit although there are fewer than 3 samples per term; "
+                        "limits --write: also widen the file's limits to the proposal")
     g.add_argument("--log-level", default="ERROR",
                    choices=["DEBUG", "INFO", "WARNING", "ERROR"], help="log to stderr (default ERROR)")
     return p

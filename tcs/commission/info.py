@@ -7,6 +7,14 @@ value the hardware file asks for, so a drive configured by an earlier service ru
 checked; then identity, state and the live values (statusword, mode, position, velocity,
 following error, digital inputs, error register and code) in user units.
 
+The service writes every one of these objects at each boot, and most drives forget them at
+power-off: a drive the service has not booted since it powered up holds its own defaults, so
+its differences say nothing. Whether the service configured it is read from the producer
+heartbeat time 0x1017, which the service writes first and nothing changes afterwards: when
+it differs, the rows are marked ``·`` ("written at the next boot") and a summary says so;
+only a configured drive's differences are marked ``≠``. 0x1006 may also hold the idle SYNC's
+period (``[can] idle_sync_period``), which the service sets while every drive rests.
+
 Exit codes: 0 read, 3 the node does not answer.
 """
 
@@ -77,6 +85,13 @@ def run(args, config) -> Outcome:
         live["negative_limit"] = bool(inputs & 1)
         live["positive_limit"] = bool(inputs & 2)
         live["home_switch"] = bool(inputs & 4)
+    idle = getattr(config.can, "idle_sync_period", None)
+    for r in rows:
+        if not r["match"] and r["object"] == "0x1006:0" and idle and r["drive"] == round(idle * 1e6):
+            r["match"], r["note"] = True, "idle SYNC period"
+    heartbeat = next((r for r in rows if r["object"] == "0x1017:0"), None)
+    configured = heartbeat is not None and heartbeat["match"]
+    differing = [r for r in rows if not r["match"]]
     wrong = compare_identity(section, identity)
     axis = target.axis_section
     out.data.update(
@@ -87,7 +102,8 @@ def run(args, config) -> Outcome:
               "homing_method": section.homing.method, "homing_timeout": section.homing.timeout,
               "axis_min": axis.min if axis else None, "axis_max": axis.max if axis else None,
               "module": axis.module if axis else None},
-        configuration=rows, live=live)
+        configuration=rows, configured_by_service=configured,
+        differing=[r["object"] for r in differing], live=live)
     out.lines.append(f"{target.label}: node {section.node_id}, device type 0x{device_type:08X}, "
                      + " ".join(f"{n} 0x{v:08X}" for n, v in identity.items() if v is not None))
     if wrong:
@@ -98,11 +114,21 @@ def run(args, config) -> Outcome:
     out.lines.append(f"  drive limits [{section.min_position:g}, {section.max_position:g}], "
                      f"{k:g} increments/unit, mode {section.default_mode}, homing method "
                      f"{section.homing.method} (time-out {section.homing.timeout:g} s)")
-    out.lines.append("  configuration (drive / hardware file):")
+    out.lines.append("  configuration the service writes at every boot (drive now / hardware file):")
     for r in rows:
-        mark = "  " if r["match"] else "≠ "
+        mark = "  " if r["match"] else ("≠ " if configured else "· ")
         shown = r["note"] if r["drive"] is None else r["drive"]
         out.lines.append(f"   {mark}{r['object']:<9} {r['name']:<28} {shown!s:>12} / {r['file']}")
+    if not differing:
+        out.lines.append("  every value is as the hardware file asks")
+    elif configured:
+        out.lines.append(f"  ≠ {len(differing)} value(s) differ on a drive the service has "
+                         "configured: changed since (by another tool?) or refused by the drive; "
+                         "the service writes them again at its next boot")
+    else:
+        out.lines.append(f"  · the drive holds its power-on values ({len(differing)} differ from "
+                         "the file): the service has not booted it since it powered up, and "
+                         "writes each of them at boot — nothing to do")
     out.lines.append(f"  live: state {live['state']}, statusword "
                      f"{'-' if sw is None else f'0x{sw:04X}'}, mode {live.get('mode')}, "
                      f"position {fmt(live.get('position'))}, velocity {fmt(live.get('velocity'))}, "

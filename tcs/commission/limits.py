@@ -13,15 +13,22 @@ How it works
    search range, with a watcher in the cycle thread that catches the switch the first cycle
    it shows: the digital input 0x60FD (limit bit of that side) **or** a drive fault with the
    OpenTCI number ``limit`` (0x8612 position limit, vendor limit codes). The position of that
-   cycle is the switch position (accurate to about speed × SYNC period). A drive that stops
-   on the input without faulting gets a quick stop of the profile; a drive that faulted gets
-   a fault reset and is enabled again. Then it backs off the switch by ``--backoff``
-   (default ``--margin``) and must see the switch inactive again.
+   cycle is the switch position (accurate to about speed × SYNC period). **Only the input
+   makes it a switch**: a limit fault is taken as the switch only when the drive, once
+   stopped, shows that side's input active (drives fault on their switch, and the input
+   often arrives a cycle after the EMCY); a limit fault with the input inactive is the drive's
+   own position limit (0x607D, a vendor travel limit), reported as such and never proposed as
+   a switch. A drive that stops on the input without faulting gets a quick stop of the
+   profile; a drive that faulted gets a fault reset and is enabled again. Then it backs off
+   the switch by ``--backoff`` (default ``--margin``) and must see the switch inactive again.
 4. The proposal keeps ``--margin`` (user units, default 1) inside the switches for the axis
    limits (``[axes.<name>] min/max``) and half of it for the drive's own limits
    (``[drives.<name>] min_position/max_position``), which thus sit between the axis limits
    and the switches. With ``--write`` they are written to the hardware file with tomlkit
-   (comments and layout kept), after validating the edited file.
+   (comments and layout kept), after validating the edited file. ``--write`` only ever
+   *narrows* the file's limits: a proposed limit outside the file's present one (the file's
+   limits already lie inside the switches) is kept as it is and said so, unless ``--force``
+   is given — widening a software limit is a decision for the engineer, not a side effect.
 
 A drive with a negative ``increments_per_unit`` has its switches the other way round: the
 "negative" side here is always towards smaller user positions.
@@ -51,6 +58,8 @@ from tcs.commission.progress import ProgressBar
 from tcs.commission.session import DriveSession, prepare_config
 
 SIDES = ("negative", "positive")
+#: s to wait, after a limit fault, for the input that makes it a switch
+CONFIRM_TIMEOUT = 2.0
 
 
 def add_parser(subparsers, parents) -> None:
@@ -70,7 +79,8 @@ def add_parser(subparsers, parents) -> None:
     p.add_argument("--side", choices=("both", *SIDES), default="both", help="which switch(es) to find")
     p.add_argument("--no-home", action="store_true", help="do not reference the drive first")
     p.add_argument("--write", action="store_true",
-                   help="write the proposed limits to the hardware file (comments kept)")
+                   help="write the proposed limits to the hardware file (comments kept); it only "
+                        "narrows the file's limits, --force also widens them")
 
 
 def search_range(target: Target, overtravel: float | None, search) -> tuple[float, float]:
@@ -109,25 +119,56 @@ def propose(negative: float | None, positive: float | None, margin: float) -> di
     return out
 
 
+def widening(values: dict, current: dict) -> list:
+    """Keys whose proposed value lies outside the file's present one (a wider range)."""
+    out = []
+    for key, value in values.items():
+        have = current.get(key)
+        if have is None:
+            continue
+        lower = key[-1] in ("min", "min_position")
+        if (value < have) if lower else (value > have):
+            out.append(key)
+    return out
+
+
 class SwitchWatch:
-    """Cycle-thread watcher: catches the first status showing the switch of one side."""
+    """Cycle-thread watcher: catches the first status showing the switch of one side.
+
+    ``position`` is where the search stopped being free: the first cycle with the input of
+    that side (``confirmed`` at once) or with a limit fault (``confirmed`` only once
+    :meth:`confirm` sees the input: a limit fault alone may be the drive's own position
+    limit, not a switch).
+    """
 
     def __init__(self, attribute: str):
         self.attribute = attribute
         self.position: float | None = None
         self.detected_by: str | None = None
+        self.confirmed = False
+        self.fault_message: str | None = None
 
     def __call__(self, st) -> bool:
         if self.position is not None:
             return False
         if getattr(st, self.attribute):
             self.detected_by = "limit switch input (0x60FD)"
+            self.confirmed = True
         elif st.fault is not None and st.fault.number == ErrorNumber.LIMIT:
+            self.fault_message = st.fault.message
             self.detected_by = f"drive fault: {st.fault.message}"
         else:
             return False
         self.position = st.position
         return True
+
+    def confirm(self, st) -> bool:
+        """After the stop: a limit fault counts as the switch when the input shows now."""
+        if not self.confirmed and self.position is not None and getattr(st, self.attribute):
+            self.confirmed = True
+            self.detected_by = (f"limit switch input (0x60FD), with the drive fault "
+                                f"{self.fault_message}")
+        return self.confirmed
 
 
 def _move(session: DriveSession, mover: CspMover, name: str, destination: float, speed: float,
@@ -185,13 +226,23 @@ def search_side(session: DriveSession, target: Target, mover: CspMover, side: st
                                   f"(at {fmt(st.position)})")
         result["reached"] = st.position
         return result
-    result.update(found=True, position=watch.position, detected_by=watch.detected_by)
     # Recover: let it come to rest (fault reaction or the watcher's quick stop), reset a fault.
     session.wait(lambda: session.status(name).fault is not None or (
         not mover.moving and abs(session.status(name).velocity) < 1e-9), 5.0)
     if session.status(name).fault is not None:
         session.wait(lambda: abs(session.status(name).velocity) < 1e-9, 5.0)
+        # the input (TPDO, event driven) may come a cycle or two after the fault's EMCY
+        session.wait(lambda: watch.confirm(session.status(name)), CONFIRM_TIMEOUT)
+        if not watch.confirmed:
+            result.update(stopped_by=watch.fault_message, stopped_at=watch.position)
+            raise CommissionError(
+                f"{device}: the {side} search stopped at {fmt(watch.position)} with "
+                f"{watch.fault_message}, but the drive's {side} limit-switch input (0x60FD) is "
+                "not active: that is a position limit of the drive (0x607D or its own travel "
+                "limit), not a switch, so it is not proposed as one. Check the switch wiring "
+                "and that 0x60FD is in the drive's TPDOs, or narrow the search (--search)")
         result["fault_reset"] = session.clear_faults([name])
+    result.update(found=True, position=watch.position, detected_by=watch.detected_by)
     session.enable([name])
     _move(session, mover, name, watch.position - sign * backoff, speed, bar, f"{side} off")
     bar.close()
@@ -293,16 +344,32 @@ def run(args, config) -> Outcome:
             keys = [f"axes.{target.axis}.{k} = {v:g}" for k, v in proposal["axis"].items()] + keys
         out.lines.append(f"proposed (margin {margin:g}): " + ", ".join(keys))
     out.data["written"] = None
+    values = {("drives", name, k): v for k, v in proposal["drive"].items()}
+    if target.axis:
+        values.update({("axes", target.axis, k): v for k, v in proposal["axis"].items()})
+    current = {("drives", name, k): v for k, v in out.data["current"]["drive"].items()}
+    current.update({("axes", target.axis, k): v for k, v in out.data["current"]["axis"].items()})
+    wider = widening(values, current)
+    out.data["widening"] = [{"key": ".".join(key), "file": current[key], "proposed": values[key]}
+                            for key in wider]
+    for key in wider:
+        out.lines.append(f"{'.'.join(key)}: the proposal {values[key]:g} lies outside the file's "
+                         f"{current[key]:g} (the file's limit is already inside the switch): "
+                         + ("widened (--force)" if args.force else "kept; --force widens it"))
+    if not args.force:
+        values = {key: v for key, v in values.items() if key not in wider}
     if args.write:
         if out.exit_code != ExitCode.OK or not proposal["drive"]:
             out.lines.append("not written: the search did not find every switch it looked for")
+        elif not values:
+            out.lines.append("nothing written: every limit of the file already lies inside the "
+                             "proposal (--force widens them to it)")
         else:
-            values = {("drives", name, k): v for k, v in proposal["drive"].items()}
-            if target.axis:
-                values.update({("axes", target.axis, k): v for k, v in proposal["axis"].items()})
             hwfile.update_values(source, values)
             out.data["written"] = str(source)
-            out.lines.append(f"written to {source}")
+            out.data["written_keys"] = [".".join(key) for key in values]
+            out.lines.append(f"written to {source}: " + ", ".join(
+                f"{'.'.join(key)} = {v:g}" for key, v in values.items()))
     elif proposal["drive"]:
         out.lines.append("(use --write to write them to the hardware file)")
     return out

@@ -32,6 +32,7 @@ import time
 
 import canopen
 
+from tcs.config.axes import DISCRETE_MODULES
 from tcs.drivers.boot import DEVICE_PROFILE_402, NMT_STATE_NAMES, Sdo
 from tcs.drivers.cia402 import decode_state
 from tcs.drivers.eds_check import decode_modes, drive_mode, eds_path
@@ -179,6 +180,22 @@ def compare_identity(section, identity: dict) -> list[str]:
     return wrong
 
 
+def mode_used(config, name: str, node_id: int) -> tuple[str, str]:
+    """The mode the service runs drive ``name`` in, and why (as the axis layer chooses it:
+    a discrete axis — filter wheel, M3 — makes profile moves, every other axis streams in
+    the drive's cyclic mode)."""
+    section = config.drives[name]
+    modules = [axis.module for axis in config.axes.values() if axis.drive == name]
+    discrete = [m for m in modules if m in DISCRETE_MODULES]
+    if discrete:
+        return "PP", (f"{discrete[0]} moves between discrete positions: profile moves; it "
+                      "never streams")
+    choice = drive_mode(section, eds_path(section, config.resolve), node_id)
+    if not modules and section.default_mode == "pp":
+        return "PP", "no axis uses the drive; default_mode pp at boot"
+    return choice.mode.upper(), choice.reason
+
+
 def run(args, config) -> Outcome:
     out = Outcome("scan")
     node_ids = parse_nodes(args.nodes)
@@ -205,9 +222,7 @@ def run(args, config) -> Outcome:
                 wrong.insert(0, f"device type {entry['device_type']} is not a CiA-402 drive")
             entry["match"] = "ok" if not wrong else "wrong identity: " + ", ".join(wrong)
             section = config.drives[name]
-            choice = drive_mode(section, eds_path(section, config.resolve), n)
-            entry["tcs_mode"] = choice.mode.upper()
-            entry["tcs_mode_reason"] = choice.reason
+            entry["tcs_mode"], entry["tcs_mode_reason"] = mode_used(config, name, n)
     probed = set(node_ids)
     missing = [{"drive": name, "node_id": s.node_id} for name, s in config.drives.items()
                if s.node_id in probed and s.node_id not in answers]
