@@ -415,3 +415,115 @@ def test_grafana_dashboard_uses_only_served_metrics():
                           cwd=root, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout) == json.loads(text)
+
+
+async def _shot(page: DevTools, tmp_path: Path, name: str) -> None:
+    """A screenshot of what the page shows now (kept under TCS_SCREENSHOT_DIR when set)."""
+    shot = await page.call("Page.captureScreenshot", format="png")
+    data = base64.b64decode(shot["data"])
+    out = tmp_path / f"status-{name}.png"
+    out.write_bytes(data)
+    if os.environ.get("TCS_SCREENSHOT_DIR"):
+        shutil.copy(out, Path(os.environ["TCS_SCREENSHOT_DIR"]) / out.name)
+    assert data.startswith(b"\x89PNG") and png_spread(data) > 10.0, f"blank screenshot {out}"
+
+
+async def _headline(page: DevTools, state: str, words: str) -> str:
+    """Wait until the page's headline is in ``state`` and says ``words``; its text."""
+    shown = "document.body.dataset.state + ': ' + document.getElementById('headline').textContent"
+    await page.until(f"document.body.dataset.state === {state!r} && "
+                     f"document.getElementById('headline').textContent.includes({words!r})",
+                     f"the headline {state!r} with {words!r} (it shows {await page.eval(shown)!r})")
+    return await page.eval("document.getElementById('headline').textContent + ' / ' + "
+                           "document.getElementById('remedy').textContent")
+
+
+async def test_status_page_says_what_the_telescope_does_and_what_is_wrong(live, tmp_path):
+    """The headline above the fold (1000 px), in each state an operator meets: off, slewing to a
+    target, tracking it, a fault (a stalled slit motor) and a lost PLC — each with its text, the
+    remedy where something is wrong, and a screenshot; at phone width nothing runs off the side.
+    The sky plot has its legend and the Sun; the dome parts say closed or open."""
+    browser = find_browser()
+    if browser is None:
+        pytest.skip("no Chromium/Chrome installed (Debian: apt-get install chromium; .ci/run does)")
+    pytest.importorskip("PIL", reason="Pillow (with matplotlib, the 'dev' extra) checks the screenshot")
+    proc, port = await start_browser(browser, tmp_path / "profile")
+    c = await Client.connect(live.port)
+    plc = live.telescope.peripherals.sims.plcs
+    try:
+        async with aiohttp.ClientSession() as s:
+            async with s.put(f"http://127.0.0.1:{port}/json/new?about:blank") as r:
+                target = await r.json()
+            async with s.ws_connect(target["webSocketDebuggerUrl"], max_msg_size=0) as ws:
+                page = DevTools(ws)
+                await page.call("Emulation.setDeviceMetricsOverride", width=1000, height=1000,
+                                deviceScaleFactor=1, mobile=False)
+                await page.call("Page.enable")
+                await page.call("Page.navigate", url=base(live) + "/")
+                await page.until("document.body.dataset.state", "a headline")
+                # above the fold at 1000 px: the headline, the pointing (RA/Dec) and the errors
+                for element in ("headline-card", "target-radec", "current-radec", "errors-card"):
+                    top = await page.eval(f"document.getElementById({element!r}).getBoundingClientRect().top")
+                    assert top < 1000 - 20, f"{element} starts at {top} px: below the fold"
+                legend = await page.eval("document.querySelector('.legend').textContent")
+                assert all(w in legend for w in ("telescope", "target", "Sun", "cone")), legend
+                slit = await page.until("[...document.querySelectorAll('#enclosure td')]"
+                                        ".map(td => td.textContent).join('|')", "the dome parts")
+                assert "DOME[1] slit|closed" in slit, slit
+                await _shot(page, tmp_path, "idle")
+
+                # slewing, then tracking: the target in the headline
+                await ready(c, "AZ", "ZD")
+                ra, dec = await c.nums("POINTING.CURRENT.RA", "POINTING.CURRENT.DEC")
+                goal = dec - 15.0 if dec > 0 else dec + 15.0
+                await c.set(f"POINTING.TARGET.RA={ra!r};POINTING.TARGET.DEC={goal!r}")
+                cmd = await c.start("POINTING.TRACK=1")
+                text = await _headline(page, "slewing", "Slewing to RA")
+                await _shot(page, tmp_path, "slewing")
+                assert "to go" in text, text
+                track_error = await page.eval("document.getElementById('track-error').textContent")
+                assert "slewing" in track_error, track_error   # no tracking error during a slew
+                await _headline(page, "tracking", "Tracking RA")
+                assert (await page.eval("document.getElementById('track-error').textContent")).endswith("″")
+                await _shot(page, tmp_path, "tracking")
+                await c.set("POINTING.TRACK=0")
+                await c.until(cmd, WAIT)
+                await at_rest(c, "AZ", "ZD")
+
+                # a fault: the slit's motor stalls in a move
+                await ready(c, "DOME[1]")
+                await live.call(plc["dome"].stall, "slit", True)
+                try:
+                    move = await c.start("DOME[1].TARGETPOS=40")
+                    await c.until(move, WAIT)
+                    text = await _headline(page, "fault", "DOME[1]")
+                    assert "stalled" in text and "CABINET.ERROR_STATE=0" in text, text
+                    await _shot(page, tmp_path, "fault")
+                finally:
+                    await live.call(plc["dome"].stall, "slit", False)
+                await c.set("DOME[1].ERROR_STATE=0")
+
+                # a lost PLC
+                await live.call(plc["telescope"].set_responding, False)
+                try:
+                    text = await _headline(page, "fault", "PLC telescope lost")
+                    assert "network" in text, text
+                    chips = await page.eval("document.getElementById('safety').textContent")
+                    assert "PLC lost: telescope" in chips, chips
+                    await _shot(page, tmp_path, "plc-lost")
+                finally:
+                    await live.call(plc["telescope"].set_responding, True)
+                await page.until("!document.getElementById('safety').textContent.includes('PLC lost')",
+                                 "the PLC back")
+                await c.set("CABINET.ERROR_STATE=0")
+
+                # phone width: nothing wider than the screen
+                await page.call("Emulation.setDeviceMetricsOverride", width=390, height=844,
+                                deviceScaleFactor=1, mobile=True)
+                await asyncio.sleep(0.5)
+                wide = await page.eval("document.documentElement.scrollWidth")
+                assert wide <= 390 + 1, f"the page is {wide} px wide on a 390 px screen"
+                await _shot(page, tmp_path, "phone")
+    finally:
+        await c.close()
+        stop_browser(proc)

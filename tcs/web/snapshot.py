@@ -116,6 +116,7 @@ def axis_snapshot(axis, base: dict[str, float]) -> dict[str, Any]:
         "following_error": following,
         "following_error_arcsec": None if following is None or not angular else following * ARCSEC,
         "min": section.min, "max": section.max,
+        "park": _num(getattr(section, "park", None)),
         "drive_state": None if drive is None else drive.state.name,
         "sample": None,
     }
@@ -126,20 +127,81 @@ def axis_snapshot(axis, base: dict[str, float]) -> dict[str, Any]:
     return out
 
 
-def plc_axis_snapshot(module) -> dict[str, Any]:
+#: How the status page names a dome part (the hardware file's part names, App. C.3 positions).
+PART_LABELS = {"rotation": "rotation", "slit": "slit", "flap": "flap", "seal": "seal",
+               "roof": "roof", "fold": "enclosure", "shell1": "first shell",
+               "shell2": "second shell"}
+
+
+def opening_text(part: str | None, position: float | None, low: float, high: float | None,
+                 moving: bool) -> str:
+    """What an opening part's position means: closed, open, or how far (App. C.3: the
+    lowest position is closed). The rotation has no open or closed: its azimuth."""
+    if position is None:
+        return "unknown"
+    if part == "rotation":
+        return f"azimuth {position % 360.0:.1f}°" + (", moving" if moving else "")
+    if part == "seal":
+        word = "sealed" if position <= low + 1e-3 else "released"
+        return word + (", moving" if moving else "")
+    if high is None or high <= low:
+        return f"{position:.2f}" + (", moving" if moving else "")
+    fraction = (position - low) / (high - low)
+    if fraction <= 0.005:
+        word = "closed"
+    elif fraction >= 0.995:
+        word = "open"
+    else:
+        word = f"{fraction * 100:.0f} % open"
+    return ("opening" if moving and word != "open" else word) if moving else word
+
+
+def plc_axis_snapshot(module, part: str | None = None, label: str | None = None) -> dict[str, Any]:
     stale = _safe(lambda: module.stale)
     fresh = stale is None
+    section = getattr(module, "section", None)
+    low = float(getattr(section, "min", 0.0) or 0.0)
+    high = getattr(section, "max", None)
+    position = _num(module.real_position) if fresh else None
+    motion_state = int(module.motion_state) if fresh else None
+    moving = bool(motion_state and motion_state & 1)
     return {
         "name": module.module_name,
+        "part": part,
+        "label": label or PART_LABELS.get(part or "", part or ""),
         "fresh": fresh,
-        "position": _num(module.real_position) if fresh else None,
+        "position": position,
         "target": _num(_safe(lambda: module.target_position)),
-        "motion_state": int(module.motion_state) if fresh else None,
-        "motion": motion_text(int(module.motion_state) if fresh else None),
+        "motion_state": motion_state,
+        "motion": motion_text(motion_state),
+        "state": opening_text(part, position, low, None if high is None else float(high), moving)
+        if fresh else "unknown (no readback)",
         "power": _num(module.power_state) if fresh else None,
         "error_state": int(module.error_state),
+        "fault": None if getattr(module, "_fault", None) is None else module._fault.message,
         "closing": bool(getattr(module, "closing", False)),
     }
+
+
+def _dome(tel) -> list[dict[str, Any]]:
+    dome = getattr(tel.config, "dome", None)
+    parts = _safe(dome.parts, {}) if dome is not None else {}
+    out = []
+    for index, module in enumerate(tel.dome or []):
+        if module is None:
+            continue
+        part = parts.get(index, (None, None))[0]
+        out.append(plc_axis_snapshot(module, part))
+    return out
+
+
+def _covers(tel) -> list[dict[str, Any]]:
+    sections = list(getattr(tel.config, "covers", None) or [])
+    out = []
+    for i, module in enumerate(tel.peripherals.covers):
+        name = getattr(sections[i], "name", "") if i < len(sections) else ""
+        out.append(plc_axis_snapshot(module, "cover", name or "cover"))
+    return out
 
 
 def _point(module, what: str) -> dict[str, Any]:
@@ -214,8 +276,8 @@ def take(service) -> dict[str, Any]:
     snap["can"] = bus
     snap["tracking"] = _tracking(tel)
     per = tel.peripherals
-    snap["dome"] = [plc_axis_snapshot(m) for m in (tel.dome or []) if m is not None]
-    snap["covers"] = [plc_axis_snapshot(m) for m in per.covers]
+    snap["dome"] = _dome(tel)
+    snap["covers"] = _covers(tel)
     snap["sensors"] = [_point(m, "sensor") for m in per.sensors]
     snap["switches"] = [_point(m, "switch") for m in per.switches]
     interlock = per.interlock
@@ -244,8 +306,12 @@ def take(service) -> dict[str, Any]:
     snap["front_ends"] = _front_ends(service)
     snap["site"] = {"latitude": local.latitude, "longitude": local.served_longitude, "height": local.height}
     snap["horizon"] = _horizon(tel)
+    snap["sun"] = _sun(tel, snap)
     snap["build"] = {"version": str(tcs.__version__), "python": platform.python_version(),
                      "config": str(tel.config.source.name)}
+    snap["headline"] = _safe(lambda: headline(snap), {
+        "state": "unknown", "level": "warn", "text": "State unknown (see the service log)",
+        "remedy": "", "warnings": []})
     return snap
 
 
@@ -310,10 +376,167 @@ def _horizontal(tel, mount: str, key: str) -> dict[str, float | None]:
     return {"az": None, "alt": None} if place is None else {"az": _num(place[0]), "alt": _num(place[1])}
 
 
+def _envelope(tel):
+    p = tel.pointing
+    return None if p is None else getattr(p, "envelope", None)
+
+
 def _horizon(tel) -> list[list[float]] | None:
-    """The lowest altitude the pointing tracks to (``[pointing] min_altitude``), as a table
-    of [azimuth, altitude] pairs for the sky plot (degrees)."""
+    """The lowest altitude the telescope may point at: the envelope's horizon table, never
+    below ``[pointing] min_altitude``, as [azimuth, altitude] pairs for the sky plot (degrees)."""
     if tel.pointing is None:
         return None
+    env = _envelope(tel)
+    azimuths = list(range(0, 361, 5))
+    if env is not None:
+        alts = _safe(lambda: [float(a) for a in env.min_altitude(azimuths)])
+        if alts is not None:
+            return [[float(az), alt] for az, alt in zip(azimuths, alts)]
     alt = float(tel.config.pointing.min_altitude)
-    return [[float(az), alt] for az in range(0, 361, 10)]
+    return [[float(az), alt] for az in azimuths]
+
+
+#: seconds a Sun place is reused (it moves 0.04° in 10 s; the page is a glance, not a guard)
+SUN_REUSE = 10.0
+_sun_cache: dict = {}
+
+
+def _sun(tel, snap) -> dict[str, Any] | None:
+    """The Sun for the page: where it is (az, alt), the avoidance cone's radius, and how far
+    the tube is from it now (degrees; None where the tube's place is unknown)."""
+    env = _envelope(tel)
+    utc = snap["time"]["utc"]
+    if env is None or utc is None:
+        return None
+    key = (id(env), math.floor(utc / SUN_REUSE))
+    place = _sun_cache.get(key)
+    if place is None:
+        place = _safe(lambda: env.sun_altaz(utc))
+        if place is None:
+            return None
+        _sun_cache.clear()
+        _sun_cache[key] = place
+    az, alt = place
+    current = (snap.get("tracking") or {}).get("current") or {}
+    distance = None
+    if current.get("az") is not None and current.get("alt") is not None:
+        distance = _angle(az, alt, current["az"], current["alt"])
+    return {"az": _num(az), "alt": _num(alt), "cone": _num(env.sun_radius),
+            "distance": _num(distance)}
+
+
+def _angle(az1: float, alt1: float, az2: float, alt2: float) -> float:
+    """Angle between two horizontal places, degrees."""
+    a1, h1, a2, h2 = map(math.radians, (az1, alt1, az2, alt2))
+    c = math.sin(h1) * math.sin(h2) + math.cos(h1) * math.cos(h2) * math.cos(a1 - a2)
+    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
+
+
+# ---------------------------------------------------------------------------- the headline
+#: OpenTCI ERROR_STATE bits (spec §4)
+PANIC, ERROR, WARNING = 1, 2, 4
+ACKNOWLEDGE = "fix the cause, then acknowledge: tcs-client set CABINET.ERROR_STATE=0"
+
+
+def _hours(ra: float) -> str:
+    h = ra % 24.0
+    hh, rest = divmod(round(h * 3600.0), 3600)
+    mm, ss = divmod(rest, 60)
+    return f"{hh % 24:02d}h{mm:02d}m{ss:02d}s"
+
+
+def _degrees(dec: float) -> str:
+    sign = "-" if dec < 0 else "+"
+    d, rest = divmod(round(abs(dec) * 3600.0), 3600)
+    m, s = divmod(rest, 60)
+    return f"{sign}{d:02d}°{m:02d}′{s:02d}″"
+
+
+def _place(p: dict | None) -> str:
+    if not p or p.get("ra") is None or p.get("dec") is None:
+        return "the target"
+    return f"RA {_hours(p['ra'])} Dec {_degrees(p['dec'])}"
+
+
+def headline(snap: dict[str, Any]) -> dict[str, Any]:
+    """One line that says what the telescope is doing and, when something is wrong, what and
+    what to do: ``{"state", "level" (ok, info, warn, bad, off), "text", "remedy",
+    "warnings"}``. The first match wins: faults and lost links, the weather, power and
+    referencing, then what it is doing (slewing, tracking, moving, ready)."""
+    cab, loop = snap["cabinet"], snap["loop"]
+    axes = snap["axes"]
+    main_names = {"AZ", "ZD", "HA", "DEC"}
+    warnings = [f"{e['device']}: {e['error']}" for e in cab["errors"]
+                if e.get("active") and e.get("bits", 0) & WARNING and not e.get("bits", 0) & (PANIC | ERROR)]
+
+    def out(state, level, text, remedy=""):
+        return {"state": state, "level": level, "text": text, "remedy": remedy, "warnings": warnings}
+
+    if snap.get("can") is not None and not loop["running"]:
+        return out("fault", "bad", "Control loop stopped: the drives are not commanded",
+                   "see the service log (journalctl -u tcs-server); the drives stopped themselves")
+    for a in axes:
+        if a.get("fault"):
+            return out("fault", "bad", f"Fault: {a['name']}: {a['fault']}", ACKNOWLEDGE)
+    for plc in snap["plcs"]:
+        if not plc["connected"]:
+            return out("fault", "bad", f"PLC {plc['name']} lost" + (f": {plc['message']}" if plc.get("message") else ""),
+                       "check the PLC's power and network; its dome, covers, sensors and switches "
+                       "read unknown meanwhile and recover by themselves when it answers")
+    for m in [*snap["dome"], *snap["covers"]]:
+        if m["error_state"] & (PANIC | ERROR):
+            what = f": {m['fault']}" if m.get("fault") else ""
+            return out("fault", "bad", f"Fault: {m['name']} ({m['label']}){what}", ACKNOWLEDGE)
+    active = [e for e in cab["errors"] if e.get("active") and e.get("bits", 0) & (PANIC | ERROR)]
+    if active:
+        e = active[0]
+        return out("fault", "bad", f"Error: {e['device']}: {e['error']}", ACKNOWLEDGE)
+    if cab["error_state"] & (PANIC | ERROR):
+        return out("fault", "bad", f"Error state {cab['error_state']} (see CABINET.STATUS.LIST)",
+                   ACKNOWLEDGE)
+    stale = [a["name"] for a in axes if not a["fresh"]]
+    if stale:
+        return out("fault", "bad", "No readback from " + ", ".join(stale),
+                   "check the drive's power and the CAN bus (see the service log)")
+    il = snap.get("interlock")
+    weather = ("; weather interlock: " + il["reason"]) if il and il.get("active") else ""
+    main = [a for a in axes if a["module"] in main_names]
+    moving = [a for a in axes if a["motion_state"] and a["motion_state"] & 1]
+    power = cab["power"]
+    if not power:
+        parked = bool(main) and all(a["position"] is not None and a.get("park") is not None
+                                    and abs(a["position"] - a["park"]) < 0.05 for a in main)
+        return out("off", "off", ("Parked, power off" if parked else "Power off") + weather,
+                   "tcs-client ready (power on and reference)")
+    if il and il.get("active"):
+        return out("weather", "warn", "Weather interlock: " + il["reason"],
+                   "the dome and covers stay closed until the weather clears")
+    t = snap.get("tracking") or {}
+    referencing = [a["name"] for a in axes if a["referenced"] is not None and a["referenced"] < 1
+                   and a["motion_state"] and a["motion_state"] & 1]
+    if referencing:
+        return out("referencing", "info", "Referencing " + ", ".join(referencing), "")
+    unreferenced = [a for a in axes if a["referenced"] is not None and a["referenced"] < 1
+                    and a["power"]]
+    if any(a["module"] in main_names for a in unreferenced):
+        return out("unreferenced", "warn", "Not referenced: " + ", ".join(a["name"] for a in unreferenced),
+                   "tcs-client ready (or CABINET.REINIT=1)")
+    if unreferenced:  # the main axes are: what they do comes first, the rest is a warning
+        warnings.append("not referenced: " + ", ".join(a["name"] for a in unreferenced))
+    if t.get("tracking"):
+        if t.get("on_target"):
+            return out("tracking", "ok", "Tracking " + _place(t.get("target")), "")
+        togo = t.get("target_distance")
+        return out("slewing", "info", "Slewing to " + _place(t.get("target"))
+                   + (f", {togo:.1f}° to go" if togo is not None else ""), "")
+    if moving:
+        parts = ", ".join(f"{a['name']} to {a['target']:.2f}" if a.get("target") is not None else a["name"]
+                          for a in moving)
+        return out("moving", "info", "Moving: " + parts, "")
+    if unreferenced:
+        return out("unreferenced", "warn", "Ready, but not referenced: "
+                   + ", ".join(a["name"] for a in unreferenced), "tcs-client ready (or CABINET.REINIT=1)")
+    if warnings:
+        return out("warning", "warn", "Ready, with a warning: " + warnings[0],
+                   "acknowledge with tcs-client set CABINET.ERROR_STATE=0 once seen")
+    return out("ready", "ok", "Ready: powered, referenced, at rest", "")
