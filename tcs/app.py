@@ -27,7 +27,7 @@ class Service:
 
     def __init__(self, config: HwConfig, host: str | None = None, port: int | None = None,
                  opentsi_port: int | None = None, alpaca_port: int | None = None,
-                 web_port: int | None = None):
+                 web_port: int | None = None, alpaca_discovery_port: int | None = None):
         self.config = config
         self.host = host
         self.port = port
@@ -39,6 +39,9 @@ class Service:
         #: The ASCOM Alpaca HTTP server (``[alpaca] port`` ≥ 0), same model.
         self.alpaca_server = None
         self.alpaca_port = config.alpaca.port if alpaca_port is None else alpaca_port
+        #: Alpaca's UDP discovery port (``[alpaca] discovery_port``; -1: no discovery).
+        self.alpaca_discovery_port = (config.alpaca.discovery_port if alpaca_discovery_port is None
+                                      else alpaca_discovery_port)
         #: The read-only status page and /metrics (``[web] port`` ≥ 0; :mod:`tcs.web`).
         self.web_server = None
         self.web_port = config.web.port if web_port is None else web_port

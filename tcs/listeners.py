@@ -84,9 +84,9 @@ def listeners(service) -> list[Listener]:
     if service.alpaca_port >= 0:
         out.append(Listener("Alpaca port", config.alpaca.host or server_host, service.alpaca_port,
                             "--alpaca-port", "[alpaca] port"))
-        if config.alpaca.discovery_port >= 0:
-            out.append(Listener("Alpaca discovery port (UDP)", "0.0.0.0", config.alpaca.discovery_port,
-                                "", "[alpaca] discovery_port", udp=True))
+        if service.alpaca_discovery_port >= 0:
+            out.append(Listener("Alpaca discovery port (UDP)", "0.0.0.0", service.alpaca_discovery_port,
+                                "--alpaca-discovery-port", "[alpaca] discovery_port", udp=True))
     if service.web_port >= 0:
         out.append(Listener("web port", config.web.host or "127.0.0.1", service.web_port,
                             "--web-port", "[web] port"))
