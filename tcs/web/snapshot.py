@@ -139,6 +139,9 @@ def plc_axis_snapshot(module) -> dict[str, Any]:
         "power": _num(module.power_state) if fresh else None,
         "error_state": int(module.error_state),
         "closing": bool(getattr(module, "closing", False)),
+        # closed … fully open (App. C.3: 0 closed); a cyclic part (the dome's rotation) turns
+        "min": _num(_safe(lambda: module.section.min)), "max": _num(_safe(lambda: module.section.max)),
+        "cyclic": bool(_safe(lambda: module.section.cyclic, 0.0)),
     }
 
 
