@@ -8,7 +8,8 @@ page's web port — each with its role and the command-line flag and hardware-fi
 it (:class:`Listener`). :class:`Reservation` binds each of them (the way the front ends will,
 ``SO_REUSEADDR``; discovery with ``SO_REUSEPORT`` as Alpaca servers share it) and holds them
 while the drives boot and the PLCs connect; :meth:`Reservation.release` lets one go just before
-its front end binds it for good. A port that cannot be bound raises :class:`PortInUse`, whose
+its front end binds it for good (``tcs-server`` checks them all once even before it loads the
+service: :func:`check_free`). A port that cannot be bound raises :class:`PortInUse`, whose
 message names the role, the address and what moves it::
 
     web port 127.0.0.1:8088 is in use ([Errno 98] Address already in use; another tcs-server
@@ -71,26 +72,61 @@ def port_error(listener: Listener, exc: OSError) -> PortInUse:
 
 def listeners(service) -> list[Listener]:
     """The listening ports a :class:`tcs.app.Service` will open (those with a port ≥ 0)."""
-    config = service.config
-    server_host = service.host or config.server.host
-    out = [Listener("TPL2 (OpenTCI) port", server_host,
-                    config.server.port if service.port is None else service.port,
+    return planned(service.config, service.host, service.port, service.opentsi_port,
+                   service.alpaca_port, service.web_port, service.alpaca_discovery_port)
+
+
+def planned(config, host: str | None = None, port: int | None = None, opentsi_port: int | None = None,
+            alpaca_port: int | None = None, web_port: int | None = None,
+            alpaca_discovery_port: int | None = None) -> list[Listener]:
+    """The listening ports of a service of ``config`` with these overrides (``None``: the
+    file's; the options of ``tcs-server``)."""
+    def pick(value, default):
+        return default if value is None else value
+
+    server_host = host or config.server.host
+    out = [Listener("TPL2 (OpenTCI) port", server_host, pick(port, config.server.port),
                     "--port", "[server] port")]
     if config.server.tls_cert and config.server.tls_key and config.server.tls_port:
         out.append(Listener("TPL2 TLS port", server_host, config.server.tls_port, "", "[server] tls_port"))
-    if service.opentsi_port >= 0:
-        out.append(Listener("OpenTSI port", server_host, service.opentsi_port,
+    if pick(opentsi_port, config.server.opentsi_port) >= 0:
+        out.append(Listener("OpenTSI port", server_host, pick(opentsi_port, config.server.opentsi_port),
                             "--opentsi-port", "[server] opentsi_port"))
-    if service.alpaca_port >= 0:
-        out.append(Listener("Alpaca port", config.alpaca.host or server_host, service.alpaca_port,
-                            "--alpaca-port", "[alpaca] port"))
-        if service.alpaca_discovery_port >= 0:
-            out.append(Listener("Alpaca discovery port (UDP)", "0.0.0.0", service.alpaca_discovery_port,
+    if pick(alpaca_port, config.alpaca.port) >= 0:
+        out.append(Listener("Alpaca port", config.alpaca.host or server_host,
+                            pick(alpaca_port, config.alpaca.port), "--alpaca-port", "[alpaca] port"))
+        discovery = pick(alpaca_discovery_port, config.alpaca.discovery_port)
+        if discovery >= 0:
+            out.append(Listener("Alpaca discovery port (UDP)", "0.0.0.0", discovery,
                                 "--alpaca-discovery-port", "[alpaca] discovery_port", udp=True))
-    if service.web_port >= 0:
-        out.append(Listener("web port", config.web.host or "127.0.0.1", service.web_port,
+    if pick(web_port, config.web.port) >= 0:
+        out.append(Listener("web port", config.web.host or "127.0.0.1", pick(web_port, config.web.port),
                             "--web-port", "[web] port"))
     return out
+
+
+def check_free(wanted: list[Listener]) -> None:
+    """Bind each port of ``wanted`` once and let it go again (no event loop; what
+    ``tcs-server`` does first, before it even loads the service): raises :class:`PortInUse`
+    for the first that cannot be bound. The service then takes them for good
+    (:class:`Reservation`)."""
+    for listener in wanted:
+        if listener.port == 0:
+            continue
+        try:
+            if listener.udp:
+                _bind_udp(listener.host, listener.port).close()
+                continue
+            infos = socket.getaddrinfo(listener.host or None, listener.port, type=socket.SOCK_STREAM,
+                                       flags=socket.AI_PASSIVE)
+            for family, kind, proto, _name, address in {info for info in infos}:
+                with socket.socket(family, kind, proto) as sock:
+                    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                    if family == socket.AF_INET6 and hasattr(socket, "IPPROTO_IPV6"):
+                        sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+                    sock.bind(address)
+        except OSError as exc:
+            raise port_error(listener, exc) from None
 
 
 class Reservation:

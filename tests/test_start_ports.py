@@ -75,3 +75,23 @@ def test_the_suite_runs_as_beside_a_running_default_server(_default_ports_held):
                     s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
                 with pytest.raises(OSError):
                     s.bind((host, port))
+
+
+async def test_the_service_holds_its_ports_from_before_the_hardware(tmp_path):
+    """The same in the service itself (what tcs-server runs after its first check, and what a
+    port taken in between meets): Service.start() ends with the web port's error having
+    started no simulator, no drive, no TPL2 listener."""
+    from support.service import make_config
+    from tcs.app import Service
+    from tcs.listeners import PortInUse
+
+    with socket.socket() as blocker:
+        blocker.bind(("127.0.0.1", 0))
+        blocker.listen()
+        port = blocker.getsockname()[1]
+        service = Service(make_config(tmp_path / "state"), web_port=port)
+        with pytest.raises(PortInUse, match=rf"^web port 127\.0\.0\.1:{port} is in use .*: move it with "
+                                            r"--web-port or \[web\] port"):
+            await service.start()
+    assert service.telescope.peripherals.sims is None and service.telescope.can is None
+    assert service.telescope.axes == [] and service.server.port == 0

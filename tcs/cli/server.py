@@ -115,6 +115,13 @@ def main(argv=None) -> int:
     if args.check_config:
         print(f"{config.source}: valid", file=sys.stderr)
         return 0
+    from tcs.listeners import PortInUse, check_free, planned
+    try:  # every listening port, before the service (and the hardware) is even loaded
+        check_free(planned(config, args.host, args.port, args.opentsi_port, args.alpaca_port,
+                           args.web_port, args.alpaca_discovery_port))
+    except PortInUse as exc:
+        print(f"tcs-server: cannot start: {exc.message}", file=sys.stderr)
+        return 1
     from tcs.app import Service, serve_until_signalled
 
     return run_until_signalled("tcs-server", lambda stop: serve_until_signalled(
