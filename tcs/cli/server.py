@@ -16,8 +16,9 @@ validation (and that the EDS files exist), touching no hardware: status 0 or 2. 
 SIGTERM stop cleanly (status 0).
 Exit status 1, with one line saying why and before any hardware is touched: a listening port
 (TPL2, OpenTSI, Alpaca, discovery, web) is taken — the line names its role, address and the
-flag or key that moves it — or, before any frame is sent on the CAN bus, another master (SYNC, or a heartbeat with our node id) is heard on a shared
-CAN bus (socketcan, socketcand) — e.g. the service is already running.
+flag or key that moves it — or, before any frame is sent on the CAN bus, another master (SYNC,
+or a heartbeat with our node id) is heard on a shared CAN bus (socketcan, socketcand) — e.g.
+the service is already running.
 """
 
 from __future__ import annotations
