@@ -59,7 +59,8 @@ class Listener:
 
 def port_error(listener: Listener, exc: OSError) -> PortInUse:
     """The error to report for ``exc`` raised while binding ``listener``."""
-    reason = f"[Errno {exc.errno}] {os.strerror(exc.errno)}" if exc.errno else str(exc)
+    # (asyncio words its bind errors at length: the system's own text for a system error)
+    reason = f"[Errno {exc.errno}] {os.strerror(exc.errno)}" if exc.errno and exc.errno > 0 else str(exc)
     what, hint = "cannot be bound", ""
     if exc.errno == errno.EADDRINUSE:
         what, hint = "is in use", "; another tcs-server or another program has it"
@@ -120,7 +121,11 @@ def check_free(wanted: list[Listener]) -> None:
             infos = socket.getaddrinfo(listener.host or None, listener.port, type=socket.SOCK_STREAM,
                                        flags=socket.AI_PASSIVE)
             for family, kind, proto, _name, address in {info for info in infos}:
-                with socket.socket(family, kind, proto) as sock:
+                try:
+                    sock = socket.socket(family, kind, proto)
+                except OSError:
+                    continue  # a family this host lacks (as asyncio's create_server skips it)
+                with sock:
                     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
                     if family == socket.AF_INET6 and hasattr(socket, "IPPROTO_IPV6"):
                         sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
