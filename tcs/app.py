@@ -27,7 +27,7 @@ class Service:
 
     def __init__(self, config: HwConfig, host: str | None = None, port: int | None = None,
                  opentsi_port: int | None = None, alpaca_port: int | None = None,
-                 web_port: int | None = None):
+                 web_port: int | None = None, alpaca_discovery_port: int | None = None):
         self.config = config
         self.host = host
         self.port = port
@@ -39,6 +39,9 @@ class Service:
         #: The ASCOM Alpaca HTTP server (``[alpaca] port`` ≥ 0), same model.
         self.alpaca_server = None
         self.alpaca_port = config.alpaca.port if alpaca_port is None else alpaca_port
+        #: Alpaca's UDP discovery port (``[alpaca] discovery_port``; -1: no discovery).
+        self.alpaca_discovery_port = (config.alpaca.discovery_port if alpaca_discovery_port is None
+                                      else alpaca_discovery_port)
         #: The read-only status page and /metrics (``[web] port`` ≥ 0; :mod:`tcs.web`).
         self.web_server = None
         self.web_port = config.web.port if web_port is None else web_port
@@ -46,39 +49,73 @@ class Service:
     async def start(self) -> int:
         """Start everything; returns the TPL2 port.
 
-        Order: bind the TPL2 port (a port in use ends the start here, before the hardware is
-        touched), start the telescope (which refuses a CAN bus that already has a master
-        before sending anything on it), build the tree, then accept connections.
+        Order: bind the TPL2 port and every other listening port (OpenTSI, Alpaca and its
+        discovery, the web port; :mod:`tcs.listeners`) — a port that cannot be bound ends the
+        start here with :class:`~tcs.listeners.PortInUse` naming its role, address and the flag
+        or key that moves it, before the hardware is touched — then start the telescope (which
+        refuses a CAN bus that already has a master before sending anything on it), build the
+        tree, then accept connections, each front end taking over its reserved port.
         """
+        from tcs.listeners import Reservation, listeners
+
         self.telescope = Telescope(self.config)
         self.server = Tpl2Server(self.config.server, self.config.users, self.telescope.events,
                                  manufacturer=self.config.cabinet.manufacturer,
                                  shares_interpreter=loop_shares_interpreter(self.config))
+        wanted = {listener.role: listener for listener in listeners(self)}
+        reserved = Reservation()
         try:
-            await self.server.start(self.host, self.port, serve=False)
+            await self._listen(wanted, "TPL2 (OpenTCI) port",
+                               self.server.start(self.host, self.port, serve=False))
+            await reserved.take([x for role, x in wanted.items() if role != "TPL2 (OpenTCI) port"])
             await self.telescope.start()  # its stop() on failure releases the state directory
         except BaseException:
+            reserved.release_all()
             await self.server.stop()
             self.telescope.release_state_dir()
             raise
         self.server.tree = build_tree(self.telescope, self.server)
         try:
-            port = await self.server.start(self.host, self.port)
+            reserved.release("TPL2 TLS port")
+            port = await self._listen(wanted, "TPL2 TLS port", self.server.start(self.host, self.port))
             if self.opentsi_port >= 0:
                 from tcs.opentsi import build_opentsi_server
                 self.opentsi_server = build_opentsi_server(self.config, self.telescope)
-                self.opentsi_port = await self.opentsi_server.start(self.host, self.opentsi_port)
+                reserved.release("OpenTSI port")
+                self.opentsi_port = await self._listen(
+                    wanted, "OpenTSI port", self.opentsi_server.start(self.host, self.opentsi_port))
             if self.alpaca_port >= 0:
                 from tcs.alpaca.start import start_alpaca
-                self.alpaca_server = await start_alpaca(self)
+                reserved.release("Alpaca port")
+                reserved.release("Alpaca discovery port (UDP)")
+                self.alpaca_server = await self._listen(wanted, "Alpaca port", start_alpaca(self))
                 self.alpaca_port = self.alpaca_server.port
             if self.web_port >= 0:
                 from tcs.web.server import start_web
-                self.web_server = await start_web(self)
+                reserved.release("web port")
+                self.web_server = await self._listen(wanted, "web port", start_web(self))
                 self.web_port = self.web_server.port
             return port
         except BaseException:
+            reserved.release_all()
             await self.stop()
+            raise
+
+    @staticmethod
+    async def _listen(wanted: dict, role: str, starting):
+        """Await ``starting`` (a front end's start); an OSError of its bind becomes the
+        :class:`~tcs.listeners.PortInUse` of ``role`` (or of the port the error names)."""
+        from tcs.listeners import port_error
+
+        try:
+            return await starting
+        except OSError as exc:
+            text = str(exc)
+            for listener in wanted.values():  # which port it was (Alpaca: HTTP or discovery)
+                if f", {listener.port})" in text:
+                    raise port_error(listener, exc) from None
+            if role in wanted:
+                raise port_error(wanted[role], exc) from None
             raise
 
     async def stop(self) -> None:

@@ -9,11 +9,19 @@ in collection order, so the longest files are collected first (``SLOW_FIRST``; l
 scheduling: a long file handed out last would set the suite's wall time on its own). What a test uses is its
 own: free ports, ``tmp_path``, a private virtual CAN channel, ``XDG_STATE_HOME`` in ``tmp_path``
 for the processes it starts. A kernel CAN bus is shared: see ``tests/vcan/conftest.py``.
+
+``_default_ports_held`` (session, autouse) holds the default server's ports (``tcs-server``
+with no arguments: TPL2 65432, OpenTSI 65433, Alpaca 11111 and its UDP discovery 32227, the
+web port 8088) while the suite runs, as a running server would: a test that listens on one of
+them fails here as it would beside a running server. Where one is already taken (a server
+runs) it is left alone. ``TCS_TESTS_HOLD_DEFAULT_PORTS=0`` does not hold them.
 """
 
 from __future__ import annotations
 
 import asyncio
+import os
+import socket
 import threading
 import time
 
@@ -29,6 +37,32 @@ SLOW_FIRST = (
     "test_enclosure.py", "test_cli_server.py", "test_driver_modes.py",
     "test_conformance_server.py", "test_client.py",
 )
+
+
+#: The ports of ``tcs-server`` with no arguments (hwconfig/sim.toml): TCP, and UDP.
+DEFAULT_TCP_PORTS = (65432, 65433, 11111, 8088)
+DEFAULT_UDP_PORTS = (32227,)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _default_ports_held():
+    held: list[socket.socket] = []
+    if os.environ.get("TCS_TESTS_HOLD_DEFAULT_PORTS", "1") != "0":
+        for kind, ports, host in ((socket.SOCK_STREAM, DEFAULT_TCP_PORTS, "127.0.0.1"),
+                                  (socket.SOCK_DGRAM, DEFAULT_UDP_PORTS, "0.0.0.0")):
+            for port in ports:
+                sock = socket.socket(socket.AF_INET, kind)
+                try:
+                    sock.bind((host, port))
+                    if kind == socket.SOCK_STREAM:
+                        sock.listen()
+                except OSError:  # taken already (a running server, another worker): fine
+                    sock.close()
+                    continue
+                held.append(sock)
+    yield held
+    for sock in held:
+        sock.close()
 
 
 def pytest_collection_modifyitems(session, config, items):

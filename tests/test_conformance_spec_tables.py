@@ -5,7 +5,7 @@ are read from the spec text itself, not copied: each table is placed on the path
 (``PLACES``: the generic axis tables on every axis of the telescope, TRAJECTORY on the axes that
 have one, CABINET, LOCAL, GPS, POINTING …). A client walks the tree over TPL2 (a real socket)
 and reads ``!CLASS``, ``!TYPE``, ``!RLEVEL`` and ``!WLEVEL`` of every object a table names. Each
-difference — missing, another type, another access — must be one the README's "Deviations
+difference — missing, another type, another access — must be one docs/opentci.md's "Deviations
 from the spec" explains (``EXPLAINED``: the difference and the reason); any other fails the
 test with the whole list. Extra objects (the TCS's own additions) are not differences.
 """
@@ -70,7 +70,7 @@ PLACES: list[list[str]] = [
 SPEC_TYPOS = {"ADDPPOINTS": "ADDPOINTS",   # 5.1.1 table; "ADDPOINTS" in TPL2 clients and the spec's prose
               "DUMPFIL": "DUMPFILE"}       # 14.2 table; "If a DUMPFILE is given" two rows below
 
-# Differences the README's "Deviations from the spec" explains: (regex on the difference) → why.
+# Differences docs/opentci.md's "Deviations from the spec" explains: (regex on the difference) → why.
 EXPLAINED: dict[str, str] = {
     r"\.ERROR_STATE: RO served RW$":
         "§3.2 makes every module's ERROR_STATE RW (writing 0 acknowledges), §5.1's table RO",

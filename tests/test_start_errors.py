@@ -16,6 +16,10 @@ import tomlkit
 from tcs.resources import hwconfig_file
 
 REMOTE = hwconfig_file("sim-remote.toml")
+#: every listening port on a free one (sim-remote.toml names the default server's: 65432,
+#: 65433, 11111, 8088), so these pass beside a running ``tcs-server``
+OWN_PORTS = ["--port", "0", "--opentsi-port", "0", "--alpaca-port", "0", "--alpaca-discovery-port", "-1",
+             "--web-port", "0"]
 
 
 def _write(tmp_path, doc) -> str:
@@ -37,7 +41,7 @@ def test_unreachable_bus_is_one_clean_line(tmp_path):
     doc.pop("alpaca", None)
     env = dict(os.environ, XDG_STATE_HOME=str(tmp_path / "state"))
     proc = subprocess.run([sys.executable, "-m", "tcs.cli.server", "--config", _write(tmp_path, doc),
-                           "--port", "0"], env=env, capture_output=True, text=True, timeout=120)
+                           *OWN_PORTS], env=env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 1, proc.stderr
     assert "Traceback" not in proc.stderr, proc.stderr
     last = proc.stderr.strip().splitlines()[-1]
@@ -58,7 +62,7 @@ def test_each_lost_plc_is_warned_about_once(tmp_path):
     doc["plcs"]["telescope"]["port"] = 2
     env = dict(os.environ, XDG_STATE_HOME=str(tmp_path / "state"))
     proc = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--config",
-                             _write(tmp_path, doc), "--port", "0"], env=env,
+                             _write(tmp_path, doc), *OWN_PORTS], env=env,
                             stderr=subprocess.PIPE, text=True)
     lines: list[str] = []
     try:

@@ -94,13 +94,13 @@ async def test_metrics_parse_and_match_tpl2(live):
     finally:
         await c.close()
     zd, az = (("axis", "ZD"),), (("axis", "AZ"),)
-    assert m[("tcs_axis_position", zd)] == pytest.approx(tpl["ZD.REALPOS"], abs=1e-9)
-    assert m[("tcs_axis_position", zd)] == pytest.approx(31.25, abs=1e-3)
-    assert m[("tcs_axis_target", zd)] == pytest.approx(tpl["ZD.TARGETPOS"], abs=1e-9)
+    assert m[("tcs_axis_position_degrees", zd)] == pytest.approx(tpl["ZD.REALPOS"], abs=1e-9)
+    assert m[("tcs_axis_position_degrees", zd)] == pytest.approx(31.25, abs=1e-3)
+    assert m[("tcs_axis_target_degrees", zd)] == pytest.approx(tpl["ZD.TARGETPOS"], abs=1e-9)
     assert m[("tcs_axis_power", zd)] == tpl["ZD.POWER_STATE"] == 1.0
     assert m[("tcs_axis_referenced", zd)] == tpl["ZD.REFERENCED"] == 1.0
     assert m[("tcs_axis_motion_state", zd)] == tpl["ZD.MOTION_STATE"]
-    assert m[("tcs_axis_position", az)] == pytest.approx(tpl["AZ.REALPOS"], abs=1e-9)
+    assert m[("tcs_axis_position_degrees", az)] == pytest.approx(tpl["AZ.REALPOS"], abs=1e-9)
     assert m[("tcs_cabinet_power", ())] == tpl["CABINET.POWER_STATE"]
     assert m[("tcs_tai_utc_seconds", ())] == tpl["LOCAL.TAI-UTC"]
     # the families the issue lists that the model knows, with their types
@@ -123,6 +123,47 @@ async def test_metrics_parse_and_match_tpl2(live):
     assert m[("tcs_can_bus_state", (("state", "ok"),))] == 1.0  # (from the control process)
     assert m[("tcs_can_error_frames_total", ())] == 0
     assert ("tcs_weather_interlock_active", ()) in m
+
+
+async def test_each_metric_family_has_one_unit_named_in_it(live):
+    """Issue 41, item 8: an axis's position, target, target distance and velocity are in one
+    family per unit — ``_degrees`` for the angular axes, ``_millimetres`` for FOCUS,
+    ``tcs_axis_discrete_*`` (a position number) for FILTER and MIRROR — and the enclosure's are
+    the dome's azimuth in degrees and how far each part is open (0 … 1); no family mixes units."""
+    c = await Client.connect(live.port)
+    try:
+        focus, tpl_az = await c.nums("FOCUS.REALPOS", "DOME[0].REALPOS")
+    finally:
+        await c.close()
+    await asyncio.sleep(live.service.web_server.interval * 2)
+    m = await metrics(live)
+    units = {dict(labels)["axis"]: dict(labels)["unit"] for (name, labels) in m if name == "tcs_axis_info"}
+    assert units["AZ"] == units["ZD"] == "deg" and units["FOCUS"] == "mm" and units["FILTER[2]"] == "position"
+    suffix = {"deg": "_degrees", "mm": "_millimetres"}
+    seen: dict[str, set[str]] = {}
+    for name, labels in m:
+        axis = dict(labels).get("axis")
+        if axis is None or not name.startswith(("tcs_axis_position", "tcs_axis_target", "tcs_axis_velocity",
+                                                "tcs_axis_discrete")):
+            continue
+        seen.setdefault(name, set()).add(units[axis])
+        unit = units[axis]
+        if unit in suffix:
+            assert suffix[unit] in name and not name.startswith("tcs_axis_discrete"), (name, axis)
+        else:
+            assert name.startswith("tcs_axis_discrete_"), (name, axis)
+    assert all(len(u) == 1 for u in seen.values()), seen
+    for family in ("tcs_axis_position_degrees", "tcs_axis_target_degrees", "tcs_axis_target_distance_degrees",
+                   "tcs_axis_velocity_degrees_per_second", "tcs_axis_position_millimetres",
+                   "tcs_axis_discrete_position"):
+        assert family in seen, family
+    assert m[("tcs_axis_position_millimetres", (("axis", "FOCUS"),))] == pytest.approx(focus, abs=1e-3)
+    assert not any(name in ("tcs_axis_position", "tcs_axis_target", "tcs_axis_target_distance",
+                            "tcs_axis_velocity", "tcs_enclosure_position") for name, _ in m)
+    assert m[("tcs_dome_azimuth_degrees", (("module", "DOME[0]"),))] == pytest.approx(tpl_az, abs=0.5)
+    opening = {dict(labels)["module"]: v for (name, labels), v in m.items() if name == "tcs_enclosure_open_ratio"}
+    assert {"DOME[1]", "DOME[2]", "DOME[3]", "COVER"} <= set(opening) and "DOME[0]" not in opening
+    assert all(0.0 <= v <= 1.0 for v in opening.values()), opening
 
 
 async def test_metrics_count_commands_by_verb_and_result_and_the_bus_load(live):
@@ -230,8 +271,11 @@ async def test_tracking_shows_in_status_and_metrics(live):
         await c.set(f"POINTING.TARGET.RA={ra!r};POINTING.TARGET.DEC={dec!r}")
         cmd = await c.start("POINTING.TRACK=1")
         await c.wait("POINTING.TARGETDISTANCE", lambda v: 0 < v < 0.01, WAIT)
-        await asyncio.sleep(live.service.web_server.interval * 2)
-        snap, m = await status(live), await metrics(live)
+        deadline = time.monotonic() + WAIT   # (the error is shown once a snapshot found the axes on the path)
+        while ("tcs_tracking_error_arcsec", ()) not in (m := await metrics(live)):
+            assert time.monotonic() < deadline, "no tracking error while tracking on the path"
+            await asyncio.sleep(0.5)
+        snap = await status(live)
         track, distance = await c.nums("POINTING.TRACK", "POINTING.TARGETDISTANCE")
         t = snap["tracking"]
         assert t["tracking"] and t["track"] == track == 1
@@ -244,6 +288,44 @@ async def test_tracking_shows_in_status_and_metrics(live):
         await c.until(cmd, WAIT)
         await at_rest(c, "AZ", "ZD")
     finally:
+        await c.close()
+
+
+async def test_tracking_error_only_while_tracking_on_the_path(live):
+    """Issue 41, item 8: during the slew to a star there is no tracking error in /metrics (what
+    TARGETDISTANCE reads then is the way still to go, e.g. 63,637″), only once the axes follow
+    the path; and none once tracking ended."""
+    c = await Client.connect(live.port)
+    cmd = None
+    try:
+        await ready(c, "AZ", "ZD")
+        ra, dec = await c.nums("POINTING.CURRENT.RA", "POINTING.CURRENT.DEC")
+        dec += 15.0 if dec < 50 else -15.0   # a slew of several seconds first
+        await c.set(f"POINTING.TARGET.RA={ra!r};POINTING.TARGET.DEC={dec!r}")
+        cmd = await c.start("POINTING.TRACK=1")
+        await c.wait("POINTING.TRACK", lambda v: v == 1, WAIT)
+        await asyncio.sleep(live.service.web_server.interval * 2)   # a snapshot taken since
+        during = await metrics(live)
+        if await c.num("POINTING.TARGETDISTANCE") > 0.5:   # degrees: the slew was on at the scrape too
+            assert during[("tcs_tracking_active", ())] == 1.0
+            assert ("tcs_tracking_error_arcsec", ()) not in during, during[("tcs_tracking_error_arcsec", ())]
+        else:  # pragma: no cover - a 15° slew is several seconds even unloaded
+            pytest.fail("the slew ended before a scrape saw it")
+        deadline = time.monotonic() + WAIT
+        while ("tcs_tracking_error_arcsec", ()) not in (m := await metrics(live)):
+            assert time.monotonic() < deadline, "no tracking error while tracking on the path"
+            await asyncio.sleep(0.5)
+        assert m[("tcs_tracking_error_arcsec", ())] < 600.0   # on the path, not 15° from it
+        await c.set("POINTING.TRACK=0")
+        await c.until(cmd, WAIT)
+        cmd = None
+        await asyncio.sleep(live.service.web_server.interval * 2)
+        after = await metrics(live)
+        assert after[("tcs_tracking_active", ())] == 0.0 and ("tcs_tracking_error_arcsec", ()) not in after
+        await at_rest(c, "AZ", "ZD")
+    finally:
+        if cmd is not None:
+            await c.set("POINTING.TRACK=0")
         await c.close()
 
 

@@ -15,5 +15,5 @@ async def start_alpaca(service):
     tci = service.server.tree if service.server is not None else None
     server = build_alpaca_server(config, service.telescope, CommandBridge(tci, tsi))
     host = section.host or service.host or config.server.host
-    await server.start(host, service.alpaca_port, section.discovery_port)
+    await server.start(host, service.alpaca_port, service.alpaca_discovery_port)
     return server

@@ -4,6 +4,7 @@ No arguments: the simulated telescope of ``hwconfig/sim.toml`` on 127.0.0.1:6543
 ``--config FILE`` runs whatever the file describes; ``--host``/``--port`` override the file,
 ``--opentsi-port`` the port of the OpenTSI tree (65433 in sim.toml; -1 serves none),
 ``--alpaca-port`` the ASCOM Alpaca devices' (11111 in sim.toml; -1 serves none),
+``--alpaca-discovery-port`` their UDP discovery (32227 in sim.toml; -1: no discovery),
 ``--web-port`` the read-only status page and ``/metrics`` (8088 in sim.toml; -1 serves none).
 Logs go to stderr: under systemd (stderr is the journal, ``$JOURNAL_STREAM``) as ``LEVEL
 name: message`` — journald adds the time; started by hand with the time (UTC, as in
@@ -13,9 +14,11 @@ reported key by key and the exit status is 2 — also a valid file that cannot r
 ``[[users]]``, or a real telescope without ``[site]``. ``--check-config FILE`` does only that
 validation (and that the EDS files exist), touching no hardware: status 0 or 2. SIGINT and
 SIGTERM stop cleanly (status 0).
-Exit status 1, with one line saying why and before any frame is sent on the CAN bus: the TPL2
-port is taken, or another master (SYNC, or a heartbeat with our node id) is heard on a shared
-CAN bus (socketcan, socketcand) — e.g. the service is already running.
+Exit status 1, with one line saying why and before any hardware is touched: a listening port
+(TPL2, OpenTSI, Alpaca, discovery, web) is taken — the line names its role, address and the
+flag or key that moves it — or, before any frame is sent on the CAN bus, another master (SYNC,
+or a heartbeat with our node id) is heard on a shared CAN bus (socketcan, socketcand) — e.g.
+the service is already running.
 """
 
 from __future__ import annotations
@@ -43,6 +46,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="TCP port of the OpenTSI tree (overrides [server] opentsi_port; -1: off)")
     p.add_argument("--alpaca-port", type=int,
                    help="HTTP port of the ASCOM Alpaca devices (overrides [alpaca] port; -1: off)")
+    p.add_argument("--alpaca-discovery-port", type=int,
+                   help="UDP port answering Alpaca discovery (overrides [alpaca] discovery_port; -1: none)")
     p.add_argument("--web-port", type=int,
                    help="HTTP port of the status page and /metrics (overrides [web] port; -1: off)")
     p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
@@ -111,11 +116,18 @@ def main(argv=None) -> int:
     if args.check_config:
         print(f"{config.source}: valid", file=sys.stderr)
         return 0
+    from tcs.listeners import PortInUse, check_free, planned
+    try:  # every listening port, before the service (and the hardware) is even loaded
+        check_free(planned(config, args.host, args.port, args.opentsi_port, args.alpaca_port,
+                           args.web_port, args.alpaca_discovery_port))
+    except PortInUse as exc:
+        print(f"tcs-server: cannot start: {exc.message}", file=sys.stderr)
+        return 1
     from tcs.app import Service, serve_until_signalled
 
     return run_until_signalled("tcs-server", lambda stop: serve_until_signalled(
         Service(config, args.host, args.port, args.opentsi_port,
-                args.alpaca_port, args.web_port), stop))
+                args.alpaca_port, args.web_port, args.alpaca_discovery_port), stop))
 
 
 def run_until_signalled(prog: str, main_coro) -> int:

@@ -36,7 +36,7 @@ log = logging.getLogger(__name__)
 OPTIONAL = {0x1006, 0x607F, 0x1016, 0x60C2, 0x607D, 0x6065, 0x6066, 0x6081, 0x6083, 0x6084,
             0x6085, 0x6099, 0x609A, 0x607C, 0x603F}
 
-#: What is lost without an optional object (logged when skipped; README table).
+#: What is lost without an optional object (logged when skipped; the table of docs/configuration.md).
 LOST = {
     0x1006: "the drive takes the SYNC period from the bus (no 0x1006 check)",
     0x1016: "THE DRIVE WILL NOT NOTICE A DEAD MASTER (no heartbeat consumer): if the TCS "

@@ -12,7 +12,7 @@ share one account table and therefore one throttle (``server_module.py`` joins t
 here does I/O or keeps time of its own: the clock is :func:`time.monotonic` unless a test
 passes another.
 
-Limits (all from the ``[server]`` section; README "Security" lists them with their defaults):
+Limits (all from the ``[server]`` section; docs/security.md lists them with their defaults):
 
 - ``max_connections`` ordinary connections; past that, ``admin_reserve`` more, only for a
   level-0 user: a connection admitted into the reserve is *reserved* and is dropped when it

@@ -29,7 +29,7 @@ server shutting down       ``<id> COMMAND FAILED``
 Errors raised by the domain (:class:`~tcs.errors.TcsError`) become reply text here and only
 here (``DATA ERROR <obj> FAILED n`` / keyword).
 
-Fairness and back-pressure (``[server]`` limits, README "Security")
+Fairness and back-pressure (``[server]`` limits, docs/security.md)
 -------------------------------------------------------------------
 Received bytes wait in an inbox and are parsed a little at a time (:data:`PARSE_CHUNK`) as
 work of their own; parsed lines wait in one queue per connection; the server's

@@ -243,7 +243,7 @@ SETUP = module(
                set=lambda s, v: _pointing_of(s).set_dome_deviation(v), min=0.0, max=180.0,
                info="degrees (POINTING.DOME_DEVIATION of OpenTCI)"),
            var("OFFSET", FLOAT, get="dome_offset", set="set_dome_offset", min=-180.0, max=180.0,
-               info="degrees (stored; see the README)"),
+               info="degrees (stored; see docs/opentsi.md)"),
            info="dome following"),
     module("FOCUS",
            var("SYNCMODE", INT, get="focus_syncmode", set="set_focus_syncmode", min=0, max=255,

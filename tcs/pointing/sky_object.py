@@ -6,7 +6,7 @@ fixed horizontal position (azimuth, altitude) for a goto. It belongs to the tele
 (``docs/architecture.md`` rule 0); POINTING.TARGET stays what the tracker follows (ICRS J2000),
 and :meth:`SkyObject.icrs` turns the catalogue place into that when a track is started.
 
-Conventions (the README's "OpenTSI" section says why):
+Conventions (docs/opentsi.md says why):
 
 * ``EQUINOX`` is a Julian equinox in years (2000 = J2000 = ICRS here); other equinoxes are
   precessed to J2000 with IAU 2006 precession (pyerfa ``pmat06``). Equinoxes outside 1900…2100

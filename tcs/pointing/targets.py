@@ -79,7 +79,7 @@ BODIES = {
     "jupiter": "jupiter barycenter", "saturn": "saturn barycenter",
     "uranus": "uranus barycenter", "neptune": "neptune barycenter", "pluto": "pluto barycenter",
 }
-#: OpenTSI ``OBJECT.SOLARSYSTEM.OBJECT`` index → body (the README says why this order)
+#: OpenTSI ``OBJECT.SOLARSYSTEM.OBJECT`` index → body (docs/opentsi.md says why this order)
 SOLARSYSTEM_INDEX = ("sun", "mercury", "venus", "mars", "jupiter", "saturn", "uranus",
                      "neptune", "pluto")
 

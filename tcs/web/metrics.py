@@ -6,12 +6,18 @@ the library's global one): each scrape turns the newest snapshot into metric fam
 counters the model does not keep itself (drive faults, limit hits: a new fault or limit seen
 by a snapshot) are counted by :class:`Counters`, which the web server feeds every snapshot.
 
-Conventions: every name starts with ``tcs_``; seconds for times; angles have the unit in the
-name (``_degrees``, ``_arcsec``); an axis position is in the axis's user units (degrees for
-AZ/ZD/HA/DEC/DEROTATOR, mm for FOCUS, the port number for FILTER/MIRROR: see the ``unit``
-label of ``tcs_axis_info``); labels are the fixed names of the hardware file (``axis="AZ"``,
-``plc="dome"``) — nothing per client or per request. A measured value without a fresh readback
-is left out (absent = unknown), never reported with its last value.
+Conventions: every name starts with ``tcs_``; seconds for times; every family has one unit,
+named at its end (``_degrees``, ``_millimetres``, ``_arcsec``, ``_ratio``, ``_seconds``): an
+axis's position, target, target distance and velocity are ``tcs_axis_*_degrees`` for the
+angular axes (AZ, ZD, HA, DEC, DEROTATOR), ``tcs_axis_*_millimetres`` for FOCUS and
+``tcs_axis_discrete_*`` (the number of the position: filter slot, M3 port) for FILTER and
+MIRROR — :data:`AXIS_FAMILIES`; the dome's azimuth is ``tcs_dome_azimuth_degrees``, how far each
+other dome part and cover is open ``tcs_enclosure_open_ratio`` (0 closed … 1 fully open).
+Labels are the fixed names of the hardware file (``axis="AZ"``, ``plc="dome"``) — nothing per
+client or per request. A measured value without a fresh readback is left out (absent =
+unknown), never reported with its last value; so is ``tcs_tracking_error_arcsec`` while no
+tracking runs on its path (not tracking, or still slewing to the target:
+:attr:`Counters.on_path`).
 """
 
 from __future__ import annotations
@@ -30,16 +36,45 @@ CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
 BUS_STATES = ("ok", "warning", "passive", "bus-off", "failed")
 
 
+#: (snapshot key, the axis's unit) → the family of that quantity in that unit, and its help.
+AXIS_FAMILIES: dict[tuple[str, str], tuple[str, str]] = {
+    ("position", "deg"): ("tcs_axis_position_degrees", "REALPOS of an angular axis, degrees"),
+    ("position", "mm"): ("tcs_axis_position_millimetres", "REALPOS of a linear axis (FOCUS), mm"),
+    ("position", "position"): ("tcs_axis_discrete_position",
+                               "REALPOS of a discrete axis: the number of its position (filter slot, M3 port)"),
+    ("target", "deg"): ("tcs_axis_target_degrees", "TARGETPOS of an angular axis, degrees"),
+    ("target", "mm"): ("tcs_axis_target_millimetres", "TARGETPOS of a linear axis (FOCUS), mm"),
+    ("target", "position"): ("tcs_axis_discrete_target", "TARGETPOS of a discrete axis: a position number"),
+    ("distance", "deg"): ("tcs_axis_target_distance_degrees",
+                          "TARGETDISTANCE (TARGETPOS - CURRPOS) of an angular axis, degrees"),
+    ("distance", "mm"): ("tcs_axis_target_distance_millimetres",
+                         "TARGETDISTANCE (TARGETPOS - CURRPOS) of a linear axis (FOCUS), mm"),
+    ("distance", "position"): ("tcs_axis_discrete_target_distance",
+                               "TARGETDISTANCE of a discrete axis, in position numbers"),
+    ("velocity", "deg"): ("tcs_axis_velocity_degrees_per_second", "CURRSPEED of an angular axis, degrees/s"),
+    ("velocity", "mm"): ("tcs_axis_velocity_millimetres_per_second", "CURRSPEED of a linear axis (FOCUS), mm/s"),
+    ("velocity", "position"): ("tcs_axis_discrete_velocity",
+                               "CURRSPEED of a discrete axis, position numbers per second"),
+}
+
+
 class Counters:
-    """Counts fault and limit transitions between snapshots (per axis name)."""
+    """Counts fault and limit transitions between snapshots (per axis name), and follows
+    whether tracking runs on its path (:attr:`on_path`)."""
 
     def __init__(self) -> None:
         self.faults: dict[str, int] = {}
         self.limit_hits: dict[str, int] = {}
         self._fault: dict[str, Any] = {}
         self._limit: dict[str, int] = {}
+        #: True from the first snapshot that finds every tracked axis on target until tracking
+        #: ends or the target changes: the slew to the target is over, what POINTING.TARGETDISTANCE
+        #: reads is the tracking error (during the slew it is the distance still to go)
+        self.on_path = False
+        self._tracked: Any = None
 
     def update(self, snap: dict[str, Any]) -> None:
+        self._follow_tracking(snap.get("tracking"))
         for axis in snap.get("axes", ()):
             name = axis["name"]
             self.faults.setdefault(name, 0)
@@ -53,6 +88,17 @@ class Counters:
                 if limit and not self._limit.get(name):
                     self.limit_hits[name] += 1
                 self._limit[name] = limit
+
+    def _follow_tracking(self, t: dict[str, Any] | None) -> None:
+        if not t or not t["tracking"]:
+            self.on_path, self._tracked = False, None
+            return
+        target = t.get("target") or {}
+        tracked = (t.get("track"), target.get("ra"), target.get("dec"))
+        if tracked != self._tracked:  # a new goal: a new slew first
+            self.on_path, self._tracked = False, tracked
+        if t["on_target"]:
+            self.on_path = True
 
 
 def _gauge(name: str, doc: str, labels: list[str] | None = None) -> GaugeMetricFamily:
@@ -142,10 +188,6 @@ class SnapshotCollector:
                                      labels=["axis"]),
             "fresh": _gauge("tcs_axis_fresh", "1 while the drive gives fresh readbacks (else the "
                                               "measured values are unknown and left out)", ["axis"]),
-            "position": _gauge("tcs_axis_position", "REALPOS, user units (see tcs_axis_info unit)", ["axis"]),
-            "target": _gauge("tcs_axis_target", "TARGETPOS, user units", ["axis"]),
-            "distance": _gauge("tcs_axis_target_distance", "TARGETDISTANCE (TARGETPOS - CURRPOS), user units", ["axis"]),
-            "velocity": _gauge("tcs_axis_velocity", "CURRSPEED, user units per second", ["axis"]),
             "following": _gauge("tcs_axis_following_error_arcsec",
                                 "following error of the drive (measured - demand), arcsec", ["axis"]),
             "motion": _gauge("tcs_axis_motion_state", "MOTION_STATE bits (1 moving, 2 trajectory, "
@@ -162,13 +204,16 @@ class SnapshotCollector:
         faults = CounterMetricFamily("tcs_axis_drive_faults", "drive faults seen (a new fault)", labels=["axis"])
         limits = CounterMetricFamily("tcs_axis_limit_hits", "times a limit was reached (LIMIT_STATE became non-zero)",
                                      labels=["axis"])
+        units = {(key, unit): _gauge(name, doc, ["axis"]) for (key, unit), (name, doc) in AXIS_FAMILIES.items()
+                 if any(a["unit"] == unit for a in axes)}
         for a in axes:
             name = [a["name"]]
             fam["info"].add_metric(name, {"unit": a["unit"], "module": a["module"]})
             fam["fresh"].add_metric(name, 1.0 if a["fresh"] else 0.0)
-            for key, value in (("position", a["position"]), ("target", a["target"]),
-                               ("distance", a["distance"]), ("velocity", a["velocity"]),
-                               ("following", a["following_error_arcsec"]), ("motion", a["motion_state"]),
+            for key in ("position", "target", "distance", "velocity"):
+                if a[key] is not None and (key, a["unit"]) in units:
+                    units[key, a["unit"]].add_metric(name, a[key])
+            for key, value in (("following", a["following_error_arcsec"]), ("motion", a["motion_state"]),
                                ("power", a["power"]), ("referenced", a["referenced"]),
                                ("error_state", a["error_state"]), ("limit", a["limit_state"])):
                 if value is not None:
@@ -182,6 +227,7 @@ class SnapshotCollector:
             faults.add_metric(name, self.counters.faults.get(a["name"], 0))
             limits.add_metric(name, self.counters.limit_hits.get(a["name"], 0))
         yield from fam.values()
+        yield from units.values()
         yield faults
         yield limits
 
@@ -242,8 +288,7 @@ class SnapshotCollector:
             yield _one("tcs_can_bus_load_ratio", "share of the bit rate used over the last second (0..1, "
                        "without stuff bits: up to ~20 % more on the wire)", bus["load"])
 
-    @staticmethod
-    def _tracking(snap):
+    def _tracking(self, snap):
         t = snap["tracking"]
         if t is None:
             return
@@ -251,9 +296,10 @@ class SnapshotCollector:
                    1.0 if t["tracking"] else 0.0)
         yield _one("tcs_tracking_on_target", "1 while tracking with every controlled axis on target",
                    1.0 if t["on_target"] else 0.0)
-        if t["distance_arcsec"] is not None:
-            yield _one("tcs_tracking_error_arcsec", "POINTING.TARGETDISTANCE while tracking: largest distance "
-                       "of the controlled axes from their demand on the sky", t["distance_arcsec"])
+        if t["distance_arcsec"] is not None and t["tracking"] and self.counters.on_path:
+            yield _one("tcs_tracking_error_arcsec", "POINTING.TARGETDISTANCE while tracking on the path (absent "
+                       "while not tracking and during the slew to the target): largest distance of the "
+                       "controlled axes from their demand on the sky", t["distance_arcsec"])
         if t["target_distance"] is not None:
             yield _one("tcs_tracking_target_distance_degrees",
                        "angle on the sky between POINTING.CURRENT and POINTING.TARGET", t["target_distance"])
@@ -262,18 +308,23 @@ class SnapshotCollector:
     def _enclosure(snap):
         parts = [("dome", m) for m in snap["dome"]] + [("cover", m) for m in snap["covers"]]
         if parts:
-            pos = _gauge("tcs_enclosure_position", "position of a dome part or cover (DOME[].REALPOS, COVER.REALPOS)",
-                         ["module", "kind"])
+            azimuth = _gauge("tcs_dome_azimuth_degrees", "azimuth of the dome's slit (DOME[0].REALPOS), degrees",
+                             ["module"])
+            opening = _gauge("tcs_enclosure_open_ratio", "how far a dome part or cover is open: 0 closed "
+                             "… 1 fully open (REALPOS from !MIN to !MAX)", ["module", "kind"])
             mov = _gauge("tcs_enclosure_moving", "1 while the dome part or cover moves", ["module", "kind"])
             err = _gauge("tcs_enclosure_error_state", "ERROR_STATE bits", ["module", "kind"])
             for kind, m in parts:
                 labels = [m["name"], kind]
-                if m["position"] is not None:
-                    pos.add_metric(labels, m["position"])
+                position, lo, hi = m["position"], m.get("min"), m.get("max")
+                if position is not None and m.get("cyclic"):
+                    azimuth.add_metric([m["name"]], position)
+                elif position is not None and lo is not None and hi is not None and hi > lo:
+                    opening.add_metric(labels, min(1.0, max(0.0, (position - lo) / (hi - lo))))
                 if m["motion_state"] is not None:
                     mov.add_metric(labels, float(m["motion_state"] & 1))
                 err.add_metric(labels, m["error_state"])
-            yield from (pos, mov, err)
+            yield from (azimuth, opening, mov, err)
         if snap["interlock"] is not None:
             yield _one("tcs_weather_interlock_active", "1 while the weather interlock holds dome and covers closed",
                        1.0 if snap["interlock"]["active"] else 0.0)

@@ -180,6 +180,9 @@ def plc_axis_snapshot(module, part: str | None = None, label: str | None = None)
         "error_state": int(module.error_state),
         "fault": None if getattr(module, "_fault", None) is None else module._fault.message,
         "closing": bool(getattr(module, "closing", False)),
+        # closed … fully open (App. C.3: 0 closed); a cyclic part (the dome's rotation) turns
+        "min": _num(_safe(lambda: module.section.min)), "max": _num(_safe(lambda: module.section.max)),
+        "cyclic": bool(_safe(lambda: module.section.cyclic, 0.0)),
     }
 
 

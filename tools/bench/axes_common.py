@@ -46,7 +46,7 @@ async def start_service(path: Path = DEFAULT_CONFIG, *, can: dict | None = None,
         changes["can"] = dataclasses.replace(config.can, **bus)
     new = dataclasses.replace(config, **changes)
     object.__setattr__(new, "source", config.source)
-    service = Service(new, alpaca_port=0)  # a free port (a shared machine: 11111 may be taken)
+    service = Service(new, alpaca_port=0, alpaca_discovery_port=-1)  # a free port (11111 may be taken)
     port = await service.start()
     return service, port, state
 

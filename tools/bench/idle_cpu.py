@@ -233,7 +233,8 @@ def run_default(seconds: float, settle: float, state: str, overrides: dict[str, 
         hwfile.write_text(tomlkit.dumps(doc))
         extra = ["--config", str(hwfile)]
     server = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--log-level", "WARNING",
-                               *extra, "--port", str(port), "--opentsi-port", "-1", "--alpaca-port", "-1"],
+                               *extra, "--port", str(port), "--opentsi-port", "-1", "--alpaca-port", "-1",
+                               "--web-port", "0"],
                               env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         wait_port(port, 90.0)
@@ -268,7 +269,7 @@ def run_remote(seconds: float, settle: float, state: str, overrides: dict[str, f
             raise SystemExit(f"tcs-sim did not start: {line!r}")
         server = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--log-level", "WARNING",
                                    "--config", str(hwfile), "--port", str(port), "--opentsi-port", "-1",
-                                   "--alpaca-port", "-1"],
+                                   "--alpaca-port", "-1", "--web-port", "0"],
                                   env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         wait_port(port, 90.0)
         time.sleep(settle)

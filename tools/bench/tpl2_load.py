@@ -89,6 +89,8 @@ import tempfile
 import time
 
 EXTRA: list[str] = []
+#: Alpaca and the web port served as by default, on free ports (a running server has the defaults)
+FREE_FRONT_ENDS = ["--alpaca-port", "0", "--alpaca-discovery-port", "-1", "--web-port", "0"]
 VARIABLES = [  # what a status display polls
     "CABINET.POWER_STATE", "CABINET.ERROR_STATE", "CABINET.REFERENCED", "LOCAL.UT1",
     "AZ.REALPOS", "AZ.TARGETPOS", "AZ.MOTION_STATE", "AZ.LIMIT_STATE", "AZ.CURRSPEED",
@@ -308,8 +310,8 @@ def main() -> None:
         ):
             port = free_port()
             env = dict(os.environ, XDG_STATE_HOME=state)
-            proc = run_server(cmd + ([str(port)] if not tpl2 else ["--port", str(port), "--opentsi-port", "-1"]),
-                              env)
+            proc = run_server(cmd + ([str(port)] if not tpl2 else ["--port", str(port), "--opentsi-port", "-1",
+                                                                   *FREE_FRONT_ENDS]), env)
             try:
                 wait_port(port)
                 if tpl2:
@@ -351,7 +353,7 @@ def compare_trees(args) -> None:
         port, tsi_port = free_port(), free_port()
         env = dict(os.environ, XDG_STATE_HOME=state)
         proc = run_server([sys.executable, "-m", "tcs.cli.server", "--log-level", "WARNING", *EXTRA,
-                           "--port", str(port), "--opentsi-port", str(tsi_port)], env)
+                           "--port", str(port), "--opentsi-port", str(tsi_port), *FREE_FRONT_ENDS], env)
         try:
             wait_port(port)
             wait_port(tsi_port)

@@ -8,8 +8,10 @@ memory (nothing is written into ``docs/``, so nothing generated is ever committe
   variables and devices, read from a service of ``hwconfig/sim.toml`` started on free loopback
   ports (``gen_frontend_reference.py``; a few seconds);
 * ``reference/codes.md`` — event/error numbers, drive EMCY codes, SDO aborts, ASCOM errors
-  (``gen_codes_reference.py``);
-* ``readme.md`` — the project's ``README.md`` as it is, so the pages can link into it.
+  (``gen_codes_reference.py``).
+
+The project's ``README.md`` is the repository's front page, not a page of the site: it links
+into ``docs/`` by path (which the site could not resolve), and ``index.md`` is the site's own.
 
 ``TCS_DOCS_CONFIG`` names another hardware file for the front-end references. Only MkDocs
 loads this module.
@@ -38,8 +40,7 @@ def generated_pages() -> dict[str, str]:
 
     config = Path(os.environ.get("TCS_DOCS_CONFIG") or DEFAULT_CONFIG)
     pages = {"reference/hwconfig.md": gen_hwconfig_reference.render(),
-             "reference/codes.md": gen_codes_reference.render(),
-             "readme.md": (ROOT / "README.md").read_text(encoding="utf-8")}
+             "reference/codes.md": gen_codes_reference.render()}
     for name, text in gen_frontend_reference.render_all(config).items():
         pages[f"reference/{name}"] = text
     return pages

@@ -66,22 +66,29 @@ stat("On target", f"tcs_tracking_on_target{{{SEL}}}", 20, mappings=YESNO,
 _y[0] += 4
 
 row("Axes")
-series("Position", [(f"tcs_axis_position{{{SEL}}}", "{{axis}}")], 0, unit="none",
-       desc="REALPOS of every axis, in its user units (degrees; mm for FOCUS; the port for FILTER/MIRROR)")
+series("Position", [(f"tcs_axis_position_degrees{{{SEL}}}", "{{axis}}")], 0, unit="degree",
+       desc="REALPOS of the angular axes (AZ, ZD or HA, DEC, derotators), degrees")
 series("Following error", [(f"tcs_axis_following_error_arcsec{{{SEL}}}", "{{axis}}")], 12, unit="none",
        desc="the drive's following error (measured - demand), arcsec, angular axes")
 _y[0] += 8
-series("Velocity", [(f"tcs_axis_velocity{{{SEL}}}", "{{axis}}")], 0, unit="none",
-       desc="CURRSPEED, user units per second")
+series("Velocity", [(f"tcs_axis_velocity_degrees_per_second{{{SEL}}}", "{{axis}}")], 0, unit="none",
+       desc="CURRSPEED of the angular axes, degrees per second")
 series("Drive faults and limit hits (per hour)",
        [(f"increase(tcs_axis_drive_faults_total{{{SEL}}}[1h])", "fault {{axis}}"),
         (f"increase(tcs_axis_limit_hits_total{{{SEL}}}[1h])", "limit {{axis}}")], 12,
        desc="a new drive fault / a limit reached, counted by the service")
 _y[0] += 8
+series("Focus", [(f"tcs_axis_position_millimetres{{{SEL}}}", "{{axis}} position"),
+                 (f"tcs_axis_target_millimetres{{{SEL}}}", "{{axis}} target")], 0, unit="lengthmm",
+       desc="REALPOS and TARGETPOS of the linear axes (FOCUS), mm")
+series("Filter wheel and M3", [(f"tcs_axis_discrete_position{{{SEL}}}", "{{axis}}")], 12, unit="none",
+       desc="REALPOS of the discrete axes: the number of the position (filter slot, M3 port)")
+_y[0] += 8
 
 row("Tracking")
 series("Tracking error", [(f"tcs_tracking_error_arcsec{{{SEL}}}", "on the sky")], 0, unit="none",
-       desc="POINTING.TARGETDISTANCE while tracking: largest distance of the controlled axes from their demand, arcsec")
+       desc="POINTING.TARGETDISTANCE while tracking on the path: largest distance of the controlled axes "
+            "from their demand, arcsec (no value while not tracking or slewing to the target)")
 series("Target distance", [(f"tcs_tracking_target_distance_degrees{{{SEL}}}", "current - target")], 12, unit="none",
        desc="angle on the sky between where the telescope points and the target, degrees")
 _y[0] += 8
@@ -117,8 +124,10 @@ series("CAN frames (per second)", [(f"rate(tcs_can_frames_total{{{SEL}}}[1m])", 
 _y[0] += 8
 
 row("Dome, weather, links")
-series("Dome and covers", [(f"tcs_enclosure_position{{{SEL}}}", "{{module}}")], 0, w=8,
-       desc="DOME[].REALPOS and COVER.REALPOS")
+series("Dome and covers", [(f"tcs_enclosure_open_ratio{{{SEL}}}", "{{module}} open"),
+                           (f"tcs_dome_azimuth_degrees{{{SEL}}} / 360", "{{module}} azimuth / 360°")], 0, w=8,
+       unit="percentunit", desc="how far each dome part and cover is open (0 closed, 100 % fully open); "
+                               "the dome's azimuth as a share of the full turn")
 series("Weather", [(f"tcs_sensor_value{{{SEL}}}", "{{name}}")], 8, w=8, desc="SENSOR[].VALUE (each in its own unit)")
 series("Weather interlock", [(f"tcs_weather_interlock_active{{{SEL}}}", "active")], 16, w=8,
        desc="1 while the weather interlock holds dome and covers closed")
@@ -146,7 +155,7 @@ _y[0] += 8
 dashboard = {
     "__inputs": [], "title": "tcs telescope", "uid": "tcs-telescope", "editable": True, "schemaVersion": 39,
     "tags": ["tcs", "telescope"], "time": {"from": "now-3h", "to": "now"}, "refresh": "10s",
-    "description": "The tcs service's /metrics (README: 'Metrics and status page')",
+    "description": "The tcs service's /metrics (docs/metrics.md: 'Metrics and status page')",
     "templating": {"list": [
         {"type": "datasource", "name": "datasource", "label": "Prometheus", "query": "prometheus"},
         {"type": "query", "name": "instance", "label": "telescope", "datasource": DS, "refresh": 2,

@@ -185,7 +185,7 @@ LOCAL = module(
     var("LATITUDE", FLOAT, get="latitude", set="set_latitude", min=-90.0, max=90.0, wlevel=CONFIGURE,
         info="site latitude, degrees north; writing sets SYNCPOS=0"),
     var("LONGITUDE", FLOAT, get="served_longitude", set="set_served_longitude", min=-360.0, max=360.0,
-        wlevel=CONFIGURE, info="site longitude, degrees east (see the README for west-positive sites); "
+        wlevel=CONFIGURE, info="site longitude, degrees east (see docs/opentci.md for west-positive sites); "
                                "writing sets SYNCPOS=0"),
     var("HEIGHT", FLOAT, get="height", set="set_height", min=-500.0, max=10000.0, wlevel=CONFIGURE,
         info="site height above sea level, m; writing sets SYNCPOS=0"),
