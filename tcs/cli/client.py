@@ -1,27 +1,42 @@
 """``tcs-client``: talk to the telescope over TPL2 from a shell or a script.
 
-    tcs-client get VAR... [--json]            values (strings decoded; a module: its variables),
+    tcs-client get VAR... [--json] [--meta P]  values (strings decoded; a module: its variables;
+                                              VAR:PROP = VAR!PROP; times also in ISO UTC),
                                               exit 1 if one failed (the error and its meaning)
-    tcs-client set VAR=VALUE... [--no-wait]   one SET; waits for its completion with a
-                                              progress line; exit 0 done, 1 failed
+    tcs-client set VAR=VALUE... [--no-wait]   one SET per module, all started together; waits
+                                              for their completion with a progress line
     tcs-client watch [VAR...] [--count N]     events and a compact status line, live
     tcs-client tree [PREFIX] [--json]         the variable tree with its properties
+
+Operator verbs (OpenTCI only; each waits until really done, with progress lines; Ctrl-C sends
+CABINET.STOP=1, then exits 130):
+
+    tcs-client ready                          power on, reference what is not referenced
+    tcs-client goto TARGET | --altaz ALT AZ   a star (IAU name), a body, "RA DEC": slew, track,
+                                              return on target (POINTING.TARGETDISTANCE)
+    tcs-client wait EXPR... [--timeout S]     until VAR==/!=/</<=/>/>=VALUE or VAR&BITS hold
+    tcs-client stop                           CABINET.STOP=1
+    tcs-client park                           TRACK=0, every axis to its PARKPOS, power off
 
 Connection options come before or after the subcommand: ``--host`` (``$TCS_HOST``, default
 127.0.0.1), ``--port`` (``$TCS_PORT``, 65432), ``--user`` (``$TCS_USER``, default your login
 name), ``--password-file`` (``$TCS_PASSWORD_FILE``; ``-`` reads standard input); without a
 file the password is asked for on the terminal. A server with implicit login needs none.
 
-Exit codes: 0 done, 1 a value or command failed, 2 usage error, 3 no connection or login
-refused, 130 interrupted (a running SET is aborted first).
+Exit codes: 0 done, 1 a value or command failed (or not done within --timeout), 2 usage
+error, 3 no connection or login refused, 130 interrupted (a running SET is aborted first; a
+verb's commands are aborted and CABINET.STOP=1 sent).
 
 How it works: one blocking socket, lines parsed with the server's own reply parser
 (:func:`tcs.opentci_server.protocol.parse_reply`), replies routed by command id so that a SET
 and the GETs of its progress line run at the same time on one connection; events are shown
 as they come; a SET's progress variables are read once per progress line, not in a loop.
 Error keywords are printed with their meaning (:func:`explain`: the object's MIN/MAX, levels,
-the OpenTCI meaning of ``FAILED n`` from :data:`tcs.errors.EVENT_MEANINGS`). Nothing here
-imports the service: it is a plain client.
+the OpenTCI meaning of ``FAILED n`` from :data:`tcs.errors.EVENT_MEANINGS`). The verbs are
+sequences of plain SETs and GETs run by :func:`run` (commands started together, a progress
+GET per refresh, an ``until`` condition for what a SET does not wait for: REINIT, TRACK);
+their TARGETs are resolved by :mod:`tcs.cli.targets` (the shipped bright-star list, DE421 for
+bodies). Nothing here imports the service: it is a plain client.
 """
 
 from __future__ import annotations
@@ -642,7 +657,8 @@ def run(conn: Connection, job: Run, args, *, on_interrupt: str = "abort") -> int
                 if not args.no_wait:
                     shown = (job.show(values) if job.show is not None else
                              " ".join(f"{k}={text(v)}" for k, v in values.items() if not isinstance(v, WireError)))
-                    line.show(f"{what}: {now - started:.1f} s {shown}".rstrip(), force=True)
+                    # (an until-run polls twice a second: its line at most once per interval)
+                    line.show(f"{what}: {now - started:.1f} s {shown}".rstrip(), force=job.until is None)
                 poll = None
             if poll is None and now >= next_poll:
                 next_poll = now + (min(every, 0.5) if job.until is not None else every)
@@ -843,8 +859,8 @@ def cmd_park(conn: Connection, args) -> int:
         away = [a for a, p in parks.items() if not isinstance(values.get(f"{a}.REALPOS"), (int, float))
                 or abs(values[f"{a}.REALPOS"] - p) > 0.1]
         if away and _number(state, "CABINET.POWER_STATE") != 0.0:
-            raise ClientError("the telescope is not powered and referenced: it cannot move to the "
-                              "park position (tcs-client ready first); nothing moved")
+            raise ClientError("the telescope is not powered and referenced: "
+                              "it cannot move to the park position (tcs-client ready first); nothing moved")
     code = run(conn, Run("power off", ["SET CABINET.POWER=0"], watch=["CABINET.POWER_STATE"]),
                args, on_interrupt="abort")
     if code != OK:
