@@ -713,7 +713,7 @@ def parse_condition(expr: str) -> tuple[str, str, object]:
             name, value = meta_name(name.strip()), value.strip()
             if op == "=":
                 op = "=="
-            wire = decode(value) if value.startswith('"') else decode(value) if value else value
+            wire = decode(value) if value else value
             if isinstance(wire, WireError):  # a bare word: a string
                 wire = str(value)
             return name, op, wire
