@@ -235,6 +235,10 @@ def test_goto_a_named_star_lands_on_it_then_park(env, live):
 
 
 def test_goto_places_and_refusals(env):
+    assert client(env, "set", "CABINET.POWER=0").returncode == 0
+    cold = client(env, "goto", "Vega")
+    assert cold.returncode == 1, cold.stderr
+    assert "POINTING.TRACK: FAILED 5" in cold.stderr and "tcs-client ready" in cold.stderr, cold.stderr
     ready(env)
     here = get(env, "POINTING.CURRENT.SIDEREAL_TIME")["POINTING.CURRENT.SIDEREAL_TIME"]
     ra = (here + 1.0) % 24.0      # an hour east of the meridian at Dec +30: up at 28.8° N

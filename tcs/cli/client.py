@@ -631,8 +631,11 @@ def run(conn: Connection, job: Run, args, *, on_interrupt: str = "abort") -> int
             bad = [i for i in ids if conn.done(i) and not conn.replies[i].ok]
             if bad:
                 line.end()
-                for problem in problems():
+                found = problems()
+                for problem in found:
                     print(f"tcs-client: {problem}", file=sys.stderr)
+                if any("FAILED 5 " in p for p in found):
+                    print("tcs-client: (power on and reference first: tcs-client ready)", file=sys.stderr)
                 for cmd_id in ids:
                     if not conn.done(cmd_id):
                         conn.command(f"ABORT {cmd_id}", 30.0)
