@@ -47,6 +47,7 @@ import getpass
 import json
 import math
 import os
+import re
 import select
 import shutil
 import socket
@@ -723,6 +724,29 @@ def parse_condition(expr: str) -> tuple[str, str, object]:
     raise ClientError(f"not a condition: {expr!r} (VAR==VALUE, VAR>=VALUE, VAR&BITS …)", USAGE)
 
 
+_CONDITION = re.compile(r"""\s*(?P<name>[A-Za-z_<][A-Za-z0-9_.\-\[\],:<>]*?(?:![A-Za-z]+)?)\s*
+                          (?P<op>==|!=|<=|>=|=|<|>|&)\s*
+                          (?P<value>"(?:[^"\\]|\\.)*"|[^\s;,&]+)\s*
+                          (?:(?:&&|\band\b|[;,])\s*)?""", re.X)
+
+
+def parse_conditions(words: list[str]) -> list[tuple[str, str, object]]:
+    """The conditions of ``wait``, however the shell split them: ``'A>=1' 'B==2'``,
+    ``A >= 1 and B == 2``, ``"A>=1 && B&8"``."""
+    text = " ".join(words).strip()
+    out, pos = [], 0
+    while pos < len(text):
+        found = _CONDITION.match(text, pos)
+        if found is None or found.end() == pos:
+            raise ClientError(f"not a condition: {text[pos:]!r} (VAR==VALUE, VAR>=VALUE, VAR&BITS …; "
+                              "several: separate with spaces, 'and' or '&&')", USAGE)
+        out.append(parse_condition(found.group("name") + found.group("op") + found.group("value")))
+        pos = found.end()
+    if not out:
+        raise ClientError("wait: no condition", USAGE)
+    return out
+
+
 def holds(value, op: str, want) -> bool:
     if value is None or isinstance(value, WireError):
         return False
@@ -740,7 +764,7 @@ def holds(value, op: str, want) -> bool:
 
 def cmd_wait(conn: Connection, args) -> int:
     """Until every condition holds (exit 0), or the time-out (exit 1); Ctrl-C: exit 130."""
-    conditions = [parse_condition(e) for e in args.conditions]
+    conditions = parse_conditions(args.conditions)
     names = list(dict.fromkeys(c[0] for c in conditions))
     first = conn.get(*names)
     unknown = [f"{n}: {explain(conn, n, v, writing=False)}" for n, v in first.items() if isinstance(v, WireError)
