@@ -177,6 +177,8 @@ def test_wait_for_a_condition_and_its_time_out(env):
     proc = client(env, "wait", "CABINET.REFERENCED>=1", "CABINET.POWER_STATE==1", "AZ.MOTION_STATE&8")
     assert proc.returncode == 0, proc.stderr
     assert "wait CABINET.REFERENCED>=1" in proc.stderr and "done" in proc.stderr
+    reinit = client(env, "set", "CABINET.REINIT=0")     # returns at once: says how to wait
+    assert reinit.returncode == 0 and "tcs-client wait 'CABINET.REFERENCED>=1'" in reinit.stderr
     split = client(env, "wait", "CABINET.REFERENCED", ">=", "1", "and", "AZ.MOTION_STATE & 8")
     assert split.returncode == 0, split.stderr      # however the shell split the words
     started = time.monotonic()

@@ -694,7 +694,14 @@ def cmd_set(conn: Connection, args) -> int:
     groups = split_assignments(args.assignments, args.in_order)
     job = Run(";".join(args.assignments), ["SET " + ";".join(g) for g in groups],
               watch=progress_vars(args.assignments))
-    return run(conn, job, args)
+    code = run(conn, job, args)
+    reinit = [a.split("=", 1)[0].strip() for a in args.assignments
+              if a.split("=", 1)[0].strip().upper().endswith(".REINIT")]
+    if code == OK and reinit and not args.quiet and not args.no_wait:
+        module = reinit[0].rsplit(".", 1)[0]
+        print(f"{module}: referencing runs on in the background; `tcs-client wait "
+              f"'{module}.REFERENCED>=1'` (or `tcs-client ready`) waits until it is done", file=sys.stderr)
+    return code
 
 
 # ------------------------------------------------------------------------ operator verbs
