@@ -850,10 +850,11 @@ def cmd_stop(conn: Connection, args) -> int:
 
 def park_positions(conn: Connection) -> dict[str, float]:
     """``{axis module: park position}`` of every axis with a PARKPOS (the TCS's extension)."""
-    axes = [a for a in _members(conn) if a in ("AZ", "ZD", "HA", "DEC", "FOCUS", "MIRROR")]
+    members = _members(conn)
+    axes = [a for a in members if a in ("AZ", "ZD", "HA", "DEC", "FOCUS", "MIRROR")]
     arrays = []
     for name in ("DEROTATOR", "FILTER", "ZD"):
-        count = conn.get(f"{name}!COUNT").get(f"{name}!COUNT") if name in _members(conn) else None
+        count = conn.get(f"{name}!COUNT").get(f"{name}!COUNT") if name in members else None
         if isinstance(count, int):
             arrays += [f"{name}[{i}]" for i in range(count)]
     names = axes + arrays
