@@ -10,5 +10,5 @@ setup(
     # every hardware file and EDS, also in sub-folders (vendor EDS files); data files that
     # modules of tcs may keep next to them
     package_data={"tcs_hwconfig": ["*.toml", "**/*.toml", "**/*.eds", "**/*.EDS"],
-                  "tcs": ["**/*.toml", "**/*.json", "web/static/*"]},
+                  "tcs": ["**/*.toml", "**/*.json", "**/*.csv", "web/static/*"]},
 )

@@ -751,6 +751,60 @@ def test_rotator_sync_and_reverse_platform7_model(live):
         t.Disconnect()
 
 
+def test_rotator_target_position_is_the_requested_one_at_once(live):
+    """Issue 41 item 10 (ConformU): TargetPosition right after MoveAbsolute (and Move) reads
+    the position asked for, also while the rotator is first powered on and referenced (the
+    axis's own target changes only once its move starts); the current position before."""
+    from alpaca.rotator import Rotator
+
+    t = connected_telescope(live)
+    ready(live, t)
+    rot = Rotator(address(live), 1)
+    rot.Connect()
+    until(lambda: not rot.Connecting, "the rotator connected")
+    axis = live.telescope.axis_array("DEROTATOR")[-1]
+    try:
+        rot.Reverse = False
+        rot.MoveMechanical(40.0)
+        until(lambda: not rot.IsMoving, "at 40°")
+        rot.Sync(rot.MechanicalPosition)                       # sky = mechanical
+        asyncio.run(live.call(axis.set_power, 0))              # cold: the move powers it on first
+        until(lambda: axis.power_state == 0.0, "the derotator off")
+        rot.MoveAbsolute(130.0)
+        assert abs(rot.TargetPosition - 130.0) < 0.001, rot.TargetPosition
+        until(lambda: not rot.IsMoving, "at 130°")
+        assert abs(rot.Position - 130.0) < 0.01 and abs(rot.TargetPosition - 130.0) < 0.001
+        rot.Move(-30.0)
+        assert abs(rot.TargetPosition - 100.0) < 0.001, rot.TargetPosition
+        until(lambda: not rot.IsMoving, "at 100°")
+        assert abs(rot.Position - 100.0) < 0.01
+    finally:
+        rot.Disconnect()
+        t.Disconnect()
+
+
+def test_the_docs_alpyca_example_runs_with_async_slews(live):
+    """Issue 41 item 10: the documentation's alpyca session (docs/quickstart.md) uses the
+    asynchronous slews — alpyca refuses the synchronous ones itself — and runs as printed
+    against the simulated telescope (only the address is this test's)."""
+    import re
+
+    from alpaca.exceptions import NotImplementedException
+
+    text = (Path(__file__).resolve().parent.parent / "docs" / "quickstart.md").read_text()
+    block = re.search(r"<!-- alpyca-example -->\s*```python\n(.*?)```", text, re.S)
+    assert block, "docs/quickstart.md has no alpyca example"
+    code = block.group(1)
+    assert not re.search(r"\.SlewTo\w*(?<!Async)\(", code), "a synchronous slew in the docs"
+    assert "SlewToCoordinatesAsync(" in code and '"127.0.0.1:11111"' in code
+    t = connected_telescope(live)
+    with pytest.raises(NotImplementedException):      # why the docs use the Async calls
+        t.SlewToCoordinates(1.0, 10.0)
+    t.Disconnect()
+    exec(compile(code.replace('"127.0.0.1:11111"', repr(address(live))), "quickstart.md", "exec"), {})
+    assert live.telescope.operations.at_park
+
+
 def test_lunar_and_solar_tracking_rates_follow_the_real_moon_and_sun(live):
     """TrackingRates lists sidereal, lunar and solar; with lunar the tracked place moves at the
     Moon's topocentric rate against the stars now (skyfield's DE421, computed here on its own),

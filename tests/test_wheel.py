@@ -72,6 +72,10 @@ def test_the_installed_package_is_the_wheel(installed, tmp_path):
         version = subprocess.run([str(installed / script), "--version"], capture_output=True,
                                  text=True, timeout=60)
         assert version.stdout.strip() == f"{script} 0.1.0", (script, version.stderr)
+    # package data beside the modules: tcs-client's bright-star list (goto NAME)
+    stars = subprocess.run([str(installed / "tcs-client"), "goto", "--list"], capture_output=True,
+                           text=True, timeout=60, cwd=tmp_path, env=run_env(tmp_path))
+    assert stars.returncode == 0 and "Sirius" in stars.stdout and "Polaris" in stars.stdout, stars.stderr
 
 
 def test_tcs_server_runs_the_simulated_telescope_from_the_wheel(installed, tmp_path):

@@ -308,6 +308,12 @@ class RotatorDevice(Device):
         return self._sky(self.get_mechanicalposition(r))
 
     def get_targetposition(self, r) -> float:
+        # the goal of the move a client asked for, from the request on: the axis's own target
+        # changes only once the move starts (after powering on and referencing, or the next
+        # control cycle), and ASCOM (ConformU) reads TargetPosition right after MoveAbsolute
+        goal = getattr(self, "_goal", None)
+        if goal is not None and self.running("move"):
+            return self._sky(float(goal % 360.0))
         return self._sky(float((self.axis.target_position + self.axis.offset) % 360.0))
 
     def put_halt(self, r) -> None:
@@ -318,6 +324,7 @@ class RotatorDevice(Device):
         """Move to mechanical ``angle`` (a number, or a function giving it once the axis is
         referenced) on the turn nearest to where the axis stands, inside the limits."""
         axis = self.axis
+        self._goal = None if callable(angle) else float(angle)   # TargetPosition from now on
 
         def move():
             goal = self._turn(angle() if callable(angle) else angle)

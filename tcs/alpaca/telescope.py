@@ -83,6 +83,13 @@ SLEW_RULE = ("asynchronous: Slewing True right after until on target (a failure:
              "answers it, 0x500)")
 
 
+#: The rule of the synchronous slews in the generated reference: served (older clients call
+#: them), but deprecated for Alpaca and refused by alpyca itself ("Synchronous methods are
+#: deprecated, not available via Alpaca"): the documentation's examples use the Async calls.
+SYNC_SLEW_RULE = ("synchronous: returns on target (Slewing False right after). Deprecated: alpyca "
+                  "refuses it on the client side; call {name}Async and poll Slewing")
+
+
 class TelescopeDevice(Device):
     TYPE = "telescope"
     NAME = "Telescope"
@@ -135,9 +142,9 @@ class TelescopeDevice(Device):
         "slewtocoordinatesasync": SLEW_RULE,
         "slewtotargetasync": SLEW_RULE,
         "slewtoaltazasync": SLEW_RULE,
-        "slewtocoordinates": "synchronous: returns on target (Slewing False right after)",
-        "slewtotarget": "synchronous: returns on target (Slewing False right after)",
-        "slewtoaltaz": "synchronous: returns on target (Slewing False right after)",
+        "slewtocoordinates": SYNC_SLEW_RULE.format(name="SlewToCoordinates"),
+        "slewtotarget": SYNC_SLEW_RULE.format(name="SlewToTarget"),
+        "slewtoaltaz": SYNC_SLEW_RULE.format(name="SlewToAltAz"),
         "abortslew": "synchronous: the motion is stopped at the reply; Slewing True while the axes brake",
         "park": "asynchronous: Slewing True, AtPark False right after until parked (then AtPark True)",
         "unpark": "asynchronous: Slewing True and AtPark True right after until ready, then both False "

@@ -236,6 +236,10 @@ class Axis(ModuleHealth):
         self.cyclic_mode = getattr(drive, "cyclic_mode", None) or Mode.CSP
         self.reference_order = REFERENCE_ORDER.get(section.module, 2)
         self.positions = {int(k): v for k, v in section.positions.items()}
+        #: where the telescope's park moves this axis (user units, OFFSET included; None: not
+        #: parked): the hardware file's ``park``, or what SetPark saved (kept up to date by
+        #: :meth:`tcs.model.operations.Operations.park_positions`); OpenTCI ``PARKPOS``
+        self.park_position = section.park
         cycle = section.cyclic or None
         self.limits = SoftLimits(section.min, section.max, cycle)
         stop = section.stop_deceleration or 2 * section.max_acceleration

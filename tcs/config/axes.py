@@ -46,8 +46,9 @@ class AxisSection:
     positions: dict[str, float] = setting(
         factory=dict, doc="discrete axes: integer position (as a string key) -> drive position")
     hw_type: int = setting(1, min=1, doc="TYPE of the module")
-    park: float | None = setting(None, doc="park position, user units (OpenTSI TELESCOPE.READY=0 "
-                                           "moves the axis there); absent: the axis is not parked")
+    park: float | None = setting(None, doc="park position, user units (OpenTSI TELESCOPE.READY=0, "
+                                           "Alpaca Park and tcs-client park move the axis there; "
+                                           "OpenTCI PARKPOS reads it); absent: the axis is not parked")
     names: dict[str, str] = setting(
         factory=dict, doc="discrete axes: integer position (string key) -> name (filter names)")
 

@@ -164,6 +164,7 @@ class Operations(ModuleHealth):
         out = []
         for a in self.telescope.axes:
             park = saved.get(a.module_name, a.section.park)
+            a.park_position = None if park is None else float(park)   # what PARKPOS reads
             if park is not None:
                 out.append((a, float(park)))
         return out
@@ -667,6 +668,7 @@ class Operations(ModuleHealth):
                 raise TcsError(f"{axis.module_name} is not referenced", ErrorNumber.INVMODE)
             saved[axis.module_name] = round(float(axis.real_position), 6)
         self.telescope.store.update(park=saved)
+        self.park_positions()   # the axes' park_position (OpenTCI PARKPOS) too
 
     def home_positions(self) -> list[tuple[object, float]]:
         """(main axis, home position): where its drive's homing puts the reference (the home

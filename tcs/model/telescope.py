@@ -187,6 +187,7 @@ class Telescope:
                 axis.raise_condition(name, WARNING, text)  # e.g. no heartbeat consumer: loud
             self.axes.append(axis)
         self.cabinet.attach(axes=self.axes)
+        self.operations.park_positions()  # SetPark's saved positions onto the axes (PARKPOS)
         self.control_loop = ControlLoop(self.axes, self.can.cycle, self.local.ut1)
         self.cabinet.loop_stats = self.control_loop.stats
         from tcs.pointing.pointing_module import make_pointing
@@ -223,6 +224,7 @@ class Telescope:
             self.axes.append(axis)
         process.attach(self.axes)
         self.cabinet.attach(axes=self.axes)
+        self.operations.park_positions()  # SetPark's saved positions onto the axes (PARKPOS)
         self.control_loop = RemoteLoop(process, config.can.sync_period)
         self.cabinet.loop_stats = self.control_loop.stats
         from tcs.pointing.pointing_module import make_pointing

@@ -348,6 +348,8 @@ class TrackSession:
         self._last_t: float | None = None              # UT1 of the last queued point
         self._zenith = False
         self._zenith_until = 0.0
+        #: the plan's path still in the stretch it starts with (see _check_zenith)
+        self._zenith_leaving = True
         self._dome_move: asyncio.Future | None = None
         self._dome_stuck = False
         self._after = after
@@ -493,6 +495,7 @@ class TrackSession:
             if plan is None:
                 return                         # interrupted: TRACK=0, STOP or a newer plan
         self._t_end, self._end_reason, self._last_t = None, "", None
+        self._zenith_leaving = True
         lanes = [Lane(lane.axis, lane.role, lane.port, lane.start) for lane in plan.lanes]
         points = self._points(plan, lanes, owner.ut1(), first=True)
         if points.times.size < 2:
@@ -710,7 +713,12 @@ class TrackSession:
 
     # -- near the zenith ------------------------------------------------------------------------
     def _check_zenith(self, points: _Points) -> None:
-        """Report when the azimuth path needs more speed or acceleration than the axis has."""
+        """Report when the azimuth path needs more speed or acceleration than the axis has:
+        a passage through the zenith keyhole *while tracking*. A path that starts in the
+        keyhole — tracking switched on at the zenith park position (Alpaca's Tracking=True
+        there tracks the zenith), then a slew elsewhere — is not one: its first stretch, up to
+        the first sample the axis can follow, is what the axes slew (intercept) over anyway,
+        so it raises nothing (it latched a warning after every normal slew out of the park)."""
         lane = next((ln for ln in self.lanes if ln.role == "axis1"), None)
         if lane is None or self.owner.pipeline().mount != "AZ-ZD" or points.times.size < 3:
             return
@@ -720,9 +728,16 @@ class TrackSession:
         sec = lane.axis.section
         fast = np.abs(v) > _LIMITED_SHARE * sec.max_velocity
         hard = np.abs(a) > _LIMITED_SHARE * sec.max_acceleration
-        if not (fast.any() or hard.any()):
+        bad = np.concatenate((fast[:-1] | hard, fast[-1:]))   # per interval of the samples
+        if self._zenith_leaving:
+            followable = np.flatnonzero(~bad)
+            if followable.size == 0:
+                return                     # still leaving the keyhole the path started in
+            self._zenith_leaving = False
+            bad[:followable[0]] = False
+        if not bad.any():
             return
-        idx = np.flatnonzero(np.concatenate((fast[:-1] | hard, fast[-1:])))
+        idx = np.flatnonzero(bad)
         self._zenith_until = max(self._zenith_until, float(t[idx[-1] + 1]))
         if not self._zenith:
             self._zenith = True

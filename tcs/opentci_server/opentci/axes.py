@@ -94,6 +94,9 @@ def axis_members():
         var("TARGETDISTANCE", FLOAT, get=_measured("target_distance"), info="TARGETPOS - CURRPOS"),
         var("STOP", INT, set="set_stop", min=0, max=1, wlevel=OPERATE, rlevel=NOBODY,
             info="quick stop, cancels targets and trajectories; returns at once"),
+        var("PARKPOS", FLOAT, get=lambda a: getattr(a, "park_position", None),
+            info="park position (TCS extension: the hardware file's park or SetPark's, OFFSET "
+                 "included; NULL: not parked); tcs-client park moves there, then powers off"),
         TRAJECTORY,
     )
 
