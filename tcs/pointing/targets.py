@@ -689,11 +689,11 @@ def check_tle_line(index: int, line: str) -> str:
     a = (_MU / (n * 2.0 * math.pi / 86400.0) ** 2) ** (1.0 / 3.0)
     perigee = a * (1.0 - e) - _EARTH_RADIUS
     if perigee < MIN_PERIGEE:
-        where = "below the Earth's surface" if perigee < 0 else "inside the atmosphere"
+        where = (f"{-perigee:,.0f} km below the Earth's surface" if perigee < 0 else
+                 f"{perigee:,.0f} km above the surface, inside the atmosphere")
         raise RangeRefused(
             f"TLE line 2: eccentricity {e:g} and mean motion {n:g} rev/day put the perigee "
-            f"{abs(perigee):,.0f} km {'below' if perigee < 0 else 'above'} the surface ({where}; "
-            f"at least {MIN_PERIGEE:g} km): not an orbit SGP4 can propagate")
+            f"{where} (at least {MIN_PERIGEE:g} km above it): not an orbit SGP4 can propagate")
     return line
 
 
