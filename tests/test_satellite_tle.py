@@ -17,8 +17,10 @@ followed to its set and ends normally.
 
 from __future__ import annotations
 
-import asyncio
 import math
+import re
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -29,6 +31,7 @@ from support.opentci_client import Client as SharedClient
 from tcs.pointing.demo_tle import leo_tle
 
 HW = Path(__file__).with_name("hw_opentsi.toml")
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def _telescope(base: Path) -> Path:
@@ -216,5 +219,29 @@ async def test_a_pass_longer_than_the_queue_is_followed_to_its_set(live):
         assert "EVENT INFO" in ended, ended
         assert not c.seen("ran out of points"), c.seen("ERROR")
         assert await c.num("TELESCOPE.READY_STATE") == 1.0
+    finally:
+        await c.close()
+
+
+async def test_the_docs_example_tle_is_fresh_and_followable(live):
+    """docs/satellites.md's command (``python -m tcs.pointing.demo_tle --config
+    hwconfig/sim.toml --in 300``) prints a TLE of today: both lines are accepted, the epoch is
+    minutes old and the pass over the simulated telescope's site (the same as sim.toml's) rises
+    in about 5 minutes and can be followed."""
+    page = (ROOT / "docs/satellites.md").read_text(encoding="utf-8")
+    command = "python -m tcs.pointing.demo_tle --config hwconfig/sim.toml --in 300"
+    assert command in page
+    out = subprocess.run([sys.executable, *command.split()[1:]], cwd=ROOT, capture_output=True,
+                         text=True, timeout=60, check=True).stdout
+    lines = dict(re.findall(r"^(LINE[12])='([^']+)'$", out, flags=re.M))
+    c = await _ready(live)
+    try:
+        assert complete(await c.set(f'OBJECT.TLE.NAME="DEMO";OBJECT.TLE.LINE1="{lines["LINE1"]}";'
+                                    f'OBJECT.TLE.LINE2="{lines["LINE2"]}"'))
+        assert await _text(c, "OBJECT.TLE.ERROR") == ""
+        assert await c.num("OBJECT.TLE.PASS.FEASIBLE") == 1, await c.value("OBJECT.TLE.PASS.REASON")
+        assert abs(await c.num("OBJECT.TLE.PASS.EPOCH_AGE")) < 0.01
+        assert 60.0 < await c.num("OBJECT.TLE.PASS.START") - time.time() < 300.0
+        assert 50.0 < await c.num("OBJECT.TLE.PASS.MAX_ALT") < 75.0
     finally:
         await c.close()
