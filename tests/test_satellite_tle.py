@@ -12,7 +12,8 @@ orbit SGP4 cannot propagate (e = 0.99, 17.5 rev/day) are refused with their reas
 epoch and a pass that never rises fill ``OBJECT.TLE.PASS.REASON`` and TRACK=1 is refused with it
 (FAILED 9, no latched error: READY_STATE stays 1); a pass that reaches the zenith keyhole before
 AZ could lead is refused at planning naming AZ and its speeds; a pass longer than the queue is
-followed to its set and ends normally.
+followed to its set and ends normally; the docs' example TLE is fresh and followable; a star
+below the horizon is said to be below it.
 """
 
 from __future__ import annotations
@@ -244,4 +245,23 @@ async def test_the_docs_example_tle_is_fresh_and_followable(live):
         assert 60.0 < await c.num("OBJECT.TLE.PASS.START") - time.time() < 300.0
         assert 50.0 < await c.num("OBJECT.TLE.PASS.MAX_ALT") < 75.0
     finally:
+        await c.close()
+
+
+async def test_a_target_below_the_horizon_reads_so(live):
+    """TRACK=1 of a star 19.27° below the horizon: the refusal says "19.27° below the horizon",
+    not "-19.27° above" it."""
+    p = live.telescope.pointing
+    ra, dec = p.astrometry().icrs_from_observed(120.0, 90.0 + 19.27, time.time() + 2.0)
+    c = await _ready(live)
+    try:
+        assert complete(await c.set(f"OBJECT.EQUATORIAL.RA={float(ra)!r};OBJECT.EQUATORIAL.DEC={float(dec)!r}"))
+        lines = await c.set("POINTING.TRACK=1")
+        assert any("DATA ERROR POINTING.TRACK FAILED 9" in x for x in lines), lines
+        event = next(x for x in lines if "EVENT ERROR" in x)
+        assert "target is 19.2" in event and "deg below the horizon, under the altitude limit 15deg" in event, event
+    finally:
+        level = int(await c.num("TELESCOPE.STATUS.GLOBAL"))
+        if level:
+            await c.set(f"TELESCOPE.STATUS.CLEAR={level}")
         await c.close()
