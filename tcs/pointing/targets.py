@@ -40,6 +40,14 @@ pointing model (:class:`~tcs.pointing.demand.Pipeline`). The kinds:
 * :class:`HorizontalTarget` — a fixed observed azimuth and altitude (through the pointing
   model like any other path).
 
+TLE validation (docs/satellites.md): :func:`check_tle_line` judges one line by itself — line
+number, 69 characters, the mod-10 checksum, its fields, and for line 2 a perigee at least
+:data:`MIN_PERIGEE` km up (what SGP4 can propagate); :class:`SatelliteTarget` adds one catalogue
+number on both lines and SGP4's own initialisation. :meth:`SatelliteTarget.plan` refuses (a
+:meth:`PassPlan.refused` plan: FEASIBLE 0, the reason, the figures None) an epoch further than
+``max_age`` days from the planning time, SGP4 errors anywhere in the search, no pass, or a pass
+an axis cannot follow — naming the axis and what it would need against its limits.
+
 Time: every method takes Unix UTC seconds and the :class:`~tcs.pointing.astrometry.TimeBase`
 of the astrometry it is given (TT = UTC + TAI−UTC + 32.184 s, UT1 = UTC + UT1−UTC): skyfield
 gets a timescale with that ΔT, so both libraries see the same instants and Earth angle.
