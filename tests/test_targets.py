@@ -38,7 +38,7 @@ AZ_RANGE = (AXES["az"]["min"], AXES["az"]["max"])
 
 # ISS, the element set of skyfield's documentation (2014-01-20)
 ISS = ("1 25544U 98067A   14020.93268519  .00009878  00000-0  18200-3 0  5082",
-       "2 25544  51.6498 109.4756 0003572  55.9686 274.8005 15.50377579 39835")
+       "2 25544  51.6498 109.4756 0003572  55.9686 274.8005 15.50377579 39831")
 PASS_59 = 1390214651.47        # culmination 59° (2014-01-20 10:44 UTC)
 PASS_86 = 1390524930.27        # culmination 86° (2014-01-24 00:55 UTC): the zenith keyhole
 
@@ -227,3 +227,39 @@ def test_lunar_and_solar_rates_come_from_the_ephemeris():
     assert max(moons) - min(moons) > 0.02, moons             # not a constant
     sun_ra, sun_dec = body_rates("sun", ast, 1.7e9)
     assert 0.035 < sun_ra < 0.05 and abs(sun_dec) < 0.02, (sun_ra, sun_dec)
+
+
+def test_tle_lines_and_elements_sgp4_cannot_propagate_are_refused():
+    """Each line by itself (checksum, length, perigee above the atmosphere), then at planning:
+    an epoch beyond ``max_age`` days, SGP4 failing during the 24 h searched (a decaying orbit),
+    a pass that never rises — each a refused plan (FEASIBLE 0, figures None) whose reason says
+    which."""
+    from sgp4.api import WGS72, Satrec
+    from sgp4.exporter import export_tle
+
+    from tcs.pointing.targets import check_tle_line, tle_checksum
+    fixed = ISS[1][:68] + str(tle_checksum(ISS[1]))
+    assert check_tle_line(2, fixed) == ISS[1]
+    with pytest.raises(RangeRefused, match="checksum"):
+        check_tle_line(2, ISS[1][:68] + str((int(ISS[1][68]) + 1) % 10))
+    with pytest.raises(RangeRefused, match="69"):
+        check_tle_line(1, ISS[0][:-2])
+    low = ISS[1][:52] + "17.50000000" + ISS[1][63:68]
+    with pytest.raises(RangeRefused, match="perigee .* below the Earth's surface"):
+        check_tle_line(2, low + str(tle_checksum(low)))
+    ast = Astrometry(SITE, TimeBase(35.0, 0.0))
+    kw = dict(zd_limit=75.0, az_range=AZ_RANGE, az_limits=(5, 2, 4), zd_limits=(3, 1.5, 3), max_age=30.0)
+    old = SatelliteTarget(line1=ISS[0], line2=ISS[1], name="ISS").plan(ast, utc=PASS_59 + 40 * 86400.0, **kw)
+    assert not old.feasible and old.rise is None and old.duration is None
+    assert "2014-01-20 22:23 UTC is 39.5 days old" in old.reason, old.reason
+    now = 1.8e9
+    sat = Satrec()   # 160 km with a huge drag term: SGP4 gives up within hours
+    sat.sgp4init(WGS72, "i", 4242, 2440587.5 + now / 86400 - 2433281.5, 0.2, 0.0, 0.0, 0.0001, 0.0,
+                 math.radians(51.6), 0.0, math.sqrt(398600.4418 / 6538.135 ** 3) * 60.0, 0.0)
+    decaying = SatelliteTarget(*export_tle(sat)).plan(ast, utc=now, **kw)
+    assert not decaying.feasible and decaying.reason.startswith("SGP4 cannot propagate this TLE from")
+    sat = Satrec()   # equatorial: never above 15° at 28.8° N
+    sat.sgp4init(WGS72, "i", 4243, 2440587.5 + now / 86400 - 2433281.5, 0.0, 0.0, 0.0, 0.0001, 0.0,
+                 0.0, 0.0, 15.5 * 2 * math.pi / 1440.0, 0.0)
+    never = SatelliteTarget(*export_tle(sat), name="EQ").plan(ast, utc=now, **kw)
+    assert not never.feasible and never.reason.startswith("EQ does not rise above 15° altitude in the 24 h")

@@ -37,6 +37,11 @@ class PointingSection:
     plan_horizon: float = setting(14400.0, min=60.0, max=86400.0,
                                   doc="seconds of path checked against the axis limits when TRACK "
                                       "chooses orientation and cable-wrap turn")
+    tle_max_age: float = setting(
+        30.0, min=0.5, max=3650.0,
+        doc="days: a satellite's TLE whose epoch is further than this from now is refused "
+            "(OBJECT.TLE.PASS.REASON says its age; TRACK=1 FAILED 9): SGP4 drifts kilometres a "
+            "day from an old element set (docs/satellites.md)")
     fit_terms: list[str] = setting(
         factory=tuple, doc="terms CALCULATE fits (default: the standard 6 mount terms + TF of the mount)")
     model_directory: str = setting(

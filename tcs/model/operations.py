@@ -361,18 +361,19 @@ class Operations(ModuleHealth):
     def track_object(self):
         p = self._need_pointing()
         obj = self.object
+        satellite = None
+        if obj.kind == "satellite":     # refused at planning (FAILED 9 and its reason as the
+            plan = self.pass_plan()     # event), not latched: nothing was started or failed
+            if not plan.feasible:
+                what = "no pass to follow" if not plan.found else "the pass cannot be followed"
+                raise TcsError(f"{what}: {plan.reason}", ErrorNumber.SOFTLIMIT)
+            satellite = self._satellite.planned(plan, p.ut1_utc)
         try:
             target = None
             if obj.kind == "body":
                 target = BodyTarget(obj.body)
             elif obj.kind == "satellite":
-                plan = self.pass_plan()
-                if plan is None:
-                    raise TcsError(f"{obj.tle[2] or 'the satellite'} does not rise above "
-                                   f"{p.config.min_altitude:g}° in the next 24 h", ErrorNumber.SOFTLIMIT)
-                if not plan.feasible:
-                    raise TcsError(f"the pass cannot be followed: {plan.reason}", ErrorNumber.SOFTLIMIT)
-                target = self._satellite.planned(plan, p.ut1_utc)
+                target = satellite
             else:
                 ra, dec = obj.icrs(p.utc())
                 ra_v, dec_v = obj.rates_v(dec)     # OBJECT's rates (0 unless written)
@@ -390,17 +391,25 @@ class Operations(ModuleHealth):
         return self._start("track", self._until_tracking(result))
 
     def pass_plan(self, fresh: bool = False):
-        """The :class:`~tcs.pointing.targets.PassPlan` of the TLE's pass in progress or next
-        (None: none within 24 h); kept until that pass has set or the TLE changes."""
+        """The :class:`~tcs.pointing.targets.PassPlan` of the TLE's pass in progress or next;
+        kept until that pass has set or the TLE changes. No pass to follow (no TLE, two lines
+        that are not one element set, an epoch too old, elements SGP4 cannot propagate, no
+        pass within 24 h) is a refused plan (FEASIBLE 0, every figure None) whose reason says
+        which (re-planned after a minute)."""
+        from tcs.pointing.targets import PassPlan
         p = self._need_pointing()
         key = (tuple(self.object.tle[:2]), p.zd_limit, p.mount)
         now = p.utc()
         cached = self._pass
         if cached is not None and cached[0] == key and not fresh and (
-                cached[1] is None and now < cached[2] + 60.0 or cached[1] is not None and now < cached[1].set):
+                now < (cached[1].set if cached[1].found else cached[2] + 60.0)):
             return cached[1]
-        self._satellite = self.object.satellite()
-        plan = p.plan_pass(self._satellite, now)
+        try:
+            self._satellite = self.object.satellite()
+        except RangeRefused as exc:
+            plan = PassPlan.refused(exc.message)
+        else:
+            plan = p.plan_pass(self._satellite, now)
         self._pass = (key, plan, now)
         return plan
 

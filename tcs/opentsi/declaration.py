@@ -140,18 +140,19 @@ _PASS_FIELDS = (
     ("KEYHOLE", INT, "keyhole", "1: AZ cannot follow near the zenith and leads (best effort)"),
     ("KEYHOLE_ERROR", FLOAT, "keyhole_error", "largest pointing error there, degrees"),
     ("FEASIBLE", INT, "feasible", "1: the axes can follow the pass (within 90 % of their limits)"),
-    ("REASON", STRING, "reason", "why not, when FEASIBLE is 0"),
+    ("REASON", STRING, "reason", "why not, when FEASIBLE is 0: the TLE's age, an element set SGP4 "
+                                 "cannot propagate, no pass within 24 h, the axis that cannot follow"),
+    ("EPOCH_AGE", FLOAT, "epoch_age", "days from the TLE's epoch to now (negative: ahead)"),
 )
 
 
 def _pass_field(obj, field: str):
     planner = getattr(obj, "planner", None)
-    if planner is None or not (obj.tle[0] and obj.tle[1]):
-        return None                      # no TLE yet: NULL, as a pass that does not rise
-    plan = planner()
-    if plan is None:
+    if planner is None:
         return None
-    value = getattr(plan, field)
+    if not (obj.tle[0] and obj.tle[1]):   # no TLE yet: no pass, and why
+        return {"feasible": 0, "reason": "no TLE: write OBJECT.TLE.LINE1 and LINE2"}.get(field)
+    value = getattr(planner(), field)
     return int(value) if isinstance(value, bool) else value
 
 
@@ -190,10 +191,14 @@ OBJECT = module(
                info="line 2 of the two-line elements"),
            var("NAME", STRING, get=lambda o: o.tle[2], set=lambda o, v: o.set_tle(2, v),
                info="name of the satellite"),
+           var("ERROR", STRING, get=lambda o: o.tle_error,
+               info="why the last LINE1/LINE2 write was refused with RANGE (checksum, length, "
+                    "fields, perigee); empty when it was accepted"),
            module("PASS",
                   *(var(name, type_, get=lambda o, f=f: _pass_field(o, f), info=info)
                     for name, type_, f, info in _PASS_FIELDS),
-                  info="the pass POINTING.TRACK=1 will follow, planned now (NULL: none in 24 h)"),
+                  info="the pass POINTING.TRACK=1 will follow, planned now (FEASIBLE 0 and REASON "
+                       "with the figures NULL: no pass to follow)"),
            info="an Earth satellite (SGP4, topocentric)"),
     module("HORIZONTAL",
            var("AZ", FLOAT, get="az", set="set_az", min=-360.0, max=720.0,

@@ -430,7 +430,8 @@ class Pointing(ModuleHealth):
     def plan_pass(self, satellite, utc: float | None = None):
         """Plan the satellite's pass in progress or next (:meth:`SatelliteTarget.plan`): AZ's
         range and limits decide the cable-wrap turn and the keyhole bridge (AZ-ZD mounts; on
-        an equatorial mount the plan gives the times and rates only)."""
+        an equatorial mount the plan gives the times and rates only); a TLE older than
+        ``[pointing] tle_max_age`` days is refused (:meth:`PassPlan.refused`)."""
         a1, a2 = self.axis1, self.axis2
         s1, s2 = a1.section, a2.section
         if self.mount == "AZ-ZD":
@@ -442,7 +443,8 @@ class Pointing(ModuleHealth):
         return satellite.plan(self.astrometry(), zd_limit=self.zd_limit,
                               utc=self.utc() if utc is None else utc, az_range=rng,
                               az_limits=lim1, zd_limits=lim2,
-                              az_current=a1.real_position - a1.offset)
+                              az_current=a1.real_position - a1.offset,
+                              max_age=self.config.tle_max_age)
 
     def plan_for(self, ra: float, dec: float, mode: int) -> Plan:
         """The plan a TRACK of ``mode`` to (ra, dec) would run now (orientation, turn, the

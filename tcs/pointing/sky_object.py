@@ -32,12 +32,15 @@ What may touch it: the event loop (tree setters and the operations that start a 
 
 from __future__ import annotations
 
+import logging
 import math
 
 import erfa
 import numpy as np
 
 from tcs.errors import RangeRefused
+
+log = logging.getLogger(__name__)
 
 MAS = math.radians(1.0 / 3.6e6)
 EQUINOX_RANGE = (1900.0, 2100.0)
@@ -71,6 +74,7 @@ class SkyObject:
         self.solarsystem_index: int | None = None
         self.moon = 0
         self.tle = ["", "", ""]       # LINE1, LINE2, NAME
+        self.tle_error = ""           # why the last LINE1/LINE2 write was refused ("": accepted)
 
     # -- equatorial --------------------------------------------------------------------------
     @property
@@ -178,12 +182,20 @@ class SkyObject:
             self.kind = "equatorial"
 
     def set_tle(self, index: int, value: str) -> None:
-        """TLE line 1 (index 0), line 2 (1) or the name (2); a line must look like one."""
+        """TLE line 1 (index 0), line 2 (1) or the name (2); a line must be one
+        (:func:`~tcs.pointing.targets.check_tle_line`: line number, 69 characters, checksum,
+        fields, a perigee SGP4 can propagate), else RANGE, the last good line kept and the
+        reason in :attr:`tle_error` (``OBJECT.TLE.ERROR``)."""
         value = str(value).strip().strip('"')
         if index < 2:
-            if value[:2] != f"{index + 1} " or len(value) < 60:
-                raise RangeRefused(f"TLE.LINE{index + 1} must be the element set's line {index + 1} "
-                                   f"(69 characters starting with '{index + 1} ')")
+            from tcs.pointing.targets import check_tle_line
+            try:
+                value = check_tle_line(index + 1, value)
+            except RangeRefused as exc:
+                self.tle_error = f"LINE{index + 1} refused: {exc.message}"
+                log.warning("OBJECT.TLE.%s", self.tle_error)
+                raise
+            self.tle_error = ""
             self.kind = "satellite"
         self.tle[index] = value
 

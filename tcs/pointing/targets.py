@@ -40,6 +40,14 @@ pointing model (:class:`~tcs.pointing.demand.Pipeline`). The kinds:
 * :class:`HorizontalTarget` — a fixed observed azimuth and altitude (through the pointing
   model like any other path).
 
+TLE validation (docs/satellites.md): :func:`check_tle_line` judges one line by itself — line
+number, 69 characters, the mod-10 checksum, its fields, and for line 2 a perigee at least
+:data:`MIN_PERIGEE` km up (what SGP4 can propagate); :class:`SatelliteTarget` adds one catalogue
+number on both lines and SGP4's own initialisation. :meth:`SatelliteTarget.plan` refuses (a
+:meth:`PassPlan.refused` plan: FEASIBLE 0, the reason, the figures None) an epoch further than
+``max_age`` days from the planning time, SGP4 errors anywhere in the search, no pass, or a pass
+an axis cannot follow — naming the axis and what it would need against its limits.
+
 Time: every method takes Unix UTC seconds and the :class:`~tcs.pointing.astrometry.TimeBase`
 of the astrometry it is given (TT = UTC + TAI−UTC + 32.184 s, UT1 = UTC + UT1−UTC): skyfield
 gets a timescale with that ΔT, so both libraries see the same instants and Earth angle.
@@ -65,7 +73,7 @@ from tcs.errors import ErrorNumber, RangeRefused, TcsError
 from tcs.pointing.astrometry import Astrometry, Observed, TimeBase
 
 __all__ = ["Target", "IcrsTarget", "BodyTarget", "SatelliteTarget", "HorizontalTarget",
-           "PassPlan", "BODIES", "SOLARSYSTEM_INDEX", "ra_rate_to_ra_v", "body_rates",
+           "PassPlan", "check_tle", "check_tle_line", "tle_checksum", "tle_epoch", "BODIES", "SOLARSYSTEM_INDEX", "ra_rate_to_ra_v", "body_rates",
            "ephemeris", "skyfield_time"]
 
 _UNIX_JD = 2440587.5
@@ -275,27 +283,39 @@ class PassPlan:
     turn (the mechanical frame, no pointing model) at rise and set.
     """
 
-    rise: float
-    set: float
-    culmination: float
-    max_altitude: float
-    max_rate: float               # largest rate on the sky, °/s
-    max_az_rate: float            # of the path followed (after a keyhole bridge), °/s
-    max_az_acceleration: float
-    max_zd_rate: float
-    az_start: float
-    az_end: float
-    keyhole: bool
+    rise: float | None
+    set: float | None
+    culmination: float | None
+    max_altitude: float | None
+    max_rate: float | None        # largest rate on the sky, °/s
+    max_az_rate: float | None     # of the path followed (after a keyhole bridge), °/s
+    max_az_acceleration: float | None
+    max_zd_rate: float | None
+    az_start: float | None
+    az_end: float | None
+    keyhole: bool | None
     keyhole_start: float | None
     keyhole_end: float | None
-    keyhole_error: float
+    keyhole_error: float | None
     feasible: bool
     reason: str = ""
     bridge: tuple | None = None   # (t0, t1 UTC, quintic coefficients of AZ in τ = (t−t0)/(t1−t0))
+    epoch_age: float | None = None   # days from the TLE's epoch to the planning time (< 0: ahead)
 
     @property
-    def duration(self) -> float:
-        return self.set - self.rise
+    def duration(self) -> float | None:
+        return None if self.rise is None else self.set - self.rise
+
+    @property
+    def found(self) -> bool:
+        """A pass was found (its times and rates are known), feasible or not."""
+        return self.rise is not None
+
+    @classmethod
+    def refused(cls, reason: str, epoch_age: float | None = None) -> "PassPlan":
+        """No pass to follow: every figure None (NULL), FEASIBLE 0 and the reason."""
+        return cls(None, None, None, None, None, None, None, None, None, None, None, None, None,
+                   None, False, reason, None, epoch_age)
 
 
 _PLAN_STEP = 0.5              # s between the samples of a pass plan
@@ -320,21 +340,39 @@ class SatelliteTarget(Target):
     ends_normally = True
 
     def __post_init__(self):
-        l1, l2 = self.line1.strip(), self.line2.strip()
-        if not (l1[:2] == "1 " and l2[:2] == "2 " and len(l1) >= 68 and len(l2) >= 68
-                and l1[2:7] == l2[2:7]):
-            raise RangeRefused("not a two-line element set: line 1 and line 2 of one satellite "
-                               "(69 characters each, starting '1 ' and '2 ', same catalogue number)")
+        l1, l2 = check_tle_line(1, self.line1), check_tle_line(2, self.line2)
+        if l1[2:7] != l2[2:7]:
+            raise RangeRefused(f"the TLE's lines are of two satellites: line 1 is of catalogue number "
+                               f"{l1[2:7].strip()}, line 2 of {l2[2:7].strip()} (write both lines of "
+                               "one element set)")
         try:
-            if not float(l2[52:63]) > 0.0:
-                raise ValueError("mean motion")
             from skyfield.api import EarthSatellite
-            sat = EarthSatellite(self.line1.strip(), self.line2.strip(), self.name or None)
+            sat = EarthSatellite(l1, l2, self.name or None)
         except Exception as exc:  # sgp4 parses the lines; any complaint is a bad TLE
             raise RangeRefused(f"not a two-line element set: {exc}") from None
         if sat.model.error:
-            raise RangeRefused(f"TLE: SGP4 error {sat.model.error}")
+            raise RangeRefused(f"SGP4 cannot propagate this TLE: error {sat.model.error}, "
+                               f"{SGP4_ERRORS.get(sat.model.error, 'unknown')}")
         object.__setattr__(self, "_sat", sat)
+
+    @property
+    def epoch(self) -> float:
+        """The element set's epoch, Unix UTC seconds."""
+        return tle_epoch(self.line1)
+
+    def sgp4_trouble(self, utc) -> str:
+        """Why SGP4 cannot propagate the elements at some of the UTC times ``utc`` ("" when it
+        can at all of them): its error code, its meaning and the first such time."""
+        utc = np.atleast_1d(np.asarray(utc, float))
+        jd = _UNIX_JD + np.floor(utc / 86400.0)
+        fr = (utc - (jd - _UNIX_JD) * 86400.0) / 86400.0
+        err, _, _ = self._sat.model.sgp4_array(jd, fr)
+        bad = np.flatnonzero(err)
+        if not bad.size:
+            return ""
+        code = int(err[bad[0]])
+        return (f"SGP4 cannot propagate this TLE from {_iso(utc[bad[0]])} on (error {code}: "
+                f"{SGP4_ERRORS.get(code, 'unknown')})")
 
     def topocentric(self, astrometry: Astrometry, utc):
         """Geometric topocentric (RA hours, Dec degrees, range km), GCRS axes."""
@@ -412,15 +450,30 @@ class SatelliteTarget(Target):
     def plan(self, astrometry: Astrometry, *, zd_limit: float, utc: float,
              az_range: tuple[float, float], az_limits: tuple[float, float],
              zd_limits: tuple[float, float], az_current: float = 0.0,
-             search: float = 86400.0) -> PassPlan | None:
+             search: float = 86400.0, max_age: float | None = None) -> PassPlan:
         """Plan the pass in progress or the next one (see :class:`PassPlan`).
 
         ``az_range``: AZ software limits (mechanical degrees); ``az_limits`` /
-        ``zd_limits``: (max velocity °/s, max acceleration °/s², max jerk °/s³) of the axes.
+        ``zd_limits``: (max velocity °/s, max acceleration °/s², max jerk °/s³) of the axes;
+        ``max_age``: days the TLE's epoch may be from ``utc`` (None: any). A TLE too old, one
+        SGP4 cannot propagate over the search or no pass in it give a refused plan
+        (:meth:`PassPlan.refused`: FEASIBLE 0 and the reason).
         """
+        age = (float(utc) - self.epoch) / 86400.0
+        if max_age is not None and abs(age) > max_age:
+            when = "old" if age > 0 else "ahead of now"
+            return PassPlan.refused(
+                f"TLE epoch {_iso(self.epoch)} is {abs(age):,.1f} days {when} (the limit is "
+                f"{max_age:g} days): SGP4 from it is far off the satellite; get a fresh element "
+                "set (CelesTrak)", age)
+        trouble = self.sgp4_trouble(float(utc) + np.arange(0.0, search + 60.0, 60.0))
+        if trouble:
+            return PassPlan.refused(trouble, age)
         found = self.next_pass(astrometry, zd_limit, utc, search)
         if found is None:
-            return None
+            return PassPlan.refused(
+                f"{self.name or 'the satellite'} does not rise above {90.0 - zd_limit:g}° altitude "
+                f"in the {search / 3600.0:g} h from {_iso(utc)}", age)
         rise, set_ = found
         n = max(3, min(int(math.ceil((set_ - rise) / _PLAN_STEP)) + 1, _PLAN_POINTS))   # (a slow
         # satellite that stays up for hours is planned more coarsely: it is slow)
@@ -443,7 +496,12 @@ class SatelliteTarget(Target):
                 or (np.abs(np.gradient(aaz, dt)) > jmax).any():
             bridge, path, err = _keyhole_bridge(t, az, zd, culm, vmax, amax, jmax)
             if bridge is None:
-                reason = "AZ cannot follow near the zenith even with a lead"
+                reason = (f"AZ cannot follow the pass through the zenith keyhole "
+                          f"({90.0 - zd[culm]:.1f}° high at {_iso(t[culm])}): it needs "
+                          f"{np.abs(vaz).max():.3g}°/s and {np.abs(aaz).max():.3g}°/s² against "
+                          f"its {az_limits[0]:g}°/s and {az_limits[1]:g}°/s², and a lead inside "
+                          f"{_SHARE:.0%} of them does not fit between "
+                          f"{'now' if rise <= utc else 'the rise'} and the set")
         if bridge is not None:
             zd_path = np.asarray(replace(self, bridge=bridge).observed(astrometry, t).zd, float)
             vzd = np.gradient(zd_path, dt)                  # ZD on the lead's vertical
@@ -462,11 +520,12 @@ class SatelliteTarget(Target):
         if not inside and not reason:
             reason = f"AZ would leave {lo:g}…{hi:g}° on every turn (the pass spans {np.ptp(path):.1f}°)"
         azd = np.gradient(vzd, dt)
-        zd_ok = (np.abs(vzd).max() <= zd_limits[0] * _SHARE
-                 and np.abs(azd).max() <= zd_limits[1] * _SHARE
-                 and np.abs(np.gradient(azd, dt)).max() <= zd_limits[2] * _SHARE)
+        zd_need = (np.abs(vzd).max(), np.abs(azd).max(), np.abs(np.gradient(azd, dt)).max())
+        zd_ok = all(need <= lim * _SHARE for need, lim in zip(zd_need, zd_limits))
         if not zd_ok and not reason:
-            reason = "ZD would exceed its speed or acceleration"
+            reason = (f"ZD cannot follow the pass: it needs {zd_need[0]:.3g}°/s, {zd_need[1]:.3g}°/s², "
+                      f"{zd_need[2]:.3g}°/s³ against {_SHARE:.0%} of its {zd_limits[0]:g}°/s, "
+                      f"{zd_limits[1]:g}°/s², {zd_limits[2]:g}°/s³")
         return PassPlan(
             rise=float(rise), set=float(set_), culmination=float(t[culm]),
             max_altitude=float(90.0 - zd[culm]), max_rate=float(sky_rate.max()),
@@ -476,7 +535,8 @@ class SatelliteTarget(Target):
             keyhole=bridge is not None or bool(reason.startswith("AZ cannot")),
             keyhole_start=float(bridge[0]) if bridge else None,
             keyhole_end=float(bridge[1]) if bridge else None,
-            keyhole_error=float(err), feasible=not reason, reason=reason, bridge=bridge)
+            keyhole_error=float(err), feasible=not reason, reason=reason, bridge=bridge,
+            epoch_age=age)
 
     def planned(self, plan: PassPlan, ut1_utc: float) -> "SatelliteTarget":
         """This satellite bound to a planned pass (start/end as UT1, the keyhole bridge)."""
@@ -557,14 +617,95 @@ class HorizontalTarget(Target):
                         np.full(shape, dec * _R2D), np.full(shape, pa * _R2D), lst)
 
 
+#: SGP4's error codes (sgp4 ``Satrec.error``)
+SGP4_ERRORS = {
+    1: "mean eccentricity out of range (0 <= e < 1)",
+    2: "mean motion below zero",
+    3: "perturbed eccentricity out of range",
+    4: "semi-latus rectum below zero",
+    6: "the orbit has decayed (the satellite is below the Earth's surface)",
+}
+_MU = 398600.8                # km³/s², WGS-72 (as SGP4)
+_EARTH_RADIUS = 6378.135      # km, WGS-72
+#: lowest perigee SGP4 is asked to propagate: nothing orbits below ~100 km for long
+MIN_PERIGEE = 80.0
+
+
+def _iso(utc: float) -> str:
+    import datetime as _dt
+    return _dt.datetime.fromtimestamp(float(utc), _dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+
+
+def tle_checksum(line: str) -> int:
+    """The TLE checksum of a line's first 68 characters: digits, and 1 for each minus sign, mod 10."""
+    return sum(int(c) if c.isdigit() else 1 if c == "-" else 0 for c in line[:68]) % 10
+
+
+def tle_epoch(line1: str) -> float:
+    """Epoch of a TLE line 1 (columns 19–32, YYDDD.DDDDDDDD; 57–99 → 19xx), Unix UTC seconds."""
+    field = line1[18:32]
+    year = int(field[:2])
+    year += 1900 if year >= 57 else 2000
+    import calendar
+    return calendar.timegm((year, 1, 1, 0, 0, 0)) + (float(field[2:]) - 1.0) * 86400.0
+
+
+def _field(line: str, index: int, a: int, b: int, name: str, lo: float, hi: float,
+           implied_point: bool = False) -> float:
+    text = line[a:b]
+    try:
+        value = float("0." + text.strip()) if implied_point else float(text)
+        if implied_point and not text.strip().isdigit():
+            raise ValueError(text)
+    except ValueError:
+        raise RangeRefused(f"TLE line {index}: {name} (columns {a + 1}–{b}) is {text.strip()!r}, "
+                           "not a number") from None
+    if not lo <= value <= hi:
+        raise RangeRefused(f"TLE line {index}: {name} {value:g} is outside {lo:g}…{hi:g}")
+    return value
+
+
+def check_tle_line(index: int, line: str) -> str:
+    """One TLE line (``index`` 1 or 2), stripped, if it is one; RANGE with what is wrong
+    otherwise: its line number, its length (69 characters), its checksum (the last column),
+    its fields (line 1: the epoch; line 2: inclination, node, eccentricity, argument of
+    perigee, mean anomaly, mean motion) and, for line 2, a perigee above the atmosphere
+    (:data:`MIN_PERIGEE`): eccentricity and mean motion SGP4 can propagate."""
+    line = str(line).strip()
+    if line[:2] != f"{index} ":
+        raise RangeRefused(f"TLE line {index} must start with '{index} ' (it starts {line[:2]!r})")
+    if len(line) != 69:
+        raise RangeRefused(f"TLE line {index} has {len(line)} characters, not 69 (a line cut or "
+                           "joined? quote the whole line)")
+    if not line[68].isdigit() or int(line[68]) != tle_checksum(line):
+        raise RangeRefused(f"TLE line {index}: checksum {line[68]!r} in column 69 does not match the "
+                           f"line's {tle_checksum(line)} (a character changed in transfer?)")
+    if not line[2:7].strip():
+        raise RangeRefused(f"TLE line {index}: no catalogue number in columns 3–7")
+    if index == 1:
+        _field(line, 1, 18, 20, "epoch year", 0, 99)
+        _field(line, 1, 20, 32, "epoch day", 1.0, 367.0)
+        return line
+    _field(line, 2, 8, 16, "inclination", 0.0, 180.0)
+    _field(line, 2, 17, 25, "right ascension of the node", 0.0, 360.0)
+    e = _field(line, 2, 26, 33, "eccentricity", 0.0, 0.9999999, implied_point=True)
+    _field(line, 2, 34, 42, "argument of perigee", 0.0, 360.0)
+    _field(line, 2, 43, 51, "mean anomaly", 0.0, 360.0)
+    n = _field(line, 2, 52, 63, "mean motion", 0.0, 1e3)
+    if n <= 0.0:
+        raise RangeRefused("TLE line 2: mean motion 0 rev/day is not an orbit")
+    a = (_MU / (n * 2.0 * math.pi / 86400.0) ** 2) ** (1.0 / 3.0)
+    perigee = a * (1.0 - e) - _EARTH_RADIUS
+    if perigee < MIN_PERIGEE:
+        where = (f"{-perigee:,.0f} km below the Earth's surface" if perigee < 0 else
+                 f"{perigee:,.0f} km above the surface, inside the atmosphere")
+        raise RangeRefused(
+            f"TLE line 2: eccentricity {e:g} and mean motion {n:g} rev/day put the perigee "
+            f"{where} (at least {MIN_PERIGEE:g} km above it): not an orbit SGP4 can propagate")
+    return line
+
+
 def check_tle(line1: str, line2: str) -> None:
-    """RANGE unless the two lines parse as a TLE."""
+    """RANGE unless the two lines are one valid TLE (:func:`check_tle_line`, one satellite,
+    SGP4 accepts them)."""
     SatelliteTarget(line1=line1, line2=line2)
-
-
-def refuse_unplanned(plan: PassPlan | None) -> PassPlan:
-    """The plan, or FAILED 9 when there is no pass / it is not feasible."""
-    if plan is None:
-        raise TcsError("the satellite does not rise above the altitude limit in the next 24 h",
-                       ErrorNumber.SOFTLIMIT)
-    return plan

@@ -235,8 +235,10 @@ def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derot
     times = first + np.arange(0.0, plan_horizon + step / 2, step)
     obs = request.observed(pipeline.astrometry, times, ut1_utc)
     if obs.zd[0] > zd_limit:
-        raise TcsError(f"target is {90.0 - obs.zd[0]:.2f}° above the horizon, below the "
-                       f"altitude limit {90.0 - zd_limit:g}°", ErrorNumber.SOFTLIMIT)
+        alt = 90.0 - float(obs.zd[0])
+        where = f"{-alt:.2f}° below the horizon" if alt < 0 else f"{alt:.2f}° above the horizon"
+        raise TcsError(f"target is {where}, under the altitude limit {90.0 - zd_limit:g}°",
+                       ErrorNumber.SOFTLIMIT)
     up = _leading(obs.zd <= zd_limit)
     times = times[:up]
     i1, i2 = pipeline.ideal(obs)
@@ -575,9 +577,13 @@ class TrackSession:
         else:
             t0 = self._last_t + dt
         t1 = max(now, t0) + cfg.horizon
-        capacity = min(lane.axis.queue.capacity for lane in lanes)
+        # room: points already passed count as free (add_points drops them) — counting them as
+        # taken starved the refill of a queue filled in one go (a satellite's 0.5 s points in a
+        # 120-point buffer: "ran out of points" 58 s into the pass)
+        free = min(lane.axis.queue.capacity if first else lane.axis.queue.free_points_at(now)
+                   for lane in lanes)
         n = int(math.floor((t1 - t0) / dt + 1e-9)) + 1
-        n = max(0, min(n, capacity - 4 - (0 if first else len(lanes[0].axis.queue))))
+        n = max(0, min(n, free - 4))
         times = t0 + dt * np.arange(n)
         if self._t_end is not None:
             times = times[times <= self._t_end]
@@ -617,7 +623,14 @@ class TrackSession:
                 ok[j.good:] = False
         good = _leading(ok)
         if good < times.size:
-            self._t_end = float(times[good - 1]) if good else float(now)
+            # the path ends at its last good point: in this batch, else the last one queued
+            # (a refill whose first point is past the set: not now, while points remain)
+            if good:
+                self._t_end = float(times[good - 1])
+            elif not first and self._last_t is not None:
+                self._t_end = self._last_t
+            else:
+                self._t_end = float(now)
             bad = str(reason[good])
             self._end_reason = bad if bad in ("set", "envelope") else f"limit:{bad}"
             out.times = times[:good]
