@@ -156,10 +156,16 @@ CASES = {
     "vendor-homing-list": ("", ""),
     "vendor-hb16": ("", ""),
     "vendor-no-devtype-default": ("", ""),
+    # issue 40: PDO layouts from the EDS, modes from what is mappable, absolute axes
+    "vendor-pdo1-single": ("", ""),
+    "vendor-tpdo2-empty": ("absolute = true", ""),
+    "vendor-ip-nomodes": ("", "objects = { '0x6502:0' = 0x61 }"),
+    "vendor-absolute-ro6098": ("absolute = true", ""),
 }
 
 #: The mode each fixture's drive must be run in (auto): the one its 0x6502 offers.
-MODES = {"vendor-ip-only": 7, "vendor-csv-only": 9, "vendor-ip-no-607a-map": 7}
+MODES = {"vendor-ip-only": 7, "vendor-csv-only": 9, "vendor-ip-no-607a-map": 7,
+         "vendor-ip-nomodes": 7}
 
 
 @pytest.mark.parametrize("fixture", list(CASES))

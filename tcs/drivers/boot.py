@@ -51,8 +51,10 @@ import canopen
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from tcs.config.can import PDO_SUBS, CanSection, DriveSection, interpolation_period
-from tcs.drivers.eds import LOST, NAMES, OPTIONAL, object_name, raw_writes, usable_writes  # noqa: F401
+from tcs.drivers.eds import (LOST, NAMES, OPTIONAL, object_name, raw_writes,  # noqa: F401
+                             usable_writes, variable)
 from tcs.drivers.pdo import PdoLayout, configuration_writes
+from tcs.drivers.pdo import _entry_count as pdo_entry_count
 from tcs.drivers.takeover import stop_if_powered
 from tcs.errors import CommunicationError, ErrorNumber, HardwareError
 
@@ -299,21 +301,48 @@ def cycle_period_writes(section: DriveSection, can: CanSection, layouts: dict[st
 
 
 def check_eds(od: canopen.ObjectDictionary, layouts: dict[str, PdoLayout], device: str) -> None:
-    """The PDO mapping against the EDS: objects exist, may be mapped, enough entries."""
+    """The PDO mapping against the EDS: objects exist, may be mapped, enough entries (the
+    start checked all of it; this guards a layout that changed since)."""
+    remedy = "; remedy: leave [drives.<name>] pdo out (the TCS lays the PDOs out from the EDS)"
     for pdo in layouts.values():
         mapping = od.get(pdo.map_index())
         if mapping is None:
-            raise HardwareError(device, f"the EDS has no {pdo.name.upper()} (0x{pdo.map_index():04X})")
-        entries = len([s for s in getattr(mapping, "subindices", {}) if s != 0])
-        if entries and len(pdo.indices) > entries:
+            raise HardwareError(device, f"the EDS has no {pdo.name.upper()} "
+                                        f"(0x{pdo.map_index():04X}){remedy}")
+        entries, _why = pdo_entry_count(od, mapping)
+        if len(pdo.indices) > entries:
             raise HardwareError(device, f"{pdo.name.upper()} maps {len(pdo.indices)} objects; the "
-                                        f"drive takes at most {entries}")
+                                        f"drive's 0x{pdo.map_index():04X} takes at most {entries}{remedy}")
         for index in pdo.indices:
             var = od.get_variable(index, PDO_SUBS.get(index, 0))
             if var is None:
                 raise HardwareError(device, f"the EDS has no object 0x{index:04X} for {pdo.name.upper()}")
             if not getattr(var, "pdo_mappable", True):
                 raise HardwareError(device, f"the EDS says 0x{index:04X} cannot be mapped to a PDO")
+
+
+def pdo_writes(od: canopen.ObjectDictionary, writes: list[tuple[int, int, str, int]]
+               ) -> list[tuple[int, int, str, int]]:
+    """A PDO's (re)configuration as this drive takes it: no COB-ID writes where the EDS makes
+    the COB-ID read-only (used as it is), no transmission-type write where it is absent or
+    read-only (the layout chose a PDO whose type fits), no mapping writes to a PDO that has
+    no mapping entries (only disabled)."""
+    out = []
+    for index, sub, fmt, value in writes:
+        var = variable(od, index, sub)
+        if 0x1400 <= index < 0x1600 or 0x1800 <= index < 0x1A00:
+            if sub in (1, 2) and (var is None or not var.writable):
+                continue
+        out.append((index, sub, fmt, value))
+    return out
+
+
+def read_supported_modes(sdo: Sdo) -> int | None:
+    """0x6502 (supported drive modes) read from the drive, None when it does not answer it."""
+    try:
+        return sdo.read(0x6502, 0, "<I")
+    except HardwareError:
+        return None
 
 
 def set_mode(sdo: Sdo, mode: int, timeout: float = MODE_READBACK_TIMEOUT) -> int:
@@ -331,8 +360,10 @@ def set_mode(sdo: Sdo, mode: int, timeout: float = MODE_READBACK_TIMEOUT) -> int
 
 def boot_node(network: canopen.Network, sdo: Sdo, hb: HeartbeatWatch, section: DriveSection,
               can: CanSection, layouts: dict[str, PdoLayout], mode: int,
-              start: callable = None) -> BootResult:
-    """Steps 1–5 for one node. ``start()`` runs just before NMT start (subscribe TPDOs)."""
+              start: callable = None, choose: callable = None) -> BootResult:
+    """Steps 1–5 for one node. ``start()`` runs just before NMT start (subscribe TPDOs);
+    ``choose(sdo) -> (layouts, mode)``, after the identity check, may settle the mode and
+    PDO layout from what the drive answers (0x6502 read over SDO)."""
     node_id = section.node_id
     device = sdo.device
     od = sdo.node.object_dictionary
@@ -342,15 +373,17 @@ def boot_node(network: canopen.Network, sdo: Sdo, hb: HeartbeatWatch, section: D
     check_identity(sdo, section)
     # Every write passes the EDS rule (tcs.drivers.eds_check): optional objects the drive
     # lacks are skipped; values were range-checked at start.
+    if choose is not None:  # what only the drive can tell (0x6502 without an EDS default)
+        layouts, mode = choose(sdo)
     writes = usable_writes(od, configuration(section, can, device, mode), section, device)
     for index, sub, fmt, value in writes:
         sdo.write(index, sub, fmt, value)
     check_eds(od, layouts, device)
     for name in ("rpdo1", "rpdo2", "rpdo3", "rpdo4", "tpdo1", "tpdo2", "tpdo3", "tpdo4"):
         comm = (0x1400 if name[0] == "r" else 0x1800) + int(name[4:]) - 1
-        if layouts.get(name) is None and od.get(comm) is None:
+        if layouts.get(name) is None and (od.get(comm) is None or od.get(comm + 0x200) is None):
             continue  # the drive has no such PDO: nothing to disable
-        writes = configuration_writes(layouts.get(name), name, node_id)
+        writes = pdo_writes(od, configuration_writes(layouts.get(name), name, node_id))
         for index, sub, fmt, value in usable_writes(od, writes, section, device):
             sdo.write(index, sub, fmt, value)
     for index, sub, fmt, value in usable_writes(od, master_loss_writes(section, can, layouts),

@@ -122,8 +122,37 @@ def load_od(path: str | os.PathLike, node_id: int) -> canopen.ObjectDictionary:
     with _cache_lock:
         od = _cache.get(key)
         if od is None:
-            od = _cache[key] = canopen.import_od(str(p), node_id)
+            od = _cache[key] = read_od(p, node_id)
         return od
+
+
+def read_od(path: str | os.PathLike, node_id: int) -> canopen.ObjectDictionary:
+    """``canopen.import_od`` of an EDS, plus what it drops: ``od.tcs_compact`` = {index: n}
+    of the arrays written with ``CompactSubObj=n`` (canopen keeps only their sub-index 1, so a
+    PDO mapping written that way would seem to take one object)."""
+    od = canopen.import_od(str(path), node_id)
+    compact: dict[int, int] = {}
+    section = None
+    try:
+        text = Path(path).read_text(encoding="latin-1")
+    except OSError:
+        text = ""
+    for line in text.splitlines():
+        line = line.strip()
+        if line.startswith("[") and line.endswith("]"):
+            name = line[1:-1].strip()
+            section = int(name, 16) if len(name) == 4 and all(c in "0123456789abcdefABCDEF" for c in name) else None
+        elif section is not None and "=" in line:
+            key, _, value = line.partition("=")
+            if key.strip().lower() == "compactsubobj":
+                try:
+                    n = int(value.strip(), 0)
+                except ValueError:
+                    continue
+                if n > 0:
+                    compact[section] = n
+    od.tcs_compact = compact
+    return od
 
 
 def variable(od: canopen.ObjectDictionary, index: int, sub: int) -> odmod.ODVariable | None:
@@ -203,28 +232,58 @@ def modes_text(modes: int | None, eds_name: str = "EDS") -> str:
     return f"0x6502 (supported drive modes) = 0x{modes:08X} = {decode_modes(modes)} ({eds_name})"
 
 
+def mapping_problem(section: DriveSection, od: canopen.ObjectDictionary, key: str) -> str | None:
+    """Why the drive's PDOs cannot carry what mode ``key`` needs (None: they can)."""
+    from tcs.drivers.pdo import plan_pdos
+    problems = plan_pdos(section, od, key, section.node_id).problems
+    return problems[0][1] if problems else None
+
+
 def choose_mode(section: DriveSection, od: canopen.ObjectDictionary,
-                eds_name: str = "EDS") -> ModeChoice:
+                eds_name: str = "EDS", modes: int | None | str = "eds",
+                source: str | None = None) -> ModeChoice:
     """The mode the drive runs its axis in: ``[drives.x] mode`` or, for ``auto``, the first of
-    CSP, IP, CSV that 0x6502 offers (CSP when the EDS does not state 0x6502; PP when it
-    offers no cyclic mode — enough for axes that never stream)."""
+    CSP, IP, CSV that 0x6502 offers AND whose setpoint object the drive's PDOs can carry
+    (IP when 0x607A cannot be mapped but 0x60C1:1 can); when 0x6502 is unknown (no EDS
+    default, not read yet) the first whose setpoint can be mapped; PP when it offers no
+    cyclic mode — enough for axes that never stream.
+
+    ``modes``: 0x6502 as read from the drive (``source`` says where it came from); by default
+    the EDS default."""
     wanted = section.wanted_mode
-    modes = supported_modes(od)
-    text = modes_text(modes, eds_name)
+    if modes == "eds":
+        modes = supported_modes(od)
+        text = modes_text(modes, eds_name)
+        if modes is None and variable(od, 0x6502, 0) is not None:
+            text += " (read from the drive at boot)"
+    else:
+        text = (f"0x6502 (supported drive modes) = 0x{modes:08X} = {decode_modes(modes)} "
+                f"({source or 'read from the drive'})") if modes is not None else modes_text(None, eds_name)
     if wanted != "auto":
         problem = None
         if not offers(modes, wanted):
-            fits = [k for k in (*CYCLIC_PREFERENCE, "pp") if offers(modes, k)]
+            fits = [k for k in (*CYCLIC_PREFERENCE, "pp") if offers(modes, k)
+                    and mapping_problem(section, od, k) is None]
             problem = (f"mode = '{wanted}' is configured, but {text} has no "
                        f"{MODE_NAMES[MODE_KEYS[wanted]]}; remedy: " +
                        (f"mode = {' or '.join(repr(k) for k in fits)} (or 'auto')" if fits else
                         "a drive or firmware that offers CSP, IP or CSV"))
         return ModeChoice(wanted, f"configured (mode = '{wanted}')", modes, problem)
-    if modes is None:
-        return ModeChoice("csp", f"{text}: CSP assumed", modes)
-    for key in CYCLIC_PREFERENCE:
-        if offers(modes, key):
-            return ModeChoice(key, f"{text}; auto prefers CSP, then IP, then CSV", modes)
+    offered = [k for k in CYCLIC_PREFERENCE if offers(modes, k)]
+    skipped = []
+    for key in offered:
+        why = mapping_problem(section, od, key)
+        if why is None:
+            tail = "; auto prefers CSP, then IP, then CSV"
+            if skipped:
+                tail += " whose setpoint the drive can map (" + "; ".join(skipped) + ")"
+            if modes is None:
+                return ModeChoice(key, f"{text}: {MODE_SHORT[MODE_KEYS[key]]} assumed{tail}", modes)
+            return ModeChoice(key, f"{text}{tail}", modes)
+        skipped.append(f"{key.upper()} not: {why}")
+    if offered:  # none can be mapped: the PDO check reports why, naming the objects
+        return ModeChoice(offered[0], f"{text}; none of its cyclic modes can be mapped "
+                                      f"({'; '.join(skipped)})", modes)
     if offers(modes, "pp"):
         return ModeChoice("pp", f"{text} has no cyclic mode (CSP, IP, CSV): profile position, "
                                 f"for axes that never stream only", modes)

@@ -105,6 +105,9 @@ class SimDriveParams:
 
 #: 0x6502 bits -> the mode (0x6060 value) they allow.
 _MODE_BITS = {0: 1, 1: 2, 2: 3, 3: 4, 5: 6, 6: 7, 7: 8, 8: 9, 9: 10}
+#: 0x6502 of the simulated drive's own modes (PP, PV, HM, IP, CSP, CSV): what a drive whose
+#: EDS states no default answers, unless ``[simulation.drives.x] objects`` gives "0x6502:0".
+SIM_MODES = 0x000001E5
 VELOCITY_OBJECTS = (0x606C, 0x6081, 0x607F, 0x60FF, 0x6099, 0x60B1)
 ACCELERATION_OBJECTS = (0x6083, 0x6084, 0x6085, 0x609A)
 
@@ -128,6 +131,8 @@ def store_options(od, params: SimDriveParams, node_id: int) -> dict[str, Any]:
             return given[(index, sub)]
         if (0x1400 <= index <= 0x15FF or 0x1800 <= index <= 0x19FF) and sub == 1:
             return 0x80000000  # a PDO the drive does not have is never valid
+        if (index, sub) == (0x6502, 0):
+            return SIM_MODES
         return fixed.get((index, sub))
 
     scale = {}
@@ -140,6 +145,8 @@ def store_options(od, params: SimDriveParams, node_id: int) -> dict[str, Any]:
     modes = None
     if modes_var is not None and not hasattr(modes_var, "subindices"):
         modes = modes_var.value if modes_var.value is not None else modes_var.default
+        if modes is None:  # no EDS default: what [simulation] objects say, else all it has
+            modes = given.get((0x6502, 0), SIM_MODES)
     if isinstance(modes, int):
         allowed[(0x6060, 0)] = {0} | {mode for bit, mode in _MODE_BITS.items() if modes >> bit & 1}
     return {"builtins": builtins, "scale": scale, "allowed": allowed}
