@@ -149,6 +149,13 @@ def check_drive(name: str, section: DriveSection, can: CanSection, od: canopen.O
                 f"{modes_text(choice.offered, eds_name)} has no profile position (PP), the "
                 f"default_mode configured; remedy: default_mode = 'csp' (boot in the drive's "
                 f"streaming mode)")
+    # -- identity: each field the hardware file pins is read from 0x1018 at boot (a field the
+    # EDS lacks cannot be: said loudly, the others are checked) -------------------------------
+    for field_name, sub in (("vendor", 1), ("product", 2), ("revision", 3), ("serial", 4)):
+        if getattr(section.identity, field_name) is not None and variable(od, 0x1018, sub) is None:
+            report.warnings.append(
+                f"{device}: identity {field_name} is not checked at boot: the EDS ({eds_name}) "
+                f"has no 0x1018:{sub}; leave {field_name} out of identity to silence this")
     # -- mandatory objects the axis cannot work without ---------------------------------------
     from tcs.config.can import SETPOINT_OBJECT
     mandatory = [0x6040, 0x6041, 0x6060, 0x6061, 0x6064, SETPOINT_OBJECT[choice.mode], 0x1017]
