@@ -340,6 +340,8 @@ class Axis(ModuleHealth):
             if self._ack_pending:
                 raise TcsError(f"{self.module_name}: {self._fault.message}; the fault reset of "
                                f"ERROR_STATE=0 has not completed", self._fault.number)
+            if getattr(self._fault, "remedy_in_message", False):  # a configuration mismatch
+                raise TcsError(f"{self.module_name}: {self._fault.message}", self._fault.number)
             raise TcsError(f"{self.module_name}: {self._fault.message}; acknowledge with "
                            f"ERROR_STATE=0 first", self._fault.number)
         future = self._future()

@@ -56,7 +56,7 @@ from tcs.drivers.eds import (LOST, NAMES, OPTIONAL, object_name, raw_writes,  # 
 from tcs.drivers.pdo import PdoLayout, configuration_writes
 from tcs.drivers.pdo import _entry_count as pdo_entry_count
 from tcs.drivers.takeover import stop_if_powered
-from tcs.errors import CommunicationError, ErrorNumber, HardwareError
+from tcs.errors import CommunicationError, ConfigMismatch, ErrorNumber, HardwareError
 
 NMT_START, NMT_PRE_OPERATIONAL, NMT_RESET_COMMUNICATION = 0x01, 0x80, 0x82
 HB_BOOTUP, HB_OPERATIONAL, HB_PRE_OPERATIONAL, HB_STOPPED = 0x00, 0x05, 0x7F, 0x04
@@ -309,18 +309,20 @@ def check_eds(od: canopen.ObjectDictionary, layouts: dict[str, PdoLayout], devic
     for pdo in layouts.values():
         mapping = od.get(pdo.map_index())
         if mapping is None:
-            raise HardwareError(device, f"the EDS has no {pdo.name.upper()} "
-                                        f"(0x{pdo.map_index():04X}){remedy}")
+            raise ConfigMismatch(device, f"the EDS has no {pdo.name.upper()} "
+                                         f"(0x{pdo.map_index():04X}){remedy}")
         entries, _why = pdo_entry_count(od, mapping)
         if len(pdo.indices) > entries:
-            raise HardwareError(device, f"{pdo.name.upper()} maps {len(pdo.indices)} objects; the "
-                                        f"drive's 0x{pdo.map_index():04X} takes at most {entries}{remedy}")
+            raise ConfigMismatch(device, f"{pdo.name.upper()} maps {len(pdo.indices)} objects; the "
+                                         f"drive's 0x{pdo.map_index():04X} takes at most {entries}{remedy}")
         for index in pdo.indices:
             var = od.get_variable(index, PDO_SUBS.get(index, 0))
             if var is None:
-                raise HardwareError(device, f"the EDS has no object 0x{index:04X} for {pdo.name.upper()}")
+                raise ConfigMismatch(device, f"the EDS has no object 0x{index:04X} for "
+                                             f"{pdo.name.upper()}{remedy}")
             if not getattr(var, "pdo_mappable", True):
-                raise HardwareError(device, f"the EDS says 0x{index:04X} cannot be mapped to a PDO")
+                raise ConfigMismatch(device, f"the EDS says 0x{index:04X} cannot be mapped to a "
+                                             f"PDO{remedy}")
 
 
 def pdo_writes(od: canopen.ObjectDictionary, writes: list[tuple[int, int, str, int]]

@@ -71,13 +71,14 @@ from tcs.drivers.boot import (HB_OPERATIONAL, HB_PRE_OPERATIONAL, HB_STOPPED, NM
 from tcs.drivers.canbus import HEARTBEAT_BASE, CanBus
 from tcs.drivers.cia402 import Want
 from tcs.drivers.drive import CYCLIC_MODES, DriveState, DriveStatus, Mode, Progress
-from tcs.drivers.eds import choose_mode, decode_modes, read_od, supported_modes, usable_writes, variable
-from tcs.drivers.eds_check import drive_mode
+from tcs.drivers.eds import decode_modes, read_od, supported_modes, usable_writes, variable
+from tcs.drivers.mode_choice import choose_mode, drive_mode
 from tcs.drivers.emcy import DriveFault, decode_emcy
 from tcs.drivers.handshakes import HomingRun, ProfileMove
 from tcs.drivers.pdo import PdoLayout, describe, layouts_for
 from tcs.drivers.worker import Job, SdoWorker
-from tcs.errors import CommunicationError, ErrorNumber, HardwareError, RangeRefused, TcsError
+from tcs.errors import (CommunicationError, ConfigMismatch, ErrorNumber, HardwareError, RangeRefused,
+                        TcsError)
 
 log = logging.getLogger(__name__)
 
@@ -241,20 +242,20 @@ class Cia402Drive:
         log.info("%s: 0x6502 (supported drive modes) = 0x%08X = %s (%s)", self.device, read,
                  decode_modes(read), source)
         if choice.problem is not None:
-            raise HardwareError(self.device, choice.problem)
+            raise ConfigMismatch(self.device, choice.problem)
         previous = self.mode_choice
         if choice.mode == previous.mode:
             self.mode_choice = choice
             return self.layouts, int(self._default_mode)
         chosen = Mode(choice.number)
         if chosen not in CYCLIC_MODES and self.cyclic_mode is not None:
-            raise HardwareError(self.device, f"{choice.reason}: the drive offers no cyclic mode "
+            raise ConfigMismatch(self.device, f"{choice.reason}: the drive offers no cyclic mode "
                                              f"(CSP, IP, CSV) its PDOs can carry, and its axis "
                                              f"streams trajectories; remedy: a drive or firmware "
                                              f"with one of them, or use it for an axis that never "
                                              f"streams (mode = 'pp')")
         if self._boot_count:  # the axis runs in the first boot's mode: never switch under it
-            raise HardwareError(self.device, f"the drive now answers {choice.reason}, unlike at "
+            raise ConfigMismatch(self.device, f"the drive now answers {choice.reason}, unlike at "
                                              f"its first boot (mode {previous.mode.upper()}); "
                                              f"remedy: set [drives.<name>] mode = '{previous.mode}' "
                                              f"or restart the TCS")

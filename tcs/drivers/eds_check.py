@@ -37,9 +37,10 @@ from tcs.errors import ConfigError, HardwareError
 # what the boot and others import from here too (defined in tcs.drivers.eds, below the boot)
 from tcs.drivers.eds import (  # noqa: F401
     CYCLIC_PREFERENCE, HOMING_OBJECTS, LOST, MODE_BITS, MODE_KEYS, MODE_NAMES, MODE_SHORT,
-    NAMES, OPTIONAL, SIM_EDS, ModeChoice, Verdict, choose_mode, decode_modes, default_value,
-    drive_mode, eds_path, is_optional, limits, load_od, mapping_problem, modes_text, object_name, offers,
+    NAMES, OPTIONAL, SIM_EDS, ModeChoice, Verdict, decode_modes, default_value,
+    eds_path, is_optional, limits, load_od, modes_text, object_name, offers,
     range_value, raw_writes, supported_modes, usable_writes, value_format, variable, verdict)
+from tcs.drivers.mode_choice import choose_mode, drive_mode, mapping_problem  # noqa: F401
 
 log = logging.getLogger(__name__)
 

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 from tcs.config.can import (CYCLIC_TPDO_OBJECTS, PDO_OBJECTS, PDO_SUBS, SETPOINT_OBJECT,
                             SETPOINT_OBJECTS, DriveSection, default_mapping)
+from tcs.drivers.eds import default_value, limits, load_od, variable
 
 #: Objects the cycle cannot do without (RPDO1 / a synchronous TPDO); of the setpoint objects
 #: only the one of the drive's mode (:func:`essential`).
@@ -198,9 +199,10 @@ class PdoSlot:
     """One PDO a drive has, as its EDS describes it.
 
     ``entries``: how many objects its mapping takes (mapping sub-indices 1..n; 0 = none);
-    ``cob_id``: the COB-ID it is used with (the EDS default's 11 bits, else the predefined
-    connection set); ``types``: (synchronous type, event type) it accepts, None where it
-    accepts neither; ``why``: why the layout cannot use it (None: it can)."""
+    ``cob_id``: the COB-ID it is used with (CiA 301's predefined connection set, or the EDS
+    default's 11 bits when the COB-ID is read-only); ``sync_type`` / ``event_type``: the
+    transmission types it accepts for synchronous (1) and event-driven (255, else 254) use,
+    None where it accepts neither; ``why``: why the layout cannot use it (None: it can)."""
 
     name: str
     entries: int
@@ -224,7 +226,6 @@ def _accepts(var, value: int) -> bool:
     read-only already holding it. An absent entry accepts anything (nothing is written)."""
     if var is None:
         return True
-    from tcs.drivers.eds import default_value, limits
     if not var.writable:
         return default_value(var) == value
     lo, hi = limits(var)
@@ -255,7 +256,6 @@ def _entry_count(od, obj) -> tuple[int, str | None]:
 
 def pdo_slots(od, receive: bool, node_id: int) -> list[PdoSlot]:
     """The RPDOs (``receive``) or TPDOs of a drive (1..:data:`MAX_PDOS`) from its EDS."""
-    from tcs.drivers.eds import default_value, variable
     out = []
     for number in range(1, MAX_PDOS + 1):
         name = f"{'rpdo' if receive else 'tpdo'}{number}"
@@ -268,8 +268,9 @@ def pdo_slots(od, receive: bool, node_id: int) -> list[PdoSlot]:
         cob_var = variable(od, comm_index, 1)
         default = default_value(cob_var)
         cob_id = predefined_cob_id(name, node_id)
-        if isinstance(default, int) and default & 0x7FF and not default & 0x20000000:
-            cob_id = default & 0x7FF
+        if (cob_var is not None and not cob_var.writable and isinstance(default, int)
+                and default & 0x7FF and not default & 0x20000000):
+            cob_id = default & 0x7FF  # fixed by the drive (a DCF's literal ids are not: node 1's)
         if cob_var is None:
             why = why or "no COB-ID entry"
         elif not cob_var.writable and isinstance(default, int) and default & 0x80000000:
@@ -450,7 +451,6 @@ def eds_mapping(section: DriveSection, od, mode: str = "csp") -> tuple[
 def layouts_for(section: DriveSection, eds, node_id: int, mode: str = "csp") -> dict[str, PdoLayout]:
     """The PDO layouts of a drive run in ``mode`` from its EDS file (the default mapping if
     the file is unreadable or the layout has problems: the start reported them)."""
-    from tcs.drivers.eds import load_od
     try:
         od = load_od(eds, node_id)
     except Exception:  # reported at boot, naming the drive
