@@ -29,14 +29,17 @@ vendor-ip-nomodes         0x607A not PDO-mappable (0x60C1:1 is), and 0x6502 with
                           DefaultValue (the drive answers it over SDO)
 vendor-absolute-ro6098    0x6098 read-only, 0x6502 without homing mode (PP, PV, CSP, CSV):
                           run with absolute = true
+vendor-no-modes-default   0x6502 without a DefaultValue, everything mappable (the modes are
+                          known only from the drive's answer at boot)
 ========================  ====================================================================
 
-Usage: ``python tests/vcan/eds/make_fixtures.py``.
+Usage: ``python tests/vcan/eds/make_fixtures.py [NAME ...]`` (all fixtures, or those named).
 """
 
 from __future__ import annotations
 
 import re
+import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -202,8 +205,12 @@ def main() -> None:
         "vendor-ip-nomodes": unset(setkey(base, "607A", "PDOMapping", "0"), "6502", "DefaultValue"),
         "vendor-absolute-ro6098": setkey(setkey(base, "6098", "AccessType", "ro"), "6502",
                                          "DefaultValue", "0x00000185"),
+        "vendor-no-modes-default": unset(base, "6502", "DefaultValue"),
     }
+    only = set(sys.argv[1:])  # names to write (default: all)
     for name, parts in fixtures.items():
+        if only and name not in only:
+            continue
         parts = setkey(header(relist(parts), f"TCS test fixture {name}"), "FileInfo", "FileName", f"{name}.eds")
         (HERE / f"{name}.eds").write_text(render(parts), encoding="utf-8")
 
