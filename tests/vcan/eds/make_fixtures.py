@@ -143,7 +143,8 @@ def hb16(parts):
 
 def entries(parts, index: str, n: int):
     """Mapping object ``index`` (e.g. "1600") with only ``n`` mapping entries (sub-index 1..n;
-    none for 0), its sub-index 0 defaulting to at most ``n``."""
+    none for 0), its sub-index 0 defaulting to at most ``n`` (no HighLimit: the entries the
+    EDS lists are all it says)."""
     parts = [(name, body) for name, body in parts
              if not (m := re.fullmatch(index + r"sub([0-9A-Fa-f]+)", name)) or int(m.group(1), 16) <= n]
     parts = setkey(parts, index, "SubNumber", f"0x{n + 1:X}")
@@ -151,7 +152,6 @@ def entries(parts, index: str, n: int):
         if name == f"{index}sub0":
             default = next((line.split("=", 1)[1] for line in body if line.startswith("DefaultValue=")), "0")
             parts = setkey(parts, name, "DefaultValue", str(min(int(default, 0), n)))
-            parts = setkey(parts, name, "HighLimit", str(n))
             break
     return parts
 
