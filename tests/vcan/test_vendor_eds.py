@@ -404,3 +404,17 @@ def test_simulated_drive_honours_mapping_entries_mappability_and_modes(can_chann
         assert empty.read(0x6502, 0, "<I") == 0x1E5        # the EDS's default
         with pytest.raises(HardwareError, match="0x06090030"):
             ip.write(0x6060, 0, "<b", 8)                   # no CSP on this drive
+
+
+def test_a_hand_written_layout_still_wins(can_channel):
+    """pdo = {…} in the hardware file is used as written (checked against the EDS), not the
+    layout the TCS would choose."""
+    pdo = {"rpdo1": ["0x6040", "0x607A"], "tpdo1": ["0x6041", "0x6064"], "tpdo3": ["0x60FD"]}
+    with Rig(can_channel, {"m": vendor(1, "vendor-tpdo2-empty", pdo=pdo, absolute=True)}) as rig:
+        assert rig.boot_and_start() == {}
+        drive, sim = rig.drive("m"), rig.sims["m"]
+        assert {n: p.indices for n, p in drive.layouts.items()} == {
+            "rpdo1": (0x6040, 0x607A), "tpdo1": (0x6041, 0x6064), "tpdo3": (0x60FD,)}
+        assert sim.read_object(0x1803, 1) & 0x80000000 and sim.read_object(0x1A02, 0) == 1
+        rig.enable("m")
+        _stream_and_move(rig, "m", 0.25)
