@@ -389,3 +389,29 @@ def test_scan_shows_offered_modes_chosen_mode_and_pdo_layout(tmp_path, capsys, f
     text = capsys.readouterr().out
     assert f"modes offered: {offered}; the TCS uses {mode}" in text and "PDO layout (from the EDS):" in text
     assert all(line in text for line in layout), text
+
+
+@pytest.mark.parametrize("quirk", ["cp1252", "bom", "repeats"])
+def test_eds_files_as_vendors_write_them_are_read_by_tcs_and_simulator(tmp_path, quirk):
+    """Windows-1252 text, a byte-order mark, a key or section written twice: the TCS and the
+    simulated drive read the file alike (the first value of a repeated key counts)."""
+    from tcs.drivers.eds import load_od, supported_modes
+    from tcs.sim.cia402_drive import _load_od
+    text = (EDS / "vendor-ip-only.eds").read_text(encoding="utf-8")
+    text = text.replace("ParameterName=Target position", "ParameterName=Target position (°)")
+    if quirk == "repeats":
+        text = text.replace("[6502]\n", "[6502]\nDefaultValue=0x00000121\n", 1)
+        text += "\n[6502]\nParameterName=again\n"
+    data = text.encode("cp1252" if quirk == "cp1252" else "utf-8")
+    if quirk == "bom":
+        data = b"\xef\xbb\xbf" + data
+    path = tmp_path / f"{quirk}.eds"
+    path.write_bytes(data)
+    for od in (load_od(path, 1), _load_od(path, 1)):
+        assert od[0x607A].name == "Target position (°)"
+        assert supported_modes(od) == (0x121 if quirk == "repeats" else 0x61)
+        assert od[0x6502].name == "Supported drive modes"
+    hw = tmp_path / "hw.toml"
+    hw.write_text(TEMPLATE.format(eds=path.as_posix(), identity=IDENTITY, az_extra="", sim_extra=""),
+                  encoding="utf-8")
+    assert load_config(hw).drives["az"].eds == path.as_posix()  # the start check read it too

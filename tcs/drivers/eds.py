@@ -27,6 +27,7 @@ from canopen import objectdictionary as odmod
 from canopen.objectdictionary import datatypes
 
 from tcs.config.can import DriveSection
+from tcs.config.eds_file import decode, eds_source
 from tcs.errors import ConfigMismatch, HardwareError
 from tcs.resources import hwconfig_file
 
@@ -131,11 +132,11 @@ def read_od(path: str | os.PathLike, node_id: int) -> canopen.ObjectDictionary:
     """``canopen.import_od`` of an EDS, plus what it drops: ``od.tcs_compact`` = {index: n}
     of the arrays written with ``CompactSubObj=n`` (canopen keeps only their sub-index 1, so a
     PDO mapping written that way would seem to take one object)."""
-    od = canopen.import_od(str(path), node_id)
+    od = canopen.import_od(eds_source(path), node_id)  # (any encoding, repeated keys: eds_file)
     compact: dict[int, int] = {}
     section = None
     try:
-        text = Path(path).read_text(encoding="latin-1")
+        text = decode(Path(path).read_bytes())
     except OSError:
         text = ""
     for line in text.splitlines():

@@ -77,6 +77,7 @@ from typing import Any
 
 import canopen
 
+from tcs.config.eds_file import eds_source
 from tcs.sim.can_port import SimCanPort, TimerHandle, open_port
 from tcs.sim.drive_logic import (
     EMCY_ENCODER,
@@ -138,7 +139,7 @@ def _load_od(eds: str | Path, node_id: int) -> canopen.ObjectDictionary:
         if od is None:
             if not Path(eds).is_file():
                 raise FileNotFoundError(f"simulated drive {node_id}: EDS file {eds} not found")
-            od = _od_cache[key] = canopen.import_od(str(eds), node_id)
+            od = _od_cache[key] = canopen.import_od(eds_source(eds), node_id)
         return od
 
 
