@@ -16,14 +16,17 @@ Sequence:
 2. NMT *enter pre-operational* (PDO remapping is only allowed there);
 3. identity: 0x1000 must be a CiA-402 device; 0x1018 vendor / product / revision / serial
    must equal the hardware file — the fields it gives (a left-out revision accepts any
-   firmware);
+   firmware; a field the EDS has no sub-index for is not read, warned at start);
+3b. when the EDS gives 0x6502 (supported drive modes) no default, the drive's own answer
+   settles the mode and with it the PDO layout (the ``choose`` hook of :func:`boot_node`);
 4. SDO configuration (:func:`configuration`): heartbeat producer (0x1017) and consumer of the
    TCS heartbeat (0x1016), SYNC period (0x1006, optional object) and interpolation period
    (0x60C2), software limits (0x607D), following-error window and time-out (0x6065/0x6066),
    max profile velocity (0x607F, optional), profile velocity / acceleration / deceleration /
    quick-stop deceleration (0x6081/0x6083/0x6084/0x6085), homing method / speeds / acceleration / offset
-   (0x6098/0x6099/0x609A/0x607C; none for an ``absolute`` drive), the PDO mapping
-   (:mod:`tcs.drivers.pdo`), the ``[drives.<name>.sdo]`` raw writes in file order, and the
+   (0x6098/0x6099/0x609A/0x607C; none for an ``absolute`` drive), the PDO layout
+   (:mod:`tcs.drivers.pdo`; PDOs it does not use are switched off, a read-only COB-ID or
+   transmission type is left as the drive has it), the ``[drives.<name>.sdo]`` raw writes in file order, and the
    default mode of operation (0x6060, read back from 0x6061 within ``mode_switch_timeout``);
    the drive's own watch of the master (:func:`master_loss_writes`: RPDO deadlines).
    Every write passes :func:`tcs.drivers.eds_check.usable_writes`: an object of

@@ -10,8 +10,9 @@ How it works
 * :meth:`Cia402Drive.step` — once per SYNC period, in the control-loop thread, after the
   synchronous TPDOs of this cycle arrived (:class:`tcs.drivers.cycle.CycleSource`) — decodes
   the statusword, looks up the controlword in the table of :mod:`tcs.drivers.cia402`, runs the
-  small handshakes (fault reset, mode switch, homing, profile move), and sends **exactly one
-  RPDO** (controlword + target position) while the node is operational. It never blocks: the
+  small handshakes (fault reset, mode switch, homing, profile move), and sends the RPDOs of
+  its layout (usually one: controlword + setpoint; two when the drive's RPDO1 takes one
+  object, :mod:`tcs.drivers.pdo`) while the node is operational. It never blocks: the
   rare SDO transfers it needs (mode switch with read-back of 0x6061, a new profile velocity)
   go to the :class:`~tcs.drivers.worker.SdoWorker` and are polled in later cycles.
 * :meth:`Cia402Drive.status` builds a frozen :class:`~tcs.drivers.drive.DriveStatus` from
@@ -20,7 +21,9 @@ How it works
 Safety rules kept here
 ----------------------
 * Modes: the one of :attr:`Cia402Drive.mode_choice` (``[drives.x] mode``, or for ``auto``
-  CSP, IP or CSV as 0x6502 offers them) streams the axis's setpoints: CSP sends 0x607A; IP
+  CSP, IP or CSV as 0x6502 offers them and the PDOs can carry their setpoint; 0x6502 read from
+  the drive at the first boot when the EDS gives no default, :mod:`tcs.drivers.mode_choice`)
+  streams the axis's setpoints: CSP sends 0x607A; IP
   sends the interpolation data record 0x60C1:1 with controlword bit 4 "enable IP" set in
   Operation enabled and takes setpoints only once statusword bit 12 "IP active" shows; CSV
   sends a target velocity 0x60FF from a position loop closed here (:meth:`_csv_step`:

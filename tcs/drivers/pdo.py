@@ -1,22 +1,27 @@
-"""PDO layouts of one drive: the SDO writes that map them and the codecs of their frames.
+"""PDO layouts of one drive: laid out from its EDS, the SDO writes that map them, the codecs.
 
-The mapping is the validated one of the hardware file (:func:`tcs.config.can.pdo_mapping`,
-default docs/cia402.md: RPDO1 = 0x6040 + the mode's setpoint (0x607A in CSP/PP, 0x60C1:1 in
-IP, 0x60FF in CSV); TPDO1 = 0x6041 + 0x6064; TPDO2 = 0x606C +
-0x60F4, both synchronous; TPDO3 = 0x60FD + 0x603F, event driven). The driver does not use
-canopen's PDO classes: it writes the communication and mapping parameters itself (remap
-procedure of CiA 301: invalidate the COB-ID, sub0 = 0, entries, sub0 = n, validate — only in
-pre-operational) and packs / unpacks frames with a precompiled :class:`struct.Struct`, so the
-per-cycle path is one ``pack`` and one ``send``.
+:func:`plan_pdos` gives the layout of a drive run in a mode: without ``[drives.x] pdo``,
+:func:`auto_layout` spreads what the mode needs (:func:`wanted_objects`: controlword and the
+mode's setpoint — 0x607A in CSP/PP, 0x60C1:1 in IP, 0x60FF in CSV — in RPDOs sent every cycle;
+statusword, position actual value, velocity and following error in TPDOs sent on every SYNC;
+digital inputs and error code in an event-driven TPDO) over the PDOs the EDS describes
+(:func:`pdo_slots`: RPDO1–4 / TPDO1–4, each with its number of mapping entries, the COB-ID and
+the transmission types it accepts), within 64 bits per PDO and only with objects the EDS marks
+mappable. Generic rules, no vendor tables: first fit in PDO number order. An object the cycle
+cannot do without (:data:`ESSENTIAL`) that does not fit is a problem naming it and the PDOs
+tried; the others are left out with a note (0x603F is then read by SDO on a fault). A
+hand-written ``pdo`` is used as written, checked against the EDS the same way. On a drive
+like our simulated one the result is the layout of docs/cia402.md: RPDO1 = 0x6040 + setpoint;
+TPDO1 = 0x6041 + 0x6064; TPDO2 = 0x606C + 0x60F4 (SYNC); TPDO3 = 0x60FD + 0x603F (event).
 
-The default mapping adapts to the drive's EDS (:func:`eds_mapping`): an object the EDS does
-not mark PDO-mappable (0x603F on some drives) or lacks is left out of its PDO — the error code
-is then read by SDO on a fault, never every cycle — and a PDO left empty is disabled. The
-objects the cycle cannot do without (controlword, target position, statusword, position
-actual value) must be mappable: otherwise the start is refused. A ``pdo`` override in the
-hardware file is checked against the EDS the same way and used as it is.
+The driver does not use canopen's PDO classes: it writes the communication and mapping
+parameters itself (remap procedure of CiA 301: invalidate the COB-ID, sub0 = 0, entries, sub0 =
+n, validate — only in pre-operational) and packs / unpacks frames with a precompiled
+:class:`struct.Struct`, so the per-cycle path is one ``pack`` and one ``send`` per RPDO.
 
-Only the boot code (:mod:`tcs.drivers.cia402_drive`) and the cycle use this module.
+Used by the start check (:mod:`tcs.drivers.eds_check`), the mode choice
+(:mod:`tcs.drivers.mode_choice`), the boot (:mod:`tcs.drivers.boot`), the driver and
+``tcs-commission scan``.
 """
 
 from __future__ import annotations
