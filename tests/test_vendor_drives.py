@@ -415,3 +415,32 @@ def test_eds_files_as_vendors_write_them_are_read_by_tcs_and_simulator(tmp_path,
     hw.write_text(TEMPLATE.format(eds=path.as_posix(), identity=IDENTITY, az_extra="", sim_extra=""),
                   encoding="utf-8")
     assert load_config(hw).drives["az"].eds == path.as_posix()  # the start check read it too
+
+
+async def test_a_pdo_mapping_written_with_compactsubobj_takes_its_n_entries(tmp_path):
+    """0x1600 as an ARRAY with CompactSubObj=8 (canopen keeps only its sub-index 1): both the
+    TCS and the simulated drive see eight entries; the axis moves."""
+    import re
+    text = (EDS / "vendor-pdo1-single.eds").read_text(encoding="utf-8")
+    parts = re.split(r"(?m)^(?=\[)", text)
+    parts = [p for p in parts if not re.match(r"\[1600(sub[0-9A-Fa-f]+)?\]", p)]
+    parts.append("[1600]\nParameterName=RPDO1 mapping parameter\nObjectType=0x8\nDataType=0x0007\n"
+                 "AccessType=rw\nDefaultValue=0x60400010\nPDOMapping=0\nCompactSubObj=8\n\n")
+    path = tmp_path / "compact.eds"
+    path.write_text("".join(parts), encoding="utf-8")
+    from tcs.drivers.eds import load_od
+    from tcs.drivers.pdo import pdo_slots
+    assert pdo_slots(load_od(path, 1), True, 1)[0].entries == 8
+    hw = tmp_path / "hw.toml"
+    hw.write_text(TEMPLATE.format(eds=path.as_posix(), identity=IDENTITY, az_extra="", sim_extra=""),
+                  encoding="utf-8")
+    svc = Service(make_config(tmp_path / "state", hw))
+    port = await svc.start()
+    c = await Client.connect(port)
+    try:
+        await ready_and_move(c, 4.0)
+        sim = svc.telescope.sims[1]
+        assert [sim.read_object(0x1600, i) for i in range(3)] == [2, 0x60400010, 0x607A0020]
+    finally:
+        await c.close()
+        await svc.stop()

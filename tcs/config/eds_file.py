@@ -8,6 +8,8 @@ as Windows-1252/Latin-1 (which always decodes), a repeated section merged into i
 occurrence and a repeated key within a section dropped (the first one counts, as most tools
 read it).
 
+:func:`compact_entries` tells what canopen drops of ``CompactSubObj`` arrays.
+
 Shared by the TCS's drivers (:func:`tcs.drivers.eds.read_od`) and the simulated drives
 (:mod:`tcs.sim.cia402_drive`), which must read a file the same way; imports nothing of either.
 """
@@ -70,3 +72,45 @@ def eds_source(path: str | os.PathLike) -> io.StringIO:
     source = io.StringIO(clean(decode(p.read_bytes())))
     source.name = str(p)
     return source
+
+
+def compact_entries(path: str | os.PathLike) -> dict[int, int]:
+    """{index: n} of the objects written with ``CompactSubObj=n`` (canopen keeps only their
+    sub-index 1: a PDO mapping written so would seem to take one object)."""
+    compact: dict[int, int] = {}
+    section = None
+    try:
+        text = decode(Path(path).read_bytes())
+    except OSError:
+        return compact
+    for line in text.splitlines():
+        m = _SECTION.match(line)
+        if m:
+            name = m.group(1).strip()
+            section = int(name, 16) if re.fullmatch(r"[0-9A-Fa-f]{4}", name) else None
+        elif section is not None and "=" in line:
+            key, _, value = line.partition("=")
+            if key.strip().lower() == "compactsubobj":
+                try:
+                    n = int(value.split(";")[0].strip(), 0)
+                except ValueError:
+                    continue
+                if n > 0:
+                    compact[section] = n
+    return compact
+
+
+def expand_compact(od, compact: dict[int, int]) -> None:
+    """Give each array of ``compact`` (index -> n) its sub-indices 2..n in ``od`` (a canopen
+    object dictionary), made from sub-index 1 as canopen's own array access makes them, so a
+    ``CompactSubObj`` mapping has its n entries for every reader; ``od.tcs_compact`` keeps the
+    table."""
+    for index, n in compact.items():
+        obj = od.get(index) if hasattr(od, "get") else None
+        subs = getattr(obj, "subindices", None)
+        if subs is None or 1 not in subs or not hasattr(obj, "add_member"):
+            continue
+        for sub in range(2, min(n, 254) + 1):
+            if sub not in subs:
+                obj.add_member(obj[sub])
+    od.tcs_compact = dict(compact)

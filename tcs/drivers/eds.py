@@ -27,7 +27,7 @@ from canopen import objectdictionary as odmod
 from canopen.objectdictionary import datatypes
 
 from tcs.config.can import DriveSection
-from tcs.config.eds_file import decode, eds_source
+from tcs.config.eds_file import compact_entries, eds_source, expand_compact
 from tcs.errors import ConfigMismatch, HardwareError
 from tcs.resources import hwconfig_file
 
@@ -133,27 +133,7 @@ def read_od(path: str | os.PathLike, node_id: int) -> canopen.ObjectDictionary:
     of the arrays written with ``CompactSubObj=n`` (canopen keeps only their sub-index 1, so a
     PDO mapping written that way would seem to take one object)."""
     od = canopen.import_od(eds_source(path), node_id)  # (any encoding, repeated keys: eds_file)
-    compact: dict[int, int] = {}
-    section = None
-    try:
-        text = decode(Path(path).read_bytes())
-    except OSError:
-        text = ""
-    for line in text.splitlines():
-        line = line.strip()
-        if line.startswith("[") and line.endswith("]"):
-            name = line[1:-1].strip()
-            section = int(name, 16) if len(name) == 4 and all(c in "0123456789abcdefABCDEF" for c in name) else None
-        elif section is not None and "=" in line:
-            key, _, value = line.partition("=")
-            if key.strip().lower() == "compactsubobj":
-                try:
-                    n = int(value.strip(), 0)
-                except ValueError:
-                    continue
-                if n > 0:
-                    compact[section] = n
-    od.tcs_compact = compact
+    expand_compact(od, compact_entries(path))
     return od
 
 

@@ -77,7 +77,7 @@ from typing import Any
 
 import canopen
 
-from tcs.config.eds_file import eds_source
+from tcs.config.eds_file import compact_entries, eds_source, expand_compact
 from tcs.sim.can_port import SimCanPort, TimerHandle, open_port
 from tcs.sim.drive_logic import (
     EMCY_ENCODER,
@@ -140,6 +140,7 @@ def _load_od(eds: str | Path, node_id: int) -> canopen.ObjectDictionary:
             if not Path(eds).is_file():
                 raise FileNotFoundError(f"simulated drive {node_id}: EDS file {eds} not found")
             od = _od_cache[key] = canopen.import_od(eds_source(eds), node_id)
+            expand_compact(od, compact_entries(eds))  # PDO mappings written with CompactSubObj
         return od
 
 
