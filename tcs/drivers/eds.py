@@ -173,9 +173,10 @@ def default_value(var: odmod.ODVariable | None):
 
 
 def supported_modes(od: canopen.ObjectDictionary) -> int | None:
-    """0x6502 as the EDS gives it (its default value), or None when unknown."""
+    """0x6502 as the EDS gives it (its default value), or None when unknown — also for a
+    default of 0 (no mode at all: a placeholder some EDS files carry, the drive fills it)."""
     value = default_value(variable(od, 0x6502, 0))
-    return int(value) if isinstance(value, int) else None
+    return int(value) if isinstance(value, int) and value else None
 
 
 def decode_modes(modes: int) -> str:

@@ -216,7 +216,11 @@ class SimDrive:
 
     def _build(self) -> None:
         """A freshly powered drive: objects at their defaults, application reset."""
-        self.store = ObjectStore(self._od, **store_options(self._od, self.params, self.node_id))
+        options = store_options(self._od, self.params, self.node_id)
+        answers = options.pop("answers", {})
+        self.store = ObjectStore(self._od, **options)
+        for index, value in answers.items():  # (a placeholder default in the EDS: the real value)
+            self.store.on_read(index, lambda sub, value=value: value)
         self.sdo = SdoServer(self.store)
         self.sdo.refuse_code = ABORT_STORE if self.refuse_sdo else None
         self.pdo = PdoEngine(self.store, lambda: self.nmt_state == PRE_OPERATIONAL,

@@ -117,7 +117,9 @@ def store_options(od, params: SimDriveParams, node_id: int) -> dict[str, Any]:
 
     ``builtins``: sane values for objects the EDS lacks or gives no default (the model keeps
     working; the wire still says the object is absent); ``scale``: the velocity and
-    acceleration units of this drive; ``allowed``: the modes of 0x6502 (when the EDS has it).
+    acceleration units of this drive; ``allowed``: the modes of 0x6502 (when the EDS has it);
+    ``answers``: {index: value} the drive answers whatever its EDS default (0x6502 of 0 or
+    none: the modes it has, as a real drive fills that placeholder).
     """
     fixed = {(0x1000, 0): 0x00020192, (0x1005, 0): 0x80, (0x1014, 0): 0x80 + node_id, (0x6065, 0): 0xFFFFFFFF,
              (0x6066, 0): 100, (0x6067, 0): 100, (0x60C2, 1): 10, (0x60C2, 2): -3,
@@ -141,12 +143,14 @@ def store_options(od, params: SimDriveParams, node_id: int) -> dict[str, Any]:
     if params.acceleration_scale != 1.0:
         scale.update(dict.fromkeys(ACCELERATION_OBJECTS, params.acceleration_scale))
     allowed = {}
+    answer: dict[int, int] = {}
     modes_var = od.get(0x6502)
     modes = None
     if modes_var is not None and not hasattr(modes_var, "subindices"):
         modes = modes_var.value if modes_var.value is not None else modes_var.default
-        if modes is None:  # no EDS default: what [simulation] objects say, else all it has
+        if not modes:  # no EDS default (or 0): what [simulation] objects say, else all it has
             modes = given.get((0x6502, 0), SIM_MODES)
+            answer[0x6502] = modes
     if isinstance(modes, int):
         allowed[(0x6060, 0)] = {0} | {mode for bit, mode in _MODE_BITS.items() if modes >> bit & 1}
-    return {"builtins": builtins, "scale": scale, "allowed": allowed}
+    return {"builtins": builtins, "scale": scale, "allowed": allowed, "answers": answer}

@@ -340,19 +340,21 @@ def test_drive_of_each_pdo_shape_is_laid_out_from_its_eds_and_moves(can_channel,
         _stream_and_move(rig, "m")
 
 
+@pytest.mark.parametrize("default", [None, "0"])
 def test_0x6502_without_eds_default_is_read_from_the_drive_and_settles_the_mode(
-        can_channel, tmp_path, caplog):
-    """Everything mappable, 0x6502 without default: CSP is assumed at start; the drive answers
-    PP, HM, IP at boot, so the axis runs in IP (layout with 0x60C1:1) — logged with where the
-    value came from."""
+        can_channel, tmp_path, caplog, default):
+    """Everything mappable, 0x6502 without default (or the placeholder 0): CSP is assumed at
+    start; the drive answers PP, HM, IP at boot, so the axis runs in IP (layout with 0x60C1:1)
+    — logged with where the value came from."""
     eds = (EDS / "vendor-revision.eds").read_text(encoding="utf-8")
     start = eds.index("[6502]")
     end = eds.find("\n\n", start)
     block = eds[start:end if end > 0 else len(eds)]
     path = tmp_path / "nomodes.eds"
-    path.write_text(eds.replace(block, "\n".join(line for line in block.splitlines()
-                                                 if not line.startswith("DefaultValue="))),
-                    encoding="utf-8")
+    lines = [line for line in block.splitlines() if not line.startswith("DefaultValue=")]
+    if default is not None:
+        lines.append(f"DefaultValue={default}")
+    path.write_text(eds.replace(block, "\n".join(lines)), encoding="utf-8")
     params = SimDriveParams(identity=(0xABC, 0x00402001, 0x00020003, 1), objects={(0x6502, 0): 0x61})
     spec = AxisSpec(1, params=params, section={"eds": str(path), "identity": IdentitySection(
         vendor=0xABC, product=0x00402001)}, sim_eds=path)
