@@ -272,6 +272,8 @@ def test_the_mode_chosen_is_logged_with_its_reason(can_channel, caplog):
     lines = [r.getMessage() for r in caplog.records if r.levelname == "INFO"]
     assert any(line.startswith("drive az: mode CSV") and "0x6502" in line
                and "PP, HM, CSV" in line and "CSP, then IP, then CSV" in line for line in lines), lines
+    assert any(line.startswith("drive az: PDO layout (from the EDS) — RPDO1 0x201 SYNC: 0x6040 "
+                               "controlword + 0x60FF target_velocity") for line in lines), lines
 
 
 # ------------------------------------------- issue 40: PDO layouts from the EDS, modes, absolute
