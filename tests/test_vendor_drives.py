@@ -444,3 +444,25 @@ async def test_a_pdo_mapping_written_with_compactsubobj_takes_its_n_entries(tmp_
     finally:
         await c.close()
         await svc.stop()
+
+
+async def test_a_mode_the_drive_does_not_offer_found_at_boot_names_a_remedy_not_acknowledge(tmp_path):
+    """The EDS states no 0x6502, mode = 'csp' is configured, the drive answers PP, HM, IP: the
+    boot fails naming drive, 0x6502 and the remedy (mode = 'ip'); POWER says so and does not
+    advise an acknowledge that cannot help."""
+    path = write_config(tmp_path, "vendor-no-modes-default", "mode = 'csp'",
+                        "objects = { '0x6502:0' = 0x61 }")
+    svc = Service(make_config(tmp_path / "state", path))
+    port = await svc.start()
+    c = await Client.connect(port)
+    try:
+        lines = await c.set("CABINET.POWER=1")
+        text = " ".join(lines)
+        assert not done_ok(lines, "CABINET.POWER"), lines
+        for needle in ("drive az (node 1)", "0x6502", "PP, HM, IP", "read from the drive over SDO",
+                       "remedy: mode = 'ip'"):
+            assert needle in text, lines
+        assert "acknowledge" not in text, lines
+    finally:
+        await c.close()
+        await svc.stop()
