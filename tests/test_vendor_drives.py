@@ -466,3 +466,22 @@ async def test_a_mode_the_drive_does_not_offer_found_at_boot_names_a_remedy_not_
     finally:
         await c.close()
         await svc.stop()
+
+
+async def test_no_homing_mode_in_the_drives_answer_fails_the_boot_with_the_absolute_remedy(tmp_path):
+    """0x6502 unknown at start, the drive answers PP, PV, CSP (no homing mode) and the axis is
+    not absolute: the boot says so with the remedy, instead of a homing run that cannot start."""
+    path = write_config(tmp_path, "vendor-no-modes-default", "", "objects = { '0x6502:0' = 0x85 }")
+    svc = Service(make_config(tmp_path / "state", path))
+    port = await svc.start()
+    c = await Client.connect(port)
+    try:
+        lines = await c.set("CABINET.POWER=1")
+        text = " ".join(lines)
+        assert not done_ok(lines, "CABINET.POWER"), lines
+        for needle in ("drive az (node 1)", "0x6502", "no homing mode", "remedy: absolute = true"):
+            assert needle in text, lines
+        assert "acknowledge" not in text, lines
+    finally:
+        await c.close()
+        await svc.stop()

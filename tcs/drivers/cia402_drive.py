@@ -246,6 +246,11 @@ class Cia402Drive:
                  decode_modes(read), source)
         if choice.problem is not None:
             raise ConfigMismatch(self.device, choice.problem)
+        if not self.section.absolute and not read >> 5 & 1:  # bit 5: homing mode
+            raise ConfigMismatch(self.device, f"0x6502 (supported drive modes) = 0x{read:08X} = "
+                                              f"{decode_modes(read)} ({source}) has no homing mode; "
+                                              f"remedy: absolute = true when the encoder is absolute "
+                                              f"(referenced by configuration)")
         previous = self.mode_choice
         if choice.mode == previous.mode:
             self.mode_choice = choice
