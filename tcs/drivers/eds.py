@@ -252,11 +252,15 @@ def range_value(var: odmod.ODVariable, value):
 
     0x1016:n (consumer heartbeat time) is ``node id << 16 | ms``: many EDS files give it a
     HighLimit of the 16-bit time only (0xFFFF), so a limit below 0x10000 bounds the time part
-    (bits 0-15), never the node id in bits 16-23.
+    (bits 0-15), never the node id in bits 16-23. Likewise a PDO COB-ID's limit below
+    0x80000000 does not bound bit 31 (the PDO switched off, part of every remap).
     """
     if (var.index == 0x1016 and var.subindex >= 1 and isinstance(value, int)
             and var.max is not None and var.max <= 0xFFFF):
         return value & 0xFFFF
+    if ((0x1400 <= var.index < 0x1600 or 0x1800 <= var.index < 0x1A00) and var.subindex == 1
+            and isinstance(value, int) and var.max is not None and var.max < 0x80000000):
+        return value & 0x7FFFFFFF  # a PDO COB-ID: bit 31 (PDO switched off) is no number
     return value
 
 

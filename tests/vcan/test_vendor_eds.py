@@ -422,3 +422,23 @@ def test_a_hand_written_layout_still_wins(can_channel):
         assert sim.read_object(0x1803, 1) & 0x80000000 and sim.read_object(0x1A02, 0) == 1
         rig.enable("m")
         _stream_and_move(rig, "m", 0.25)
+
+
+def test_cob_id_limits_below_bit_31_do_not_stop_a_remap(can_channel, tmp_path):
+    """EDS files often give a PDO COB-ID HighLimit of 0x7FF: switching a PDO off (bit 31) is
+    still taken by the TCS's check and by the simulated drive, and the axis moves."""
+    import re
+    text = (EDS / "vendor-pdo1-single.eds").read_text(encoding="utf-8")
+    text = re.sub(r"(\[1[48]0[0-3]sub1\]\n(?:[^\[\n].*\n)*?)(PDOMapping=0)", r"\1\2\nLowLimit=0x181\nHighLimit=0x7FF",
+                  text)
+    assert text.count("HighLimit=0x7FF") == 8
+    path = tmp_path / "coblimit.eds"
+    path.write_text(text, encoding="utf-8")
+    spec = AxisSpec(1, section={"eds": str(path)}, sim_eds=path)
+    with Rig(can_channel, {"m": spec}) as rig:
+        assert rig.boot_and_start() == {}
+        assert rig.sims["m"].read_object(0x1403, 1) & 0x80000000   # RPDO4 switched off
+        rig.enable("m")
+        rig.drive("m").start_homing()
+        rig.wait(lambda: rig.status("m").homed, what="referenced")
+        _stream_and_move(rig, "m", 0.25)
