@@ -54,8 +54,8 @@ import canopen
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from tcs.config.can import PDO_SUBS, CanSection, DriveSection, interpolation_period
-from tcs.drivers.eds import (LOST, NAMES, OPTIONAL, object_name, raw_writes,  # noqa: F401
-                             usable_writes, variable)
+from tcs.drivers.eds import (LOST, NAMES, OPTIONAL, limits, object_name,  # noqa: F401
+                             raw_writes, usable_writes, variable)
 from tcs.drivers.pdo import PdoLayout, configuration_writes
 from tcs.drivers.pdo import _entry_count as pdo_entry_count
 from tcs.drivers.takeover import stop_if_powered
@@ -332,16 +332,23 @@ def pdo_writes(od: canopen.ObjectDictionary, writes: list[tuple[int, int, str, i
                ) -> list[tuple[int, int, str, int]]:
     """A PDO's (re)configuration as this drive takes it: no COB-ID writes where the EDS makes
     the COB-ID read-only (used as it is), no transmission-type write where it is absent or
-    read-only (the layout chose a PDO whose type fits), no mapping writes to a PDO that has
-    no mapping entries (only disabled)."""
+    read-only (the layout chose a PDO whose type fits), no inhibit time / event timer (RPDO
+    deadline) outside the EDS limits (left as commissioned)."""
     out = []
     for index, sub, fmt, value in writes:
         var = variable(od, index, sub)
         if 0x1400 <= index < 0x1600 or 0x1800 <= index < 0x1A00:
             if sub in (1, 2) and (var is None or not var.writable):
                 continue
+            if sub in (3, 5) and var is not None and not _within(var, value):
+                continue  # inhibit time / event timer the drive does not take: as commissioned
         out.append((index, sub, fmt, value))
     return out
+
+
+def _within(var, value: int) -> bool:
+    lo, hi = limits(var)
+    return (lo is None or value >= lo) and (hi is None or value <= hi)
 
 
 def read_supported_modes(sdo: Sdo) -> int | None:
@@ -393,7 +400,7 @@ def boot_node(network: canopen.Network, sdo: Sdo, hb: HeartbeatWatch, section: D
         writes = pdo_writes(od, configuration_writes(layouts.get(name), name, node_id))
         for index, sub, fmt, value in usable_writes(od, writes, section, device):
             sdo.write(index, sub, fmt, value)
-    for index, sub, fmt, value in usable_writes(od, master_loss_writes(section, can, layouts),
+    for index, sub, fmt, value in usable_writes(od, pdo_writes(od, master_loss_writes(section, can, layouts)),
                                                 section, device):
         sdo.write(index, sub, fmt, value)
     for index, sub, fmt, value in raw_writes(od, section, device):  # [drives.x.sdo], in order

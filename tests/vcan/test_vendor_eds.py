@@ -424,14 +424,18 @@ def test_a_hand_written_layout_still_wins(can_channel):
         _stream_and_move(rig, "m", 0.25)
 
 
-def test_cob_id_limits_below_bit_31_do_not_stop_a_remap(can_channel, tmp_path):
+def test_cob_id_and_timer_limits_do_not_stop_a_remap(can_channel, tmp_path):
     """EDS files often give a PDO COB-ID HighLimit of 0x7FF: switching a PDO off (bit 31) is
-    still taken by the TCS's check and by the simulated drive, and the axis moves."""
+    still taken by the TCS's check and by the simulated drive; an event timer / RPDO deadline
+    the drive's limits do not take is left as commissioned. The axis moves."""
     import re
     text = (EDS / "vendor-pdo1-single.eds").read_text(encoding="utf-8")
     text = re.sub(r"(\[1[48]0[0-3]sub1\]\n(?:[^\[\n].*\n)*?)(PDOMapping=0)", r"\1\2\nLowLimit=0x181\nHighLimit=0x7FF",
                   text)
     assert text.count("HighLimit=0x7FF") == 8
+    # event timers / RPDO deadlines limited to 100 ms: the TCS's 500 ms are left out
+    text = re.sub(r"(\[1[48]0[0-3]sub5\]\n(?:[^\[\n].*\n)*?)(PDOMapping=0)", r"\1\2\nHighLimit=100", text)
+    assert text.count("HighLimit=100") == 8
     path = tmp_path / "coblimit.eds"
     path.write_text(text, encoding="utf-8")
     spec = AxisSpec(1, section={"eds": str(path)}, sim_eds=path)
