@@ -70,7 +70,7 @@ from tcs.config.can import CanSection, DriveSection
 from tcs.drivers import cia402 as sm
 from tcs.drivers.boot import (HB_OPERATIONAL, HB_PRE_OPERATIONAL, HB_STOPPED, NMT_STATE_NAMES,
                               BootResult, HeartbeatWatch, Sdo, boot_node, cycle_period_writes,
-                              read_supported_modes, set_mode)
+                              pdo_writes, read_supported_modes, set_mode)
 from tcs.drivers.canbus import HEARTBEAT_BASE, CanBus
 from tcs.drivers.cia402 import Want
 from tcs.drivers.drive import CYCLIC_MODES, DriveState, DriveStatus, Mode, Progress
@@ -312,8 +312,9 @@ class Cia402Drive:
         sdo, node = self._sdo, self._node
         if not self._booted or sdo is None or node is None:
             return
-        writes = usable_writes(node.object_dictionary,
-                               cycle_period_writes(self.section, self._can, self.layouts, period),
+        od = node.object_dictionary
+        writes = usable_writes(od, pdo_writes(od, cycle_period_writes(self.section, self._can,
+                                                                      self.layouts, period)),
                                self.section, self.device)
         if period <= self._can.sync_period:
             writes.reverse()
