@@ -170,6 +170,14 @@ class HardwareError(TcsError):
         super().__init__(f"{device}: {message}", number)
 
 
+class ConfigMismatch(HardwareError):
+    """The hardware file does not fit the drive, found when only the drive could tell (its
+    0x6502 read at boot): the message names the object and the remedy; acknowledging the
+    fault cannot help (``remedy_in_message``)."""
+
+    remedy_in_message = True
+
+
 class CommunicationError(HardwareError):
     """No communication with a device (timeout, closed connection, missing heartbeat)."""
 

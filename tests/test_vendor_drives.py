@@ -156,10 +156,17 @@ CASES = {
     "vendor-homing-list": ("", ""),
     "vendor-hb16": ("", ""),
     "vendor-no-devtype-default": ("", ""),
+    # issue 40: PDO layouts from the EDS, modes from what is mappable, absolute axes
+    "vendor-pdo1-single": ("", ""),
+    "vendor-tpdo2-empty": ("absolute = true", ""),
+    "vendor-ip-nomodes": ("", "objects = { '0x6502:0' = 0x61 }"),
+    "vendor-absolute-ro6098": ("absolute = true", ""),
+    "vendor-no-modes-default": ("", "objects = { '0x6502:0' = 0x61 }"),  # CSP assumed, IP answered
 }
 
 #: The mode each fixture's drive must be run in (auto): the one its 0x6502 offers.
-MODES = {"vendor-ip-only": 7, "vendor-csv-only": 9, "vendor-ip-no-607a-map": 7}
+MODES = {"vendor-ip-only": 7, "vendor-csv-only": 9, "vendor-ip-no-607a-map": 7,
+         "vendor-ip-nomodes": 7, "vendor-no-modes-default": 7}
 
 
 @pytest.mark.parametrize("fixture", list(CASES))
@@ -279,3 +286,202 @@ def test_simulation_section_describes_the_simulated_drive(tmp_path):
     assert az.velocity_scale == pytest.approx(30.0 / 10000.0) and az.acceleration_scale == 1.0
     assert az.identity == (0xABC, 0x00402001, 0x00020003, 1)
     assert az.boot_delay == 0.05 and az.objects == {(0x2100, 0): 7}
+
+
+# ------------------------------------------------------------------------------- issue 40
+async def test_absolute_axis_is_referenced_by_configuration_even_on_a_forced_reinit(tmp_path):
+    """Read-only 0x6098, no homing mode, absolute = true: REFERENCED is 1 after power, and a
+    REINIT=1 (force) completes at once — nothing waits for a homing run that never comes."""
+    path = write_config(tmp_path, "vendor-absolute-ro6098", "absolute = true")
+    svc = Service(make_config(tmp_path / "state", path))
+    port = await svc.start()
+    c = await Client.connect(port)
+    try:
+        lines = await c.set("CABINET.POWER=1")
+        assert done_ok(lines, "CABINET.POWER"), lines
+        assert await c.num("AZ.REFERENCED") == 1.0
+        lines = await c.set("AZ.REINIT=1")
+        assert done_ok(lines, "AZ.REINIT"), lines
+        await c.wait("AZ.REFERENCED", lambda v: v == 1.0)
+        await ready_and_move(c, -7.5)
+        assert svc.telescope.sims[1].mode_display == 8  # never homing mode (6)
+    finally:
+        await c.close()
+        await svc.stop()
+
+
+def _derived(tmp_path: Path, fixture: str, drop: tuple[str, ...]) -> str:
+    """Fixture ``fixture`` without the EDS sections named in ``drop`` (and their sub-indices)."""
+    import re
+    text = (EDS / f"{fixture}.eds").read_text(encoding="utf-8")
+    parts = re.split(r"(?m)^(?=\[)", text)
+    keep = [p for p in parts if not any(re.match(rf"\[{d}(sub[0-9A-Fa-f]+)?\]", p) for d in drop)]
+    out = tmp_path / f"{fixture}-derived.eds"
+    out.write_text("".join(keep), encoding="utf-8")
+    return out.as_posix()
+
+
+def test_a_layout_that_cannot_fit_names_the_objects_and_the_pdos_tried(tmp_path):
+    """RPDO1 takes one object and there is no other RPDO: no mode's setpoint fits. Refused at
+    start (load_config, as --check-config), naming drive, object, the PDOs tried, a remedy."""
+    eds = _derived(tmp_path, "vendor-pdo1-single", ("1401", "1402", "1403", "1601", "1602", "1603"))
+    path = tmp_path / "hw.toml"
+    path.write_text(TEMPLATE.format(eds=eds, identity=IDENTITY, az_extra="", sim_extra=""),
+                    encoding="utf-8")
+    with pytest.raises(ConfigErrors) as info:
+        load_config(path)
+    found = [e.message for e in info.value.errors if e.key == "drives.az.pdo"]
+    assert found, [e.message for e in info.value.errors]
+    text = found[0]
+    for needle in ("drive az (node 1)", "0x607A (target_position) does not fit", "tried RPDO1 (1 entry)",
+                   "already used: RPDO1 = 0x6040", "remedy:"):
+        assert needle in text, text
+    assert "acknowledge" not in text
+
+
+@pytest.mark.parametrize("fixture, pdo, key, needles", [
+    ("vendor-tpdo2-empty", "pdo = { rpdo1 = ['0x6040', '0x607A'], tpdo1 = ['0x6041', '0x6064'], "
+                           "tpdo2 = ['0x606C', '0x60F4'] }",
+     "drives.az.pdo.tpdo2", ["maps 2 objects", "TPDO2 takes at most 0", "remedy: leave pdo out"]),
+    ("vendor-pdo1-single", "pdo = { rpdo1 = ['0x6040', '0x607A'], tpdo1 = ['0x6041', '0x6064'] }",
+     "drives.az.pdo.rpdo1", ["RPDO1 takes at most 1", "remedy: leave pdo out"]),
+])
+def test_a_hand_written_layout_the_drive_cannot_take_is_refused_at_start(tmp_path, fixture, pdo,
+                                                                         key, needles):
+    """Found at start (never at power-on) with a remedy that can work: leave pdo out, and the
+    TCS lays the PDOs out itself."""
+    path = write_config(tmp_path, fixture, pdo + ("\nabsolute = true" if "tpdo2" in fixture else ""))
+    with pytest.raises(ConfigErrors) as info:
+        load_config(path)
+    found = [e.message for e in info.value.errors if e.key == key]
+    assert found, [e.message for e in info.value.errors]
+    for needle in ["drive az (node 1)", *needles]:
+        assert needle in found[0], found[0]
+
+
+@pytest.mark.parametrize("fixture, sim_extra, offered, mode, layout", [
+    ("vendor-pdo1-single", "", "PP, PV, HM, IP, CSP, CSV", "CSP",
+     ["RPDO1 0x201 SYNC: 0x6040 controlword", "RPDO2 0x301 SYNC: 0x607A target_position"]),
+    ("vendor-tpdo2-empty", "", "PP, PV, HM, IP, CSP, CSV", "CSP",
+     ["TPDO1 0x181 SYNC: 0x6041 statusword + 0x6064 position_actual",
+      "TPDO3 0x381 SYNC: 0x606C velocity_actual + 0x60F4 following_error_actual"]),
+    ("vendor-ip-nomodes", "objects = { '0x6502:0' = 0x61 }", "PP, HM, IP", "IP",
+     ["RPDO1 0x201 SYNC: 0x6040 controlword + 0x60C1:1 ip_data_record"]),
+    ("vendor-absolute-ro6098", "", "PP, PV, CSP, CSV", "CSP",
+     ["RPDO1 0x201 SYNC: 0x6040 controlword + 0x607A target_position"]),
+])
+def test_scan_shows_offered_modes_chosen_mode_and_pdo_layout(tmp_path, capsys, fixture, sim_extra,
+                                                             offered, mode, layout):
+    import json
+    import uuid
+    from tcs.commission.cli import main
+    az_extra = "absolute = true" if fixture in ("vendor-tpdo2-empty", "vendor-absolute-ro6098") else ""
+    path = write_config(tmp_path, fixture, az_extra, sim_extra)
+    path.write_text(path.read_text().replace('channel = "tcs-test-vendor"',
+                                             f'channel = "tcs-scan-{uuid.uuid4().hex[:8]}"'))
+    assert main(["scan", "--config", str(path), "--nodes", "1-2", "--json"]) == 0
+    az = next(n for n in json.loads(capsys.readouterr().out)["nodes"] if n["node_id"] == 1)
+    assert az["offered"] == offered and az["tcs_mode"] == mode, az
+    for line in layout:
+        assert any(entry.startswith(line) for entry in az["pdo_layout"]), az["pdo_layout"]
+    assert az["pdo_problems"] == []
+    main(["scan", "--config", str(path), "--nodes", "1"])  # the text form says the same
+    text = capsys.readouterr().out
+    assert f"modes offered: {offered}; the TCS uses {mode}" in text and "PDO layout (from the EDS):" in text
+    assert all(line in text for line in layout), text
+
+
+@pytest.mark.parametrize("quirk", ["cp1252", "bom", "repeats"])
+def test_eds_files_as_vendors_write_them_are_read_by_tcs_and_simulator(tmp_path, quirk):
+    """Windows-1252 text, a byte-order mark, a key or section written twice: the TCS and the
+    simulated drive read the file alike (the first value of a repeated key counts)."""
+    from tcs.drivers.eds import load_od, supported_modes
+    from tcs.sim.cia402_drive import _load_od
+    text = (EDS / "vendor-ip-only.eds").read_text(encoding="utf-8")
+    text = text.replace("ParameterName=Target position", "ParameterName=Target position (°)")
+    if quirk == "repeats":
+        text = text.replace("[6502]\n", "[6502]\nDefaultValue=0x00000121\n", 1)
+        text += "\n[6502]\nParameterName=again\n"
+    data = text.encode("cp1252" if quirk == "cp1252" else "utf-8")
+    if quirk == "bom":
+        data = b"\xef\xbb\xbf" + data
+    path = tmp_path / f"{quirk}.eds"
+    path.write_bytes(data)
+    for od in (load_od(path, 1), _load_od(path, 1)):
+        assert od[0x607A].name == "Target position (°)"
+        assert supported_modes(od) == (0x121 if quirk == "repeats" else 0x61)
+        assert od[0x6502].name == "Supported drive modes"
+    hw = tmp_path / "hw.toml"
+    hw.write_text(TEMPLATE.format(eds=path.as_posix(), identity=IDENTITY, az_extra="", sim_extra=""),
+                  encoding="utf-8")
+    assert load_config(hw).drives["az"].eds == path.as_posix()  # the start check read it too
+
+
+async def test_a_pdo_mapping_written_with_compactsubobj_takes_its_n_entries(tmp_path):
+    """0x1600 as an ARRAY with CompactSubObj=8 (canopen keeps only its sub-index 1): both the
+    TCS and the simulated drive see eight entries; the axis moves."""
+    import re
+    text = (EDS / "vendor-pdo1-single.eds").read_text(encoding="utf-8")
+    parts = re.split(r"(?m)^(?=\[)", text)
+    parts = [p for p in parts if not re.match(r"\[1600(sub[0-9A-Fa-f]+)?\]", p)]
+    parts.append("[1600]\nParameterName=RPDO1 mapping parameter\nObjectType=0x8\nDataType=0x0007\n"
+                 "AccessType=rw\nDefaultValue=0x60400010\nPDOMapping=0\nCompactSubObj=8\n\n")
+    path = tmp_path / "compact.eds"
+    path.write_text("".join(parts), encoding="utf-8")
+    from tcs.drivers.eds import load_od
+    from tcs.drivers.pdo import pdo_slots
+    assert pdo_slots(load_od(path, 1), True, 1)[0].entries == 8
+    hw = tmp_path / "hw.toml"
+    hw.write_text(TEMPLATE.format(eds=path.as_posix(), identity=IDENTITY, az_extra="", sim_extra=""),
+                  encoding="utf-8")
+    svc = Service(make_config(tmp_path / "state", hw))
+    port = await svc.start()
+    c = await Client.connect(port)
+    try:
+        await ready_and_move(c, 4.0)
+        sim = svc.telescope.sims[1]
+        assert [sim.read_object(0x1600, i) for i in range(3)] == [2, 0x60400010, 0x607A0020]
+    finally:
+        await c.close()
+        await svc.stop()
+
+
+async def test_a_mode_the_drive_does_not_offer_found_at_boot_names_a_remedy_not_acknowledge(tmp_path):
+    """The EDS states no 0x6502, mode = 'csp' is configured, the drive answers PP, HM, IP: the
+    boot fails naming drive, 0x6502 and the remedy (mode = 'ip'); POWER says so and does not
+    advise an acknowledge that cannot help."""
+    path = write_config(tmp_path, "vendor-no-modes-default", "mode = 'csp'",
+                        "objects = { '0x6502:0' = 0x61 }")
+    svc = Service(make_config(tmp_path / "state", path))
+    port = await svc.start()
+    c = await Client.connect(port)
+    try:
+        lines = await c.set("CABINET.POWER=1")
+        text = " ".join(lines)
+        assert not done_ok(lines, "CABINET.POWER"), lines
+        for needle in ("drive az (node 1)", "0x6502", "PP, HM, IP", "read from the drive over SDO",
+                       "remedy: mode = 'ip'"):
+            assert needle in text, lines
+        assert "acknowledge" not in text, lines
+    finally:
+        await c.close()
+        await svc.stop()
+
+
+async def test_no_homing_mode_in_the_drives_answer_fails_the_boot_with_the_absolute_remedy(tmp_path):
+    """0x6502 unknown at start, the drive answers PP, PV, CSP (no homing mode) and the axis is
+    not absolute: the boot says so with the remedy, instead of a homing run that cannot start."""
+    path = write_config(tmp_path, "vendor-no-modes-default", "", "objects = { '0x6502:0' = 0x85 }")
+    svc = Service(make_config(tmp_path / "state", path))
+    port = await svc.start()
+    c = await Client.connect(port)
+    try:
+        lines = await c.set("CABINET.POWER=1")
+        text = " ".join(lines)
+        assert not done_ok(lines, "CABINET.POWER"), lines
+        for needle in ("drive az (node 1)", "0x6502", "no homing mode", "remedy: absolute = true"):
+            assert needle in text, lines
+        assert "acknowledge" not in text, lines
+    finally:
+        await c.close()
+        await svc.stop()

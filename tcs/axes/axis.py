@@ -231,9 +231,6 @@ class Axis(ModuleHealth):
         self.dt = dt
         self.main_power = main_power
         self.discrete = section.module in DISCRETE_MODULES
-        #: the mode trajectories are streamed in: the drive's (CSP, IP or CSV; see
-        #: tcs.drivers.eds_check.choose_mode), CSP for drives that do not say
-        self.cyclic_mode = getattr(drive, "cyclic_mode", None) or Mode.CSP
         self.reference_order = REFERENCE_ORDER.get(section.module, 2)
         self.positions = {int(k): v for k, v in section.positions.items()}
         #: where the telescope's park moves this axis (user units, OFFSET included; None: not
@@ -377,6 +374,8 @@ class Axis(ModuleHealth):
             if self._ack_pending:
                 raise TcsError(f"{self.module_name}: {self._fault.message}; the fault reset of "
                                f"ERROR_STATE=0 has not completed", self._fault.number)
+            if getattr(self._fault, "remedy_in_message", False):  # a configuration mismatch
+                raise TcsError(f"{self.module_name}: {self._fault.message}", self._fault.number)
             raise TcsError(f"{self.module_name}: {self._fault.message}; acknowledge with "
                            f"ERROR_STATE=0 first", self._fault.number)
         future = self._future()
@@ -496,6 +495,19 @@ class Axis(ModuleHealth):
     def set_reinit(self, value: int) -> None:
         """``REINIT``: 0 = reference if not referenced, 1 = force (returns at once)."""
         self.reference(bool(int(value)), wait=False)
+
+    @property
+    def cyclic_mode(self) -> Mode:
+        """The mode trajectories are streamed in: the drive's (CSP, IP or CSV; see
+        tcs.drivers.eds.choose_mode — it may change at the drive's first boot, when the drive
+        itself tells its modes), CSP for drives that do not say."""
+        return getattr(self.drive, "cyclic_mode", None) or Mode.CSP
+
+    @property
+    def absolute(self) -> bool:
+        """The drive's axis is referenced by configuration (an absolute encoder): no homing
+        run ever, on any drive (``[drives.x] absolute``)."""
+        return bool(getattr(self.drive, "referenced_by_configuration", False))
 
     def reference(self, force: bool = False, wait: bool = True):
         """Start homing; the future completes when referenced (cabinet REINIT awaits it)."""
@@ -809,6 +821,11 @@ class Axis(ModuleHealth):
                     self._pending["reference"] = (future, cause)
             if self._homing:
                 return
+            if self.absolute:  # referenced by configuration: nothing runs on the drive
+                self.emit(INFO, ErrorNumber.REFERENCE_EXECUTE, "referencing", cause)
+                self._reference_cause = cause
+                self._referenced_now()
+                return
             self._homing = True
             self._homing_started = False
             self._homing_since = now
@@ -901,7 +918,8 @@ class Axis(ModuleHealth):
                 f"{ACK_TIMEOUT:g} s (state {st.state.value})", ErrorNumber.TIMEOUT))
         if st.reboots != self._drive_reboots:
             self._drive_reboots = st.reboots
-            if self.referenced > 0.0 and not self._homing:  # relative encoders: position lost
+            if self.referenced > 0.0 and not self._homing and not self.absolute:
+                # relative encoders: position lost
                 self.referenced = 0.0
                 self.emit(ERROR, ErrorNumber.REFERENCE_BAD, "drive rebooted: reference lost")
         if self._fault is not None and st.fault is None and st.state is DriveState.SWITCH_ON_DISABLED:

@@ -13,8 +13,11 @@ How it works
 3. Nodes are matched with the ``[drives]`` of the hardware file by node id: identity equal
    (``ok``), different (``wrong identity``) or not configured; configured drives whose node
    id was probed and did not answer are listed as missing. For a configured drive the scan
-   also shows the mode the TCS would run its axis in (``[drives.x] mode``, or what the EDS's
-   0x6502 offers for ``auto``: :func:`tcs.drivers.eds_check.drive_mode`) and why.
+   also shows the mode the TCS would run its axis in (``[drives.x] mode``, or for ``auto``
+   what 0x6502 offers — the EDS's, or the drive's own answer when the EDS gives no default —
+   and what its PDOs can carry: :func:`tcs.drivers.eds.choose_mode`) and why, and the PDO
+   layout the boot would write (:func:`tcs.drivers.pdo.plan_pdos`: from the EDS, or the
+   hardware file's ``pdo``), or what does not fit and the PDOs tried.
 
 Nothing is written and no drive is booted. The NMT state comes from heartbeats heard during
 the scan (a node whose heartbeat producer is off shows "no heartbeat"; answering SDO, it is
@@ -35,7 +38,10 @@ import canopen
 from tcs.config.axes import DISCRETE_MODULES
 from tcs.drivers.boot import DEVICE_PROFILE_402, NMT_STATE_NAMES, Sdo
 from tcs.drivers.cia402 import decode_state
-from tcs.drivers.eds_check import decode_modes, drive_mode, eds_path
+from tcs.drivers.eds_check import (choose_mode, decode_modes, drive_mode, eds_path, load_od,
+                                   supported_modes)
+from tcs.drivers.pdo import describe as describe_pdos
+from tcs.drivers.pdo import plan_pdos
 from tcs.drivers.emcy import describe
 from tcs.errors import HardwareError
 
@@ -167,6 +173,26 @@ def identify(network, node_id: int, device_type, timeout: float) -> dict:
     return entry
 
 
+def planned(section, eds, node_id: int, read_modes: int | None) -> dict:
+    """The mode and PDO layout the TCS would give a configured drive (as its boot does: the
+    EDS's 0x6502, or the drive's own answer when the EDS gives no default)."""
+    choice = drive_mode(section, eds, node_id)
+    out = {"tcs_mode": choice.mode.upper(), "tcs_mode_reason": choice.reason}
+    try:
+        od = load_od(eds, node_id)
+    except Exception as exc:  # (the start reports an unreadable EDS too)
+        out["pdo_problems"] = [f"cannot read EDS {eds}: {exc}"]
+        return out
+    if supported_modes(od) is None and read_modes is not None:
+        choice = choose_mode(section, od, eds.name, modes=read_modes,
+                             source=f"read from the drive over SDO; {eds.name} gives no default")
+        out.update(tcs_mode=choice.mode.upper(), tcs_mode_reason=choice.reason)
+    plan = plan_pdos(section, od, choice.mode, node_id)
+    out.update(pdo_layout=describe_pdos(plan.layouts(node_id)), pdo_hand_written=bool(section.pdo),
+               pdo_problems=[text for _key, text in plan.problems], pdo_notes=list(plan.notes))
+    return out
+
+
 def compare_identity(section, identity: dict) -> list[str]:
     """Differences between a node's 0x1018 and the hardware file's ``identity`` table."""
     ident = section.identity
@@ -180,20 +206,18 @@ def compare_identity(section, identity: dict) -> list[str]:
     return wrong
 
 
-def mode_used(config, name: str, node_id: int) -> tuple[str, str]:
-    """The mode the service runs drive ``name`` in, and why (as the axis layer chooses it:
-    a discrete axis — filter wheel, M3 — makes profile moves, every other axis streams in
-    the drive's cyclic mode)."""
+def profile_only(config, name: str) -> str | None:
+    """Why drive ``name`` runs in profile position only (a discrete axis — filter wheel, M3 —
+    moves between its positions and never streams; a drive no axis uses boots in
+    ``default_mode`` pp), or None when the axis streams in the drive's cyclic mode."""
     section = config.drives[name]
     modules = [axis.module for axis in config.axes.values() if axis.drive == name]
     discrete = [m for m in modules if m in DISCRETE_MODULES]
     if discrete:
-        return "PP", (f"{discrete[0]} moves between discrete positions: profile moves; it "
-                      "never streams")
-    choice = drive_mode(section, eds_path(section, config.resolve), node_id)
+        return f"{discrete[0]} moves between discrete positions: profile moves; it never streams"
     if not modules and section.default_mode == "pp":
-        return "PP", "no axis uses the drive; default_mode pp at boot"
-    return choice.mode.upper(), choice.reason
+        return "no axis uses the drive; default_mode pp at boot"
+    return None
 
 
 def run(args, config) -> Outcome:
@@ -222,7 +246,11 @@ def run(args, config) -> Outcome:
                 wrong.insert(0, f"device type {entry['device_type']} is not a CiA-402 drive")
             entry["match"] = "ok" if not wrong else "wrong identity: " + ", ".join(wrong)
             section = config.drives[name]
-            entry["tcs_mode"], entry["tcs_mode_reason"] = mode_used(config, name, n)
+            entry.update(planned(section, eds_path(section, config.resolve), n,
+                                 entry.get("supported_modes")))
+            profile = profile_only(config, name)
+            if profile is not None:   # filter wheel, M3: profile moves, whatever the drive offers
+                entry["tcs_mode"], entry["tcs_mode_reason"] = "PP", profile
     probed = set(node_ids)
     missing = [{"drive": name, "node_id": s.node_id} for name, s in config.drives.items()
                if s.node_id in probed and s.node_id not in answers]
@@ -246,6 +274,13 @@ def run(args, config) -> Outcome:
             offered = e.get("offered") or "not stated (no 0x6502)"
             used = f"; the TCS uses {e['tcs_mode']} ({e['tcs_mode_reason']})" if e.get("tcs_mode") else ""
             out.lines.append(f"            modes offered: {offered}{used}")
+            if e.get("pdo_layout") is not None:
+                source = "hardware file" if e.get("pdo_hand_written") else "from the EDS"
+                out.lines.append(f"            PDO layout ({source}):" +
+                                 ("" if e["pdo_layout"] else " none"))
+                out.lines.extend(f"              {line}" for line in e["pdo_layout"])
+                out.lines.extend(f"              does not fit: {text}" for text in e["pdo_problems"])
+                out.lines.extend(f"              note: {text}" for text in e["pdo_notes"])
         out.lines.append(f"            -> {'drive ' + e['drive'] + ': ' if e['drive'] else ''}{e['match']}")
     for m in missing:
         out.lines.append(f"  MISSING: drive {m['drive']} (node {m['node_id']}) did not answer")

@@ -321,7 +321,9 @@ class DriveSection:
         "auto", doc="operating mode of the axis: csp (cyclic synchronous position), ip "
                     "(interpolated position), csv (cyclic synchronous velocity, the TCS closes "
                     "the position loop), pp (profile position: axes that never stream, e.g. "
-                    "filter wheel, M3); auto = what 0x6502 offers, CSP before IP before CSV")
+                    "filter wheel, M3); auto = the first of CSP, IP, CSV that 0x6502 offers (read "
+                    "from the drive at boot when the EDS gives no default) and whose setpoint "
+                    "the drive's PDOs can carry")
     csv_kp: float = setting(10.0, min=0.0, max=1000.0,
                             doc="CSV: proportional gain of the TCS position loop, 1/s "
                                 "(velocity correction per unit of following error)")
@@ -334,8 +336,9 @@ class DriveSection:
     min_sync_period: float = setting(0.001, min=0.0001, max=0.1,
                                      doc="shortest SYNC period this drive accepts, s")
     pdo: dict[str, list[str]] = setting(
-        factory=dict, doc="PDO mapping override, e.g. rpdo1 = ['0x6040', '0x607A']; replaces "
-                          "the default of docs/cia402.md")
+        factory=dict, doc="PDO layout written by hand, e.g. rpdo1 = ['0x6040', '0x607A']; used "
+                          "as written (checked against the EDS). Leave it out: the TCS lays the "
+                          "PDOs out from the EDS (mapping entries, mappability, COB-IDs)")
     velocity_factor: float | None = setting(
         None, doc="drive velocity units per user unit/s (0x6081, 0x607F, 0x6099, 0x606C); "
                   "default increments_per_unit (the drive counts increments/s); e.g. rpm")
@@ -343,8 +346,9 @@ class DriveSection:
         None, doc="drive acceleration units per user unit/s² (0x6083-0x6085, 0x609A); "
                   "default increments_per_unit (increments/s²)")
     absolute: bool = setting(
-        False, doc="absolute encoder, referenced by configuration: no homing run (drives "
-                   "without homing mode); REFERENCE completes at once")
+        False, doc="absolute encoder, referenced by configuration: no homing run on any drive "
+                   "(also drives without homing mode or with a read-only 0x6098); REFERENCED is "
+                   "1 once powered, REINIT completes at once")
     sdo: dict[str, int] = setting(
         factory=dict, doc="raw SDO writes after the TCS's own configuration, in file order: "
                           "\"0x6091:1\" = 1 (index:sub = integer); checked against the EDS at start")

@@ -16,14 +16,17 @@ Sequence:
 2. NMT *enter pre-operational* (PDO remapping is only allowed there);
 3. identity: 0x1000 must be a CiA-402 device; 0x1018 vendor / product / revision / serial
    must equal the hardware file — the fields it gives (a left-out revision accepts any
-   firmware);
+   firmware; a field the EDS has no sub-index for is not read, warned at start);
+3b. when the EDS gives 0x6502 (supported drive modes) no default, the drive's own answer
+   settles the mode and with it the PDO layout (the ``choose`` hook of :func:`boot_node`);
 4. SDO configuration (:func:`configuration`): heartbeat producer (0x1017) and consumer of the
    TCS heartbeat (0x1016), SYNC period (0x1006, optional object) and interpolation period
    (0x60C2), software limits (0x607D), following-error window and time-out (0x6065/0x6066),
    max profile velocity (0x607F, optional), profile velocity / acceleration / deceleration /
    quick-stop deceleration (0x6081/0x6083/0x6084/0x6085), homing method / speeds / acceleration / offset
-   (0x6098/0x6099/0x609A/0x607C; none for an ``absolute`` drive), the PDO mapping
-   (:mod:`tcs.drivers.pdo`), the ``[drives.<name>.sdo]`` raw writes in file order, and the
+   (0x6098/0x6099/0x609A/0x607C; none for an ``absolute`` drive), the PDO layout
+   (:mod:`tcs.drivers.pdo`; PDOs it does not use are switched off, a read-only COB-ID or
+   transmission type is left as the drive has it), the ``[drives.<name>.sdo]`` raw writes in file order, and the
    default mode of operation (0x6060, read back from 0x6061 within ``mode_switch_timeout``);
    the drive's own watch of the master (:func:`master_loss_writes`: RPDO deadlines).
    Every write passes :func:`tcs.drivers.eds_check.usable_writes`: an object of
@@ -51,10 +54,12 @@ import canopen
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from tcs.config.can import PDO_SUBS, CanSection, DriveSection, interpolation_period
-from tcs.drivers.eds import LOST, NAMES, OPTIONAL, object_name, raw_writes, usable_writes  # noqa: F401
+from tcs.drivers.eds import (LOST, NAMES, OPTIONAL, limits, object_name,  # noqa: F401
+                             raw_writes, usable_writes, variable)
 from tcs.drivers.pdo import PdoLayout, configuration_writes
+from tcs.drivers.pdo import _entry_count as pdo_entry_count
 from tcs.drivers.takeover import stop_if_powered
-from tcs.errors import CommunicationError, ErrorNumber, HardwareError
+from tcs.errors import CommunicationError, ConfigMismatch, ErrorNumber, HardwareError
 
 NMT_START, NMT_PRE_OPERATIONAL, NMT_RESET_COMMUNICATION = 0x01, 0x80, 0x82
 HB_BOOTUP, HB_OPERATIONAL, HB_PRE_OPERATIONAL, HB_STOPPED = 0x00, 0x05, 0x7F, 0x04
@@ -210,6 +215,8 @@ def check_identity(sdo: Sdo, section: DriveSection) -> None:
     for name, sub, want in expected:
         if want is None:  # left out of the hardware file: not checked (e.g. any firmware)
             continue
+        if variable(sdo.node.object_dictionary, 0x1018, sub) is None:
+            continue  # the drive's EDS has no such field (warned at start)
         got = sdo.read(0x1018, sub, "<I")
         if got != want:
             wrong.append(f"{name} 0x{got:08X} (hardware file: 0x{want:08X})")
@@ -299,21 +306,57 @@ def cycle_period_writes(section: DriveSection, can: CanSection, layouts: dict[st
 
 
 def check_eds(od: canopen.ObjectDictionary, layouts: dict[str, PdoLayout], device: str) -> None:
-    """The PDO mapping against the EDS: objects exist, may be mapped, enough entries."""
+    """The PDO mapping against the EDS: objects exist, may be mapped, enough entries (the
+    start checked all of it; this guards a layout that changed since)."""
+    remedy = "; remedy: leave [drives.<name>] pdo out (the TCS lays the PDOs out from the EDS)"
     for pdo in layouts.values():
         mapping = od.get(pdo.map_index())
         if mapping is None:
-            raise HardwareError(device, f"the EDS has no {pdo.name.upper()} (0x{pdo.map_index():04X})")
-        entries = len([s for s in getattr(mapping, "subindices", {}) if s != 0])
-        if entries and len(pdo.indices) > entries:
-            raise HardwareError(device, f"{pdo.name.upper()} maps {len(pdo.indices)} objects; the "
-                                        f"drive takes at most {entries}")
+            raise ConfigMismatch(device, f"the EDS has no {pdo.name.upper()} "
+                                         f"(0x{pdo.map_index():04X}){remedy}")
+        entries, _why = pdo_entry_count(od, mapping)
+        if len(pdo.indices) > entries:
+            raise ConfigMismatch(device, f"{pdo.name.upper()} maps {len(pdo.indices)} objects; the "
+                                         f"drive's 0x{pdo.map_index():04X} takes at most {entries}{remedy}")
         for index in pdo.indices:
             var = od.get_variable(index, PDO_SUBS.get(index, 0))
             if var is None:
-                raise HardwareError(device, f"the EDS has no object 0x{index:04X} for {pdo.name.upper()}")
+                raise ConfigMismatch(device, f"the EDS has no object 0x{index:04X} for "
+                                             f"{pdo.name.upper()}{remedy}")
             if not getattr(var, "pdo_mappable", True):
-                raise HardwareError(device, f"the EDS says 0x{index:04X} cannot be mapped to a PDO")
+                raise ConfigMismatch(device, f"the EDS says 0x{index:04X} cannot be mapped to a "
+                                             f"PDO{remedy}")
+
+
+def pdo_writes(od: canopen.ObjectDictionary, writes: list[tuple[int, int, str, int]]
+               ) -> list[tuple[int, int, str, int]]:
+    """A PDO's (re)configuration as this drive takes it: no COB-ID writes where the EDS makes
+    the COB-ID read-only (used as it is), no transmission-type write where it is absent or
+    read-only (the layout chose a PDO whose type fits), no inhibit time / event timer (RPDO
+    deadline) outside the EDS limits (left as commissioned)."""
+    out = []
+    for index, sub, fmt, value in writes:
+        var = variable(od, index, sub)
+        if 0x1400 <= index < 0x1600 or 0x1800 <= index < 0x1A00:
+            if sub in (1, 2) and (var is None or not var.writable):
+                continue
+            if sub in (3, 5) and var is not None and not _within(var, value):
+                continue  # inhibit time / event timer the drive does not take: as commissioned
+        out.append((index, sub, fmt, value))
+    return out
+
+
+def _within(var, value: int) -> bool:
+    lo, hi = limits(var)
+    return (lo is None or value >= lo) and (hi is None or value <= hi)
+
+
+def read_supported_modes(sdo: Sdo) -> int | None:
+    """0x6502 (supported drive modes) read from the drive, None when it does not answer it."""
+    try:
+        return sdo.read(0x6502, 0, "<I")
+    except HardwareError:
+        return None
 
 
 def set_mode(sdo: Sdo, mode: int, timeout: float = MODE_READBACK_TIMEOUT) -> int:
@@ -331,8 +374,10 @@ def set_mode(sdo: Sdo, mode: int, timeout: float = MODE_READBACK_TIMEOUT) -> int
 
 def boot_node(network: canopen.Network, sdo: Sdo, hb: HeartbeatWatch, section: DriveSection,
               can: CanSection, layouts: dict[str, PdoLayout], mode: int,
-              start: callable = None) -> BootResult:
-    """Steps 1–5 for one node. ``start()`` runs just before NMT start (subscribe TPDOs)."""
+              start: callable = None, choose: callable = None) -> BootResult:
+    """Steps 1–5 for one node. ``start()`` runs just before NMT start (subscribe TPDOs);
+    ``choose(sdo) -> (layouts, mode)``, after the identity check, may settle the mode and
+    PDO layout from what the drive answers (0x6502 read over SDO)."""
     node_id = section.node_id
     device = sdo.device
     od = sdo.node.object_dictionary
@@ -342,18 +387,20 @@ def boot_node(network: canopen.Network, sdo: Sdo, hb: HeartbeatWatch, section: D
     check_identity(sdo, section)
     # Every write passes the EDS rule (tcs.drivers.eds_check): optional objects the drive
     # lacks are skipped; values were range-checked at start.
+    if choose is not None:  # what only the drive can tell (0x6502 without an EDS default)
+        layouts, mode = choose(sdo)
     writes = usable_writes(od, configuration(section, can, device, mode), section, device)
     for index, sub, fmt, value in writes:
         sdo.write(index, sub, fmt, value)
     check_eds(od, layouts, device)
     for name in ("rpdo1", "rpdo2", "rpdo3", "rpdo4", "tpdo1", "tpdo2", "tpdo3", "tpdo4"):
         comm = (0x1400 if name[0] == "r" else 0x1800) + int(name[4:]) - 1
-        if layouts.get(name) is None and od.get(comm) is None:
+        if layouts.get(name) is None and (od.get(comm) is None or od.get(comm + 0x200) is None):
             continue  # the drive has no such PDO: nothing to disable
-        writes = configuration_writes(layouts.get(name), name, node_id)
+        writes = pdo_writes(od, configuration_writes(layouts.get(name), name, node_id))
         for index, sub, fmt, value in usable_writes(od, writes, section, device):
             sdo.write(index, sub, fmt, value)
-    for index, sub, fmt, value in usable_writes(od, master_loss_writes(section, can, layouts),
+    for index, sub, fmt, value in usable_writes(od, pdo_writes(od, master_loss_writes(section, can, layouts)),
                                                 section, device):
         sdo.write(index, sub, fmt, value)
     for index, sub, fmt, value in raw_writes(od, section, device):  # [drives.x.sdo], in order

@@ -10,8 +10,9 @@ How it works
 * :meth:`Cia402Drive.step` — once per SYNC period, in the control-loop thread, after the
   synchronous TPDOs of this cycle arrived (:class:`tcs.drivers.cycle.CycleSource`) — decodes
   the statusword, looks up the controlword in the table of :mod:`tcs.drivers.cia402`, runs the
-  small handshakes (fault reset, mode switch, homing, profile move), and sends **exactly one
-  RPDO** (controlword + target position) while the node is operational. It never blocks: the
+  small handshakes (fault reset, mode switch, homing, profile move), and sends the RPDOs of
+  its layout (usually one: controlword + setpoint; two when the drive's RPDO1 takes one
+  object, :mod:`tcs.drivers.pdo`) while the node is operational. It never blocks: the
   rare SDO transfers it needs (mode switch with read-back of 0x6061, a new profile velocity)
   go to the :class:`~tcs.drivers.worker.SdoWorker` and are polled in later cycles.
 * :meth:`Cia402Drive.status` builds a frozen :class:`~tcs.drivers.drive.DriveStatus` from
@@ -20,7 +21,9 @@ How it works
 Safety rules kept here
 ----------------------
 * Modes: the one of :attr:`Cia402Drive.mode_choice` (``[drives.x] mode``, or for ``auto``
-  CSP, IP or CSV as 0x6502 offers them) streams the axis's setpoints: CSP sends 0x607A; IP
+  CSP, IP or CSV as 0x6502 offers them and the PDOs can carry their setpoint; 0x6502 read from
+  the drive at the first boot when the EDS gives no default, :mod:`tcs.drivers.mode_choice`)
+  streams the axis's setpoints: CSP sends 0x607A; IP
   sends the interpolation data record 0x60C1:1 with controlword bit 4 "enable IP" set in
   Operation enabled and takes setpoints only once statusword bit 12 "IP active" shows; CSV
   sends a target velocity 0x60FF from a position loop closed here (:meth:`_csv_step`:
@@ -67,17 +70,18 @@ from tcs.config.can import CanSection, DriveSection
 from tcs.drivers import cia402 as sm
 from tcs.drivers.boot import (HB_OPERATIONAL, HB_PRE_OPERATIONAL, HB_STOPPED, NMT_STATE_NAMES,
                               BootResult, HeartbeatWatch, Sdo, boot_node, cycle_period_writes,
-                              set_mode)
+                              pdo_writes, read_supported_modes, set_mode)
 from tcs.drivers.canbus import HEARTBEAT_BASE, CanBus
 from tcs.drivers.cia402 import Want
 from tcs.drivers.drive import CYCLIC_MODES, DriveState, DriveStatus, Mode, Progress
-from tcs.drivers.eds import usable_writes
-from tcs.drivers.eds_check import drive_mode
+from tcs.drivers.eds import decode_modes, read_od, supported_modes, usable_writes, variable
+from tcs.drivers.mode_choice import choose_mode, drive_mode
 from tcs.drivers.emcy import DriveFault, decode_emcy
 from tcs.drivers.handshakes import HomingRun, ProfileMove
-from tcs.drivers.pdo import PdoLayout, layouts, mapping_for
+from tcs.drivers.pdo import PdoLayout, describe, layouts_for
 from tcs.drivers.worker import Job, SdoWorker
-from tcs.errors import CommunicationError, ErrorNumber, HardwareError, RangeRefused, TcsError
+from tcs.errors import (CommunicationError, ConfigMismatch, ErrorNumber, HardwareError, RangeRefused,
+                        TcsError)
 
 log = logging.getLogger(__name__)
 
@@ -129,9 +133,9 @@ class Cia402Drive:
         #: the mode trajectories are streamed in (None: a PP-only drive, discrete axes)
         self.cyclic_mode: Mode | None = chosen if chosen in CYCLIC_MODES else None
         self._default_mode = Mode.PP if section.default_mode == "pp" else chosen  # at boot
-        self.layouts: dict[str, PdoLayout] = layouts(
-            mapping_for(section, eds, section.node_id, self.mode_choice.mode), section.node_id)
-        self._rpdo = self.layouts["rpdo1"]
+        self.layouts: dict[str, PdoLayout] = {}
+        self._rpdos: list[PdoLayout] = []
+        self._use_layouts(layouts_for(section, eds, section.node_id, self.mode_choice.mode))
         self._subscriptions: list[tuple[int, Callable]] = []
         self._node: canopen.RemoteNode | None = None
         self._sdo: Sdo | None = None
@@ -203,7 +207,6 @@ class Cia402Drive:
         self._profile_velocity = round(abs(section.max_velocity * section.velocity_scale))
         self.rpdos_sent = 0
         self.steps = 0
-        self._code_mapped = any(0x603F in p.indices for p in self.layouts.values())
         self._code_job: Job | None = None
         self._boot_count = 0
         self._lost_position = False
@@ -212,6 +215,67 @@ class Cia402Drive:
         # idle SYNC (tcs.drivers.idle_sync): whether the power stage may be switched on now
         self.may_enable: Callable[[], bool] = lambda: True
         self._state: DriveState | None = None  # the latest step's state (cycle thread)
+
+    def _use_layouts(self, pdos: dict[str, PdoLayout]) -> None:
+        """The PDO layout (:func:`tcs.drivers.pdo.plan_pdos`); every RPDO is sent each cycle,
+        in number order (controlword and setpoint may sit in different RPDOs)."""
+        self.layouts = pdos
+        self._rpdos = sorted((p for p in pdos.values() if p.receive), key=lambda p: p.number)
+        self._code_mapped = any(0x603F in p.indices for p in pdos.values())
+
+    @property
+    def referenced_by_configuration(self) -> bool:
+        """``absolute = true``: the axis is referenced by configuration, no homing ever runs."""
+        return self.section.absolute
+
+    def _choose_at_boot(self, sdo: Sdo) -> tuple[dict[str, PdoLayout], int]:
+        """Boot hook (after the identity check): the EDS gives 0x6502 no default, so the
+        drive's own answer settles the mode (and with it the PDO layout) — logged with where
+        the value came from. A drive that answers nothing keeps the start's choice."""
+        od = sdo.node.object_dictionary
+        read = read_supported_modes(sdo)
+        name = self._eds.name
+        if read is None:
+            log.info("%s: 0x6502 (supported drive modes): no default in %s and not readable "
+                     "from the drive; mode %s kept (%s)", self.device, name,
+                     self.mode_choice.mode.upper(), self.mode_choice.reason)
+            return self.layouts, int(self._default_mode)
+        source = f"read from the drive over SDO; {name} gives no default"
+        choice = choose_mode(self.section, od, name, modes=read, source=source)
+        log.info("%s: 0x6502 (supported drive modes) = 0x%08X = %s (%s)", self.device, read,
+                 decode_modes(read), source)
+        if choice.problem is not None:
+            raise ConfigMismatch(self.device, choice.problem)
+        if not self.section.absolute and not read >> 5 & 1:  # bit 5: homing mode
+            raise ConfigMismatch(self.device, f"0x6502 (supported drive modes) = 0x{read:08X} = "
+                                              f"{decode_modes(read)} ({source}) has no homing mode; "
+                                              f"remedy: absolute = true when the encoder is absolute "
+                                              f"(referenced by configuration)")
+        previous = self.mode_choice
+        if choice.mode == previous.mode:
+            self.mode_choice = choice
+            return self.layouts, int(self._default_mode)
+        chosen = Mode(choice.number)
+        if chosen not in CYCLIC_MODES and self.cyclic_mode is not None:
+            raise ConfigMismatch(self.device, f"{choice.reason}: the drive offers no cyclic mode "
+                                             f"(CSP, IP, CSV) its PDOs can carry, and its axis "
+                                             f"streams trajectories; remedy: a drive or firmware "
+                                             f"with one of them, or use it for an axis that never "
+                                             f"streams (mode = 'pp')")
+        if self._boot_count:  # the axis runs in the first boot's mode: never switch under it
+            raise ConfigMismatch(self.device, f"the drive now answers {choice.reason}, unlike at "
+                                             f"its first boot (mode {previous.mode.upper()}); "
+                                             f"remedy: set [drives.<name>] mode = '{previous.mode}' "
+                                             f"or restart the TCS")
+        self.mode_choice = choice
+        self.cyclic_mode = chosen if chosen in CYCLIC_MODES else None
+        if self.section.default_mode != "pp":
+            self._default_mode = chosen
+        self._use_layouts(layouts_for(self.section, self._eds, self.node_id, choice.mode))
+        log.warning("%s: mode %s, not %s as assumed at start: %s; PDOs: %s", self.device,
+                    choice.mode.upper(), previous.mode.upper(), choice.reason,
+                    "; ".join(describe(self.layouts)))
+        return self.layouts, int(self._default_mode)
 
     # ================================================================= idle SYNC
     #: States without a power stage: a drive in one of them cannot move (the idle SYNC's test).
@@ -248,8 +312,9 @@ class Cia402Drive:
         sdo, node = self._sdo, self._node
         if not self._booted or sdo is None or node is None:
             return
-        writes = usable_writes(node.object_dictionary,
-                               cycle_period_writes(self.section, self._can, self.layouts, period),
+        od = node.object_dictionary
+        writes = usable_writes(od, pdo_writes(od, cycle_period_writes(self.section, self._can,
+                                                                      self.layouts, period)),
                                self.section, self.device)
         if period <= self._can.sync_period:
             writes.reverse()
@@ -327,7 +392,7 @@ class Cia402Drive:
             raise HardwareError(self.device, f"EDS file {self._eds} not found", ErrorNumber.INTERNAL)
         self._unsubscribe()
         try:
-            od = canopen.import_od(str(self._eds), self.node_id)
+            od = read_od(self._eds, self.node_id)
         except Exception as exc:
             raise HardwareError(self.device, f"cannot read EDS {self._eds}: {exc}",
                                 ErrorNumber.INTERNAL) from exc
@@ -350,8 +415,11 @@ class Cia402Drive:
                 if not pdo.receive:
                     self._subscribe(pdo.cob_id, self._tpdo_handler(pdo))
 
+        # 0x6502 without an EDS default: the drive's answer settles the mode at boot
+        ask = supported_modes(od) is None and variable(od, 0x6502, 0) is not None
         return boot_node(network, self._sdo, self._hb, self.section, self._can, self.layouts,
-                         int(self._default_mode), start=subscribe_tpdos)
+                         int(self._default_mode), start=subscribe_tpdos,
+                         choose=self._choose_at_boot if ask else None)
 
     def release(self) -> None:
         """Clean stop: switch the drive's consumer of the TCS heartbeat off (0x1016:1 = 0;
@@ -847,12 +915,12 @@ class Cia402Drive:
     def _send(self, cw: int, target: int) -> None:
         values = {0x6040: cw, 0x607A: target, 0x60B1: self._velocity_ff, 0x60C1: target,
                   0x60FF: self._velocity_cmd}
-        data = self._rpdo.codec.pack(*(values[i] for i in self._rpdo.indices))
         self._cw, self._target_sent = cw, target
-        try:
-            self._bus.send(self._rpdo.cob_id, data)
-        except TcsError:
-            return  # recorded in the bus health; the drive faults on missing RPDOs
+        for rpdo in self._rpdos:  # (usually one; more when the drive's RPDO1 is small)
+            try:
+                self._bus.send(rpdo.cob_id, rpdo.codec.pack(*(values[i] for i in rpdo.indices)))
+            except TcsError:
+                return  # recorded in the bus health; the drive faults on missing RPDOs
         self.rpdos_sent += 1
 
     # ----------------------------------------------------------------- mode switching

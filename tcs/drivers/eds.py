@@ -8,7 +8,8 @@ start-up check (:mod:`tcs.drivers.eds_check`), which all use it and nothing abov
   object that exists, is writable and takes the value within the EDS limits is written; an
   absent **optional** object (:data:`OPTIONAL`, what is lost without it in :data:`LOST`) is
   skipped; anything else is an error naming the drive and the object;
-* :func:`choose_mode` / :func:`drive_mode` — the mode an axis streams in from 0x6502;
+* :class:`ModeChoice`, :func:`offers`, :func:`modes_text` — 0x6502 and the modes (the choice
+  itself, which needs the PDO layout, is :mod:`tcs.drivers.mode_choice`);
 * the object names the messages use (:data:`NAMES`, :func:`object_name`).
 """
 
@@ -26,7 +27,8 @@ from canopen import objectdictionary as odmod
 from canopen.objectdictionary import datatypes
 
 from tcs.config.can import DriveSection
-from tcs.errors import HardwareError
+from tcs.config.eds_file import compact_entries, eds_source, expand_compact
+from tcs.errors import ConfigMismatch, HardwareError
 from tcs.resources import hwconfig_file
 
 log = logging.getLogger(__name__)
@@ -122,8 +124,17 @@ def load_od(path: str | os.PathLike, node_id: int) -> canopen.ObjectDictionary:
     with _cache_lock:
         od = _cache.get(key)
         if od is None:
-            od = _cache[key] = canopen.import_od(str(p), node_id)
+            od = _cache[key] = read_od(p, node_id)
         return od
+
+
+def read_od(path: str | os.PathLike, node_id: int) -> canopen.ObjectDictionary:
+    """``canopen.import_od`` of an EDS, plus what it drops: ``od.tcs_compact`` = {index: n}
+    of the arrays written with ``CompactSubObj=n`` (canopen keeps only their sub-index 1, so a
+    PDO mapping written that way would seem to take one object)."""
+    od = canopen.import_od(eds_source(path), node_id)  # (any encoding, repeated keys: eds_file)
+    expand_compact(od, compact_entries(path))
+    return od
 
 
 def variable(od: canopen.ObjectDictionary, index: int, sub: int) -> odmod.ODVariable | None:
@@ -162,9 +173,10 @@ def default_value(var: odmod.ODVariable | None):
 
 
 def supported_modes(od: canopen.ObjectDictionary) -> int | None:
-    """0x6502 as the EDS gives it (its default value), or None when unknown."""
+    """0x6502 as the EDS gives it (its default value), or None when unknown — also for a
+    default of 0 (no mode at all: a placeholder some EDS files carry, the drive fills it)."""
     value = default_value(variable(od, 0x6502, 0))
-    return int(value) if isinstance(value, int) else None
+    return int(value) if isinstance(value, int) and value else None
 
 
 def decode_modes(modes: int) -> str:
@@ -201,46 +213,6 @@ def modes_text(modes: int | None, eds_name: str = "EDS") -> str:
     if modes is None:
         return f"0x6502 (supported drive modes) not stated in {eds_name}"
     return f"0x6502 (supported drive modes) = 0x{modes:08X} = {decode_modes(modes)} ({eds_name})"
-
-
-def choose_mode(section: DriveSection, od: canopen.ObjectDictionary,
-                eds_name: str = "EDS") -> ModeChoice:
-    """The mode the drive runs its axis in: ``[drives.x] mode`` or, for ``auto``, the first of
-    CSP, IP, CSV that 0x6502 offers (CSP when the EDS does not state 0x6502; PP when it
-    offers no cyclic mode — enough for axes that never stream)."""
-    wanted = section.wanted_mode
-    modes = supported_modes(od)
-    text = modes_text(modes, eds_name)
-    if wanted != "auto":
-        problem = None
-        if not offers(modes, wanted):
-            fits = [k for k in (*CYCLIC_PREFERENCE, "pp") if offers(modes, k)]
-            problem = (f"mode = '{wanted}' is configured, but {text} has no "
-                       f"{MODE_NAMES[MODE_KEYS[wanted]]}; remedy: " +
-                       (f"mode = {' or '.join(repr(k) for k in fits)} (or 'auto')" if fits else
-                        "a drive or firmware that offers CSP, IP or CSV"))
-        return ModeChoice(wanted, f"configured (mode = '{wanted}')", modes, problem)
-    if modes is None:
-        return ModeChoice("csp", f"{text}: CSP assumed", modes)
-    for key in CYCLIC_PREFERENCE:
-        if offers(modes, key):
-            return ModeChoice(key, f"{text}; auto prefers CSP, then IP, then CSV", modes)
-    if offers(modes, "pp"):
-        return ModeChoice("pp", f"{text} has no cyclic mode (CSP, IP, CSV): profile position, "
-                                f"for axes that never stream only", modes)
-    return ModeChoice("csp", text, modes, f"{text} offers none of CSP, IP, CSV or PP; remedy: a "
-                                          f"drive or firmware with one of them")
-
-
-def drive_mode(section: DriveSection, eds, node_id: int) -> ModeChoice:
-    """:func:`choose_mode` from the drive's EDS file (CSP or the configured mode when the
-    file cannot be read: the boot then reports it)."""
-    try:
-        od = load_od(eds, node_id)
-    except Exception:
-        wanted = section.wanted_mode
-        return ModeChoice("csp" if wanted == "auto" else wanted, "EDS unreadable", None)
-    return choose_mode(section, od, Path(eds).name)
 
 
 @dataclass(frozen=True)
@@ -280,11 +252,15 @@ def range_value(var: odmod.ODVariable, value):
 
     0x1016:n (consumer heartbeat time) is ``node id << 16 | ms``: many EDS files give it a
     HighLimit of the 16-bit time only (0xFFFF), so a limit below 0x10000 bounds the time part
-    (bits 0-15), never the node id in bits 16-23.
+    (bits 0-15), never the node id in bits 16-23. Likewise a PDO COB-ID's limit below
+    0x80000000 does not bound bit 31 (the PDO switched off, part of every remap).
     """
     if (var.index == 0x1016 and var.subindex >= 1 and isinstance(value, int)
             and var.max is not None and var.max <= 0xFFFF):
         return value & 0xFFFF
+    if ((0x1400 <= var.index < 0x1600 or 0x1800 <= var.index < 0x1A00) and var.subindex == 1
+            and isinstance(value, int) and var.max is not None and var.max < 0x80000000):
+        return value & 0x7FFFFFFF  # a PDO COB-ID: bit 31 (PDO switched off) is no number
     return value
 
 
@@ -313,7 +289,11 @@ def usable_writes(od: canopen.ObjectDictionary, writes, section: DriveSection, d
         if v.action == "write":
             out.append((index, sub, fmt, value))
         elif v.action == "error":
-            raise HardwareError(device, v.why)
+            remedy = ("leave [drives.<name>] pdo out (the TCS lays the PDOs out from the EDS)"
+                      if 0x1400 <= index < 0x1C00 else
+                      "correct the hardware file (tcs-server --check-config names the key and "
+                      "the range the EDS allows)")
+            raise ConfigMismatch(device, f"{v.why}; remedy: {remedy}")
     return out
 
 

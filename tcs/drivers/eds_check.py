@@ -26,7 +26,7 @@ rule — so what was validated is what is written. The rule itself and the EDS l
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import canopen
 from canopen import objectdictionary as odmod
@@ -37,9 +37,10 @@ from tcs.errors import ConfigError, HardwareError
 # what the boot and others import from here too (defined in tcs.drivers.eds, below the boot)
 from tcs.drivers.eds import (  # noqa: F401
     CYCLIC_PREFERENCE, HOMING_OBJECTS, LOST, MODE_BITS, MODE_KEYS, MODE_NAMES, MODE_SHORT,
-    NAMES, OPTIONAL, SIM_EDS, ModeChoice, Verdict, choose_mode, decode_modes, default_value,
-    drive_mode, eds_path, is_optional, limits, load_od, modes_text, object_name, offers,
+    NAMES, OPTIONAL, SIM_EDS, ModeChoice, Verdict, decode_modes, default_value,
+    eds_path, is_optional, limits, load_od, modes_text, object_name, offers,
     range_value, raw_writes, supported_modes, usable_writes, value_format, variable, verdict)
+from tcs.drivers.mode_choice import choose_mode, drive_mode, mapping_problem  # noqa: F401
 
 log = logging.getLogger(__name__)
 
@@ -116,6 +117,8 @@ class DriveReport:
     warnings: list[str] = field(default_factory=list)   # loud: e.g. no heartbeat consumer
     conditions: list[tuple[str, str]] = field(default_factory=list)  # axis WARNING conditions
     mapping: dict[str, tuple[int, ...]] = field(default_factory=dict)
+    layouts: dict = field(default_factory=dict)  # name -> tcs.drivers.pdo.PdoLayout
+    hand_written: bool = False  # the layout is [drives.x] pdo
     has_error_code: bool = True
     mode: ModeChoice | None = None
 
@@ -129,7 +132,7 @@ def check_drive(name: str, section: DriveSection, can: CanSection, od: canopen.O
                 file: str, eds_name: str = "EDS") -> DriveReport:
     """Check one drive's configuration against its EDS (nothing is sent)."""
     from tcs.drivers.boot import configuration
-    from tcs.drivers.pdo import eds_mapping
+    from tcs.drivers.pdo import plan_pdos
 
     report = DriveReport()
     device = f"drive {name} (node {section.node_id})"
@@ -147,6 +150,13 @@ def check_drive(name: str, section: DriveSection, can: CanSection, od: canopen.O
                 f"{modes_text(choice.offered, eds_name)} has no profile position (PP), the "
                 f"default_mode configured; remedy: default_mode = 'csp' (boot in the drive's "
                 f"streaming mode)")
+    # -- identity: each field the hardware file pins is read from 0x1018 at boot (a field the
+    # EDS lacks cannot be: said loudly, the others are checked) -------------------------------
+    for field_name, sub in (("vendor", 1), ("product", 2), ("revision", 3), ("serial", 4)):
+        if getattr(section.identity, field_name) is not None and variable(od, 0x1018, sub) is None:
+            report.warnings.append(
+                f"{device}: identity {field_name} is not checked at boot: the EDS ({eds_name}) "
+                f"has no 0x1018:{sub}; leave {field_name} out of identity to silence this")
     # -- mandatory objects the axis cannot work without ---------------------------------------
     from tcs.config.can import SETPOINT_OBJECT
     mandatory = [0x6040, 0x6041, 0x6060, 0x6061, 0x6064, SETPOINT_OBJECT[choice.mode], 0x1017]
@@ -209,11 +219,27 @@ def check_drive(name: str, section: DriveSection, can: CanSection, od: canopen.O
                                   f"drive {name} has no 0x1016 heartbeat consumer: it will not "
                                   f"notice a dead TCS"))
     # -- PDO mapping -----------------------------------------------------------------------------
-    mapping, pdo_problems, pdo_notes = eds_mapping(section, od, choice.mode)
-    report.mapping = mapping
-    for key, text in pdo_problems:
-        problem(f"{prefix}.{key}", f"{text} ({eds_name})")
-    report.notes.extend(f"{device}: {n}" for n in pdo_notes)
+    plan = plan_pdos(section, od, choice.mode, section.node_id)
+    report.mapping = plan.mapping
+    report.layouts = plan.layouts(section.node_id)
+    report.hand_written = bool(section.pdo)
+    if plan.problems:
+        others = [k for k in (*CYCLIC_PREFERENCE, "pp") if k != choice.mode
+                  and offers(choice.offered, k) and (k != "pp" or not choice.cyclic)
+                  and mapping_problem(replace(section, pdo={}), od, k) is None]
+        if section.pdo:
+            remedy = ("remedy: leave pdo out (the TCS then lays the PDOs out from the EDS" +
+                      (")" if mapping_problem(replace(section, pdo={}), od, choice.mode) is None
+                       else f"), or mode = {' or '.join(repr(k) for k in others)}" if others
+                       else "), or a drive or firmware whose PDOs take these objects"))
+        elif others:
+            remedy = f"remedy: mode = {' or '.join(repr(k) for k in others)} (its setpoint can be mapped)"
+        else:
+            remedy = ("remedy: none in the hardware file — a drive or firmware whose PDOs can carry "
+                      "these objects (more mapping entries, PDOMapping=1)")
+        for key, text in plan.problems:
+            problem(f"{prefix}.{key}", f"mode {choice.mode.upper()}: {text} ({eds_name}); {remedy}")
+    report.notes.extend(f"{device}: {n}" for n in plan.notes)
     code = variable(od, 0x603F, 0)
     report.has_error_code = code is not None and code.readable
     if not report.has_error_code:
@@ -322,6 +348,11 @@ def log_report(reports: dict[str, DriveReport]) -> None:
     for name, report in reports.items():
         if report.mode is not None:
             log.info("drive %s: mode %s — %s", name, report.mode.mode.upper(), report.mode.reason)
+        if report.layouts:
+            from tcs.drivers.pdo import describe
+            log.info("drive %s: PDO layout (%s) — %s", name,
+                     "hardware file" if report.hand_written else "from the EDS",
+                     "; ".join(describe(report.layouts)))
         for level, lines in ((logging.WARNING, report.warnings), (logging.INFO, report.notes)):
             for line in lines:
                 log.log(level, "%s", line)

@@ -77,6 +77,7 @@ from typing import Any
 
 import canopen
 
+from tcs.config.eds_file import compact_entries, eds_source, expand_compact
 from tcs.sim.can_port import SimCanPort, TimerHandle, open_port
 from tcs.sim.drive_logic import (
     EMCY_ENCODER,
@@ -138,7 +139,8 @@ def _load_od(eds: str | Path, node_id: int) -> canopen.ObjectDictionary:
         if od is None:
             if not Path(eds).is_file():
                 raise FileNotFoundError(f"simulated drive {node_id}: EDS file {eds} not found")
-            od = _od_cache[key] = canopen.import_od(str(eds), node_id)
+            od = _od_cache[key] = canopen.import_od(eds_source(eds), node_id)
+            expand_compact(od, compact_entries(eds))  # PDO mappings written with CompactSubObj
         return od
 
 
@@ -214,7 +216,11 @@ class SimDrive:
 
     def _build(self) -> None:
         """A freshly powered drive: objects at their defaults, application reset."""
-        self.store = ObjectStore(self._od, **store_options(self._od, self.params, self.node_id))
+        options = store_options(self._od, self.params, self.node_id)
+        answers = options.pop("answers", {})
+        self.store = ObjectStore(self._od, **options)
+        for index, value in answers.items():  # (a placeholder default in the EDS: the real value)
+            self.store.on_read(index, lambda sub, value=value: value)
         self.sdo = SdoServer(self.store)
         self.sdo.refuse_code = ABORT_STORE if self.refuse_sdo else None
         self.pdo = PdoEngine(self.store, lambda: self.nmt_state == PRE_OPERATIONAL,

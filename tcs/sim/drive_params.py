@@ -105,6 +105,9 @@ class SimDriveParams:
 
 #: 0x6502 bits -> the mode (0x6060 value) they allow.
 _MODE_BITS = {0: 1, 1: 2, 2: 3, 3: 4, 5: 6, 6: 7, 7: 8, 8: 9, 9: 10}
+#: 0x6502 of the simulated drive's own modes (PP, PV, HM, IP, CSP, CSV): what a drive whose
+#: EDS states no default answers, unless ``[simulation.drives.x] objects`` gives "0x6502:0".
+SIM_MODES = 0x000001E5
 VELOCITY_OBJECTS = (0x606C, 0x6081, 0x607F, 0x60FF, 0x6099, 0x60B1)
 ACCELERATION_OBJECTS = (0x6083, 0x6084, 0x6085, 0x609A)
 
@@ -114,7 +117,9 @@ def store_options(od, params: SimDriveParams, node_id: int) -> dict[str, Any]:
 
     ``builtins``: sane values for objects the EDS lacks or gives no default (the model keeps
     working; the wire still says the object is absent); ``scale``: the velocity and
-    acceleration units of this drive; ``allowed``: the modes of 0x6502 (when the EDS has it).
+    acceleration units of this drive; ``allowed``: the modes of 0x6502 (when the EDS has it);
+    ``answers``: {index: value} the drive answers whatever its EDS default (0x6502 of 0 or
+    none: the modes it has, as a real drive fills that placeholder).
     """
     fixed = {(0x1000, 0): 0x00020192, (0x1005, 0): 0x80, (0x1014, 0): 0x80 + node_id, (0x6065, 0): 0xFFFFFFFF,
              (0x6066, 0): 100, (0x6067, 0): 100, (0x60C2, 1): 10, (0x60C2, 2): -3,
@@ -128,6 +133,8 @@ def store_options(od, params: SimDriveParams, node_id: int) -> dict[str, Any]:
             return given[(index, sub)]
         if (0x1400 <= index <= 0x15FF or 0x1800 <= index <= 0x19FF) and sub == 1:
             return 0x80000000  # a PDO the drive does not have is never valid
+        if (index, sub) == (0x6502, 0):
+            return SIM_MODES
         return fixed.get((index, sub))
 
     scale = {}
@@ -136,10 +143,14 @@ def store_options(od, params: SimDriveParams, node_id: int) -> dict[str, Any]:
     if params.acceleration_scale != 1.0:
         scale.update(dict.fromkeys(ACCELERATION_OBJECTS, params.acceleration_scale))
     allowed = {}
+    answer: dict[int, int] = {}
     modes_var = od.get(0x6502)
     modes = None
     if modes_var is not None and not hasattr(modes_var, "subindices"):
         modes = modes_var.value if modes_var.value is not None else modes_var.default
+        if not modes:  # no EDS default (or 0): what [simulation] objects say, else all it has
+            modes = given.get((0x6502, 0), SIM_MODES)
+            answer[0x6502] = modes
     if isinstance(modes, int):
         allowed[(0x6060, 0)] = {0} | {mode for bit, mode in _MODE_BITS.items() if modes >> bit & 1}
-    return {"builtins": builtins, "scale": scale, "allowed": allowed}
+    return {"builtins": builtins, "scale": scale, "allowed": allowed, "answers": answer}

@@ -27,7 +27,9 @@ from the model:
   runs (the modes 0x6502 says the drive has).
 
 Limits are the EDS ``LowLimit``/``HighLimit``; for 0x1016:n (consumer heartbeat time, ``node
-id << 16 | ms``) a HighLimit below 0x10000 bounds the time part only, as on real drives.
+id << 16 | ms``) a HighLimit below 0x10000 bounds the time part only, as on real drives; for a
+PDO COB-ID (0x1400+n:1, 0x1800+n:1) a HighLimit below 0x80000000 does not bound bit 31 (the
+PDO switched off), which every device takes.
 """
 
 from __future__ import annotations
@@ -176,6 +178,9 @@ class ObjectStore:
             checked = value
             if var.index == 0x1016 and var.subindex >= 1 and var.max is not None and var.max <= 0xFFFF:
                 checked = value & 0xFFFF  # node id << 16 | ms: a 16-bit limit bounds the time
+            elif (0x1400 <= var.index < 0x1600 or 0x1800 <= var.index < 0x1A00) and var.subindex == 1 \
+                    and var.max is not None and var.max < 0x80000000:
+                checked = value & 0x7FFFFFFF  # a PDO COB-ID: bit 31 (invalid) is no number
             if var.min is not None and checked < var.min:
                 raise SdoAbort(ABORT_VALUE_LOW)
             if var.max is not None and checked > var.max:

@@ -11,7 +11,9 @@ write hooks here enforce what real devices enforce (CiA-301):
   sub-index 0 is 0 (the procedure: invalidate, sub0 = 0, entries, sub0 = n, validate);
 * an entry must name an existing, PDO-mappable object of the right direction, 8/16/32 bits
   long (or a dummy 0x0002–0x0007 in an RPDO): else abort 0x06040041;
-* sub-index 0 = n with more than 64 bits mapped: abort 0x06040042;
+* sub-index 0 = n with more than 64 bits mapped: abort 0x06040042; n above the mapping
+  entries the EDS gives the PDO (sub-indices 1..n of 0x16xx/0x1Axx; none when it has only
+  sub-index 0): abort 0x06090031;
 * the COB-ID of a valid PDO cannot be changed without invalidating it first (0x06090030);
 * transmission types: RPDO 0–240 synchronous (applied at the next SYNC), 254/255 at once;
   TPDO 0 (at SYNC when changed), 1–240 (every n-th SYNC), 254/255 (on change, at most once
@@ -130,8 +132,9 @@ class PdoEngine:
             if not self.store.get(comm, 1) & COB_INVALID:
                 raise SdoAbort(ABORT_STATE, "invalidate the PDO before changing its mapping")
             if sub == 0:
-                if value > 8:
-                    raise SdoAbort(ABORT_VALUE_HIGH)
+                if value > self.entries(base, n):
+                    raise SdoAbort(ABORT_VALUE_HIGH, f"the PDO takes at most {self.entries(base, n)} "
+                                                     f"mapped objects")
                 bits = 0
                 for i in range(1, value + 1):
                     entry = self.store.get(base + n, i)
@@ -158,6 +161,16 @@ class PdoEngine:
             raise SdoAbort(ABORT_NOT_MAPPABLE)
         if receive and not var.writable or not receive and not var.readable:
             raise SdoAbort(ABORT_NOT_MAPPABLE)
+
+    def entries(self, base: int, n: int) -> int:
+        """How many objects PDO mapping ``base + n`` takes: the mapping sub-indices its EDS
+        has (1..8; a mapping with only sub-index 0 takes none)."""
+        obj = self.store.od.get(base + n)
+        subs = getattr(obj, "subindices", None)
+        if subs is None:
+            return 0
+        compact = getattr(self.store.od, "tcs_compact", {}).get(base + n)
+        return min(8, compact or len([s for s in subs if s != 0]))
 
     # -- helpers -----------------------------------------------------------------------------
     def _entries(self, base: int, n: int) -> list[tuple[int, int, int, object]]:

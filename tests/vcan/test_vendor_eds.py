@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from cia402_rig import AxisSpec, Rig
 
-from tcs.config.can import HomingSection
+from tcs.config.can import HomingSection, IdentitySection
 from tcs.drivers.drive import DriveState, Mode, Progress
 from tcs.errors import ConfigErrors, HardwareError
 from tcs.sim.cia402_drive import SimDriveParams
@@ -272,3 +272,177 @@ def test_the_mode_chosen_is_logged_with_its_reason(can_channel, caplog):
     lines = [r.getMessage() for r in caplog.records if r.levelname == "INFO"]
     assert any(line.startswith("drive az: mode CSV") and "0x6502" in line
                and "PP, HM, CSV" in line and "CSP, then IP, then CSV" in line for line in lines), lines
+    assert any(line.startswith("drive az: PDO layout (from the EDS) — RPDO1 0x201 SYNC: 0x6040 "
+                               "controlword + 0x60FF target_velocity") for line in lines), lines
+
+
+# ------------------------------------------- issue 40: PDO layouts from the EDS, modes, absolute
+def _stream_and_move(rig, name: str, distance: float = 0.5) -> None:
+    """Stream a ramp of ``distance`` units in the drive's cyclic mode; wait until the simulated
+    drive stands there."""
+    drive, sim = rig.drive(name), rig.sims[name]
+    mode = drive.cyclic_mode
+    drive.set_mode(mode)
+    rig.wait(lambda: rig.status(name).mode is mode, what=f"mode {mode.name}")
+    start = rig.status(name).position
+    path = {"x": start}
+
+    def stream(cycle):
+        path["x"] = min(start + distance, path["x"] + 0.5 * rig.can.sync_period)
+        drive.set_setpoint(path["x"], 0.5 if path["x"] < start + distance else 0.0)
+    rig.cycle_hooks.append(stream)
+    rig.wait(lambda: abs(sim.position - (start + distance)) < 0.005, what="moved")
+    rig.cycle_hooks.clear()
+
+
+#: fixture -> (section extras, sim params, the layout the TCS must write, the cyclic mode)
+SHAPES = {
+    # RPDO1/TPDO1 take one object: controlword and target, statusword and position split
+    "vendor-pdo1-single": ({}, SimDriveParams(),
+                           {"rpdo1": (0x6040,), "rpdo2": (0x607A,), "tpdo1": (0x6041,),
+                            "tpdo2": (0x6064, 0x606C)}, Mode.CSP),
+    # TPDO2 has no mapping entries at all: never used, the next TPDOs carry the rest
+    "vendor-tpdo2-empty": ({"absolute": True}, SimDriveParams(),
+                           {"rpdo1": (0x6040, 0x607A), "tpdo1": (0x6041, 0x6064),
+                            "tpdo3": (0x606C, 0x60F4), "tpdo4": (0x60FD, 0x603F)}, Mode.CSP),
+    # 0x607A not mappable, 0x6502 without default: IP through 0x60C1:1 (the drive says PP, HM, IP)
+    "vendor-ip-nomodes": ({}, SimDriveParams(objects={(0x6502, 0): 0x61}),
+                          {"rpdo1": (0x6040, 0x60C1)}, Mode.IP),
+    # read-only 0x6098, no homing mode: absolute, referenced by configuration
+    "vendor-absolute-ro6098": ({"absolute": True}, SimDriveParams(),
+                               {"rpdo1": (0x6040, 0x607A), "tpdo1": (0x6041, 0x6064)}, Mode.CSP),
+}
+
+
+@pytest.mark.parametrize("name", list(SHAPES))
+def test_drive_of_each_pdo_shape_is_laid_out_from_its_eds_and_moves(can_channel, name):
+    """No pdo = {…} anywhere: the TCS spreads the objects over the PDOs the EDS gives, the
+    simulated drive (which refuses what its EDS does not allow) takes the layout, and the
+    axis is referenced and moved in its mode."""
+    extra, params, layout, mode = SHAPES[name]
+    with Rig(can_channel, {"m": vendor(1, name, params, **extra)}) as rig:
+        assert rig.boot_and_start() == {}
+        drive, sim = rig.drive("m"), rig.sims["m"]
+        assert drive.cyclic_mode is mode
+        for pdo, indices in layout.items():
+            assert drive.layouts[pdo].indices == indices, (pdo, drive.layouts)
+            base = 0x1600 if pdo.startswith("rpdo") else 0x1A00
+            n = int(pdo[4:]) - 1
+            assert sim.read_object(base + n, 0) == len(indices)      # the drive holds it
+            assert sim.read_object(base + n, 1) >> 16 == indices[0]
+        if name == "vendor-tpdo2-empty":
+            assert "tpdo2" not in drive.layouts
+            assert sim.read_object(0x1801, 1) & 0x80000000          # switched off
+        rig.enable("m")
+        drive.start_homing()
+        rig.wait(lambda: rig.status("m").homed and rig.status("m").homing is Progress.DONE,
+                 what="referenced")
+        if extra.get("absolute"):
+            assert sim.logic.homing is None and sim.mode_display != 6  # no homing run
+        _stream_and_move(rig, "m")
+
+
+@pytest.mark.parametrize("default", [None, "0"])
+def test_0x6502_without_eds_default_is_read_from_the_drive_and_settles_the_mode(
+        can_channel, tmp_path, caplog, default):
+    """Everything mappable, 0x6502 without default (or the placeholder 0): CSP is assumed at
+    start; the drive answers PP, HM, IP at boot, so the axis runs in IP (layout with 0x60C1:1)
+    — logged with where the value came from."""
+    eds = (EDS / "vendor-revision.eds").read_text(encoding="utf-8")
+    start = eds.index("[6502]")
+    end = eds.find("\n\n", start)
+    block = eds[start:end if end > 0 else len(eds)]
+    path = tmp_path / "nomodes.eds"
+    lines = [line for line in block.splitlines() if not line.startswith("DefaultValue=")]
+    if default is not None:
+        lines.append(f"DefaultValue={default}")
+    path.write_text(eds.replace(block, "\n".join(lines)), encoding="utf-8")
+    params = SimDriveParams(identity=(0xABC, 0x00402001, 0x00020003, 1), objects={(0x6502, 0): 0x61})
+    spec = AxisSpec(1, params=params, section={"eds": str(path), "identity": IdentitySection(
+        vendor=0xABC, product=0x00402001)}, sim_eds=path)
+    with caplog.at_level("INFO"):
+        with Rig(can_channel, {"m": spec}) as rig:
+            assert rig.drive("m").cyclic_mode is Mode.CSP            # assumed at start
+            assert rig.boot_and_start() == {}
+            drive = rig.drive("m")
+            assert drive.cyclic_mode is Mode.IP
+            assert drive.layouts["rpdo1"].indices == (0x6040, 0x60C1)
+            rig.enable("m")
+            drive.start_homing()
+            rig.wait(lambda: rig.status("m").homed, what="referenced")
+            _stream_and_move(rig, "m")
+    lines = [r.getMessage() for r in caplog.records]
+    assert any("0x6502" in line and "= PP, HM, IP" in line and "read from the drive over SDO" in line
+               and "nomodes.eds gives no default" in line for line in lines), lines
+
+
+def test_simulated_drive_honours_mapping_entries_mappability_and_modes(can_channel):
+    """What the EDS says about PDOs holds on the wire: a mapping longer than its entries, an
+    entry a PDO does not have, an unmappable object, a mode 0x6502 (from [simulation]) lacks."""
+    from tcs.drivers.boot import NMT_PRE_OPERATIONAL, send_nmt
+    specs = {"one": vendor(1, "vendor-pdo1-single"), "empty": vendor(2, "vendor-tpdo2-empty"),
+             "ip": vendor(3, "vendor-ip-nomodes", SimDriveParams(objects={(0x6502, 0): 0x61}))}
+    with Rig(can_channel, specs) as rig:
+        assert rig.boot_and_start() == {}
+        for node in (1, 2, 3):
+            send_nmt(rig.system.bus.network, NMT_PRE_OPERATIONAL, node)
+        rig.wait(lambda: all(s.nmt_state_name == "PRE-OPERATIONAL" for s in rig.sims.values()),
+                 what="pre-operational")
+        one, empty, ip = (rig.drive(n)._sdo for n in ("one", "empty", "ip"))
+        one.write(0x1400, 1, "<I", 0x80000201)
+        one.write(0x1600, 0, "<B", 0)
+        with pytest.raises(HardwareError, match="0x06090031"):
+            one.write(0x1600, 0, "<B", 2)                  # RPDO1 takes one object
+        with pytest.raises(HardwareError, match="0x06090011"):
+            one.write(0x1600, 2, "<I", 0x607A0020)         # it has no second entry
+        empty.write(0x1801, 1, "<I", 0x80000282)
+        with pytest.raises(HardwareError, match="0x06090011"):
+            empty.write(0x1A01, 1, "<I", 0x60640020)       # TPDO2: no mapping entries
+        with pytest.raises(HardwareError, match="0x06090031"):
+            empty.write(0x1A01, 0, "<B", 1)
+        ip.write(0x1400, 1, "<I", 0x80000203)
+        ip.write(0x1600, 0, "<B", 0)
+        with pytest.raises(HardwareError, match="0x06040041"):
+            ip.write(0x1600, 2, "<I", 0x607A0020)          # 0x607A is not mappable
+        assert ip.read(0x6502, 0, "<I") == 0x61            # as [simulation] says
+        assert empty.read(0x6502, 0, "<I") == 0x1E5        # the EDS's default
+        with pytest.raises(HardwareError, match="0x06090030"):
+            ip.write(0x6060, 0, "<b", 8)                   # no CSP on this drive
+
+
+def test_a_hand_written_layout_still_wins(can_channel):
+    """pdo = {…} in the hardware file is used as written (checked against the EDS), not the
+    layout the TCS would choose."""
+    pdo = {"rpdo1": ["0x6040", "0x607A"], "tpdo1": ["0x6041", "0x6064"], "tpdo3": ["0x60FD"]}
+    with Rig(can_channel, {"m": vendor(1, "vendor-tpdo2-empty", pdo=pdo, absolute=True)}) as rig:
+        assert rig.boot_and_start() == {}
+        drive, sim = rig.drive("m"), rig.sims["m"]
+        assert {n: p.indices for n, p in drive.layouts.items()} == {
+            "rpdo1": (0x6040, 0x607A), "tpdo1": (0x6041, 0x6064), "tpdo3": (0x60FD,)}
+        assert sim.read_object(0x1803, 1) & 0x80000000 and sim.read_object(0x1A02, 0) == 1
+        rig.enable("m")
+        _stream_and_move(rig, "m", 0.25)
+
+
+def test_cob_id_and_timer_limits_do_not_stop_a_remap(can_channel, tmp_path):
+    """EDS files often give a PDO COB-ID HighLimit of 0x7FF: switching a PDO off (bit 31) is
+    still taken by the TCS's check and by the simulated drive; an event timer / RPDO deadline
+    the drive's limits do not take is left as commissioned. The axis moves."""
+    import re
+    text = (EDS / "vendor-pdo1-single.eds").read_text(encoding="utf-8")
+    text = re.sub(r"(\[1[48]0[0-3]sub1\]\n(?:[^\[\n].*\n)*?)(PDOMapping=0)", r"\1\2\nLowLimit=0x181\nHighLimit=0x7FF",
+                  text)
+    assert text.count("HighLimit=0x7FF") == 8
+    # event timers / RPDO deadlines limited to 100 ms: the TCS's 500 ms are left out
+    text = re.sub(r"(\[1[48]0[0-3]sub5\]\n(?:[^\[\n].*\n)*?)(PDOMapping=0)", r"\1\2\nHighLimit=100", text)
+    assert text.count("HighLimit=100") == 8
+    path = tmp_path / "coblimit.eds"
+    path.write_text(text, encoding="utf-8")
+    spec = AxisSpec(1, section={"eds": str(path)}, sim_eds=path)
+    with Rig(can_channel, {"m": spec}) as rig:
+        assert rig.boot_and_start() == {}
+        assert rig.sims["m"].read_object(0x1403, 1) & 0x80000000   # RPDO4 switched off
+        rig.enable("m")
+        rig.drive("m").start_homing()
+        rig.wait(lambda: rig.status("m").homed, what="referenced")
+        _stream_and_move(rig, "m", 0.25)

@@ -21,14 +21,25 @@ vendor-homing-list        0x60E3 supported homing methods whose entries have no 
 vendor-hb16               0x1016 consumer heartbeat entries with HighLimit 0xFFFF (the time
                           part only; the node id sits in bits 16-23)
 vendor-no-devtype-default 0x1000 device type without a DefaultValue
+vendor-pdo1-single        RPDO1/TPDO1 take ONE mapped object each (0x1600/0x1A00 have one
+                          mapping entry), RPDO2-4/TPDO2-4 two
+vendor-tpdo2-empty        TPDO2 has no mapping entries at all (0x1A01 has only sub-index 0),
+                          TPDO1 takes three
+vendor-ip-nomodes         0x607A not PDO-mappable (0x60C1:1 is), and 0x6502 without a
+                          DefaultValue (the drive answers it over SDO)
+vendor-absolute-ro6098    0x6098 read-only, 0x6502 without homing mode (PP, PV, CSP, CSV):
+                          run with absolute = true
+vendor-no-modes-default   0x6502 without a DefaultValue, everything mappable (the modes are
+                          known only from the drive's answer at boot)
 ========================  ====================================================================
 
-Usage: ``python tests/vcan/eds/make_fixtures.py``.
+Usage: ``python tests/vcan/eds/make_fixtures.py [NAME ...]`` (all fixtures, or those named).
 """
 
 from __future__ import annotations
 
 import re
+import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -130,6 +141,35 @@ def hb16(parts):
     return parts
 
 
+def entries(parts, index: str, n: int):
+    """Mapping object ``index`` (e.g. "1600") with only ``n`` mapping entries (sub-index 1..n;
+    none for 0), its sub-index 0 defaulting to at most ``n`` (no HighLimit: the entries the
+    EDS lists are all it says)."""
+    parts = [(name, body) for name, body in parts
+             if not (m := re.fullmatch(index + r"sub([0-9A-Fa-f]+)", name)) or int(m.group(1), 16) <= n]
+    parts = setkey(parts, index, "SubNumber", f"0x{n + 1:X}")
+    for name, body in parts:
+        if name == f"{index}sub0":
+            default = next((line.split("=", 1)[1] for line in body if line.startswith("DefaultValue=")), "0")
+            parts = setkey(parts, name, "DefaultValue", str(min(int(default, 0), n)))
+            break
+    return parts
+
+
+def pdo1_single(parts):
+    """RPDO1/TPDO1 with one mapping entry (controlword / statusword), the others two."""
+    for index in ("1600", "1A00"):
+        parts = entries(parts, index, 1)
+    for index in ("1601", "1602", "1603", "1A01", "1A02", "1A03"):
+        parts = entries(parts, index, 2)
+    return parts
+
+
+def tpdo2_empty(parts):
+    """0x1A01 with only sub-index 0 (no mapping entries); TPDO1 takes three."""
+    return entries(entries(parts, "1A01", 0), "1A00", 3)
+
+
 def main() -> None:
     base = sections(SOURCE.read_text(encoding="utf-8"))
     base[0] = ("", ["; Vendor-like fixture written for the TCS tests (tests/vcan/eds/make_fixtures.py),",
@@ -160,8 +200,17 @@ def main() -> None:
         "vendor-homing-list": homing_list(base),
         "vendor-hb16": hb16(base),
         "vendor-no-devtype-default": unset(base, "1000", "DefaultValue"),
+        "vendor-pdo1-single": pdo1_single(base),
+        "vendor-tpdo2-empty": tpdo2_empty(base),
+        "vendor-ip-nomodes": unset(setkey(base, "607A", "PDOMapping", "0"), "6502", "DefaultValue"),
+        "vendor-absolute-ro6098": setkey(setkey(base, "6098", "AccessType", "ro"), "6502",
+                                         "DefaultValue", "0x00000185"),
+        "vendor-no-modes-default": unset(base, "6502", "DefaultValue"),
     }
+    only = set(sys.argv[1:])  # names to write (default: all)
     for name, parts in fixtures.items():
+        if only and name not in only:
+            continue
         parts = setkey(header(relist(parts), f"TCS test fixture {name}"), "FileInfo", "FileName", f"{name}.eds")
         (HERE / f"{name}.eds").write_text(render(parts), encoding="utf-8")
 
