@@ -67,7 +67,7 @@ from tcs.errors import ErrorNumber, TcsError, gather_all
 from tcs.pointing.orientation import to_normal
 
 __all__ = ["Envelope", "EnvelopeError", "Judgement", "Route", "sun_icrs", "move_samples",
-           "plan_route", "STEP"]
+           "plan_route", "pair_bound", "offset_path", "STEP"]
 
 #: degrees between the samples of a predicted slew (along the faster axis)
 STEP = 0.25
@@ -75,6 +75,10 @@ _SUN_GRID = 300.0         # s between the Sun directions that are interpolated (
 #                           the chord of linear interpolation is within 0.004° of the arc)
 _TOL = 1e-6
 _WAYPOINT_STEP = 5.0      # degrees between the intermediate axis-2 angles a detour may use
+_MODEL_ITERATIONS = 4     # steps of the model's fixed-point inverse: exact for the index terms
+#                           (IA, IE); with a badly aligned mount's others (NPAE, CA 3′, AN, AW
+#                           6′) within 0.0002° from 3° off the mount's pole on (nearer, the
+#                           azimuth means little)
 
 
 class EnvelopeError(TcsError):
@@ -243,12 +247,12 @@ class Envelope:
         out = [self.sky(a1, a2)]
         model = self.model()
         if model is not None:
-            try:
-                i1, i2 = model.invert(np.asarray(a1, float), np.asarray(a2, float), tolerance=1e-7)
-            except TcsError:
-                i1 = i2 = None
-            if i1 is not None:
-                out.append(self.sky(i1, i2))
+            m1, m2 = np.asarray(a1, float), np.asarray(a2, float)
+            i1, i2 = m1, m2
+            for _ in range(_MODEL_ITERATIONS):   # the model's fixed-point inverse, a few steps
+                d1, d2 = model.corrections(i1, i2)
+                i1, i2 = m1 - d1, m2 - d2
+            out.append(self.sky(i1, i2))
         return out
 
     def sky(self, a1, a2):
@@ -527,23 +531,14 @@ class Envelope:
 
     def _tracked_offset(self, axis, other, value: float, ut1: float) -> None:
         """An OFFSET while ``axis`` runs a trajectory (tracking), judged before it is applied:
-        the offset move — the change as a rest-to-rest profile of the axis's dynamics added to
-        the path (the follower's intercept of ``path + offset``) — and the queued path with the
-        new offset to its end, with the other axis as it will move; every border (a tracked
+        the offset move and the queued path with the new offset to its end
+        (:func:`offset_path`), with the other axis as it will move; every border (a tracked
         path keeps the horizon too). Raises :class:`EnvelopeError` (FAILED 9)."""
         q = axis.queue
         if not len(q) or q.end_time is None:
             return None
-        change = value - float(axis.offset)
-        blend = _traj(Setpoint(0.0), change, axis.dynamics, None)
-        t_blend = blend.duration
-        t1 = max(float(q.end_time), ut1 + t_blend)
-        dense = np.linspace(ut1, ut1 + t_blend, max(2, int(math.ceil(
-            abs(change) / (STEP / 2))) + 1))
-        sparse = np.linspace(ut1 + t_blend, t1, int(min(20000, max(2, (t1 - ut1 - t_blend) / 0.5))))
-        times = np.concatenate((dense, sparse[1:])) if t1 > ut1 + t_blend else dense
-        path = self._queued(axis, times) - float(axis.offset)
-        own = path + float(axis.offset) + _evaluate(blend, times - ut1)
+        times, own = offset_path(lambda t: self._queued(axis, t), ut1, float(q.end_time),
+                                 float(axis.offset), value, axis.dynamics)
         other_path = self._predict(other, times)
         a1, a2 = (own, other_path) if axis is self.axes[0] else (other_path, own)
         j = self.judge(a1, a2, times - self.ut1_utc(), margin=0.0,
@@ -601,62 +596,16 @@ class Envelope:
                 bad = mid
         return good
 
-    #: s the start of a move may lag behind its judgement (the command reaches the control
-    #: loop a cycle or more later; the other axis's state is a cycle old): the simultaneous
-    #: path of two axes is judged with each of these delays of the new move
-    PAIR_DELAYS = (0.0, 0.1, 0.25)
-
     def _pair_bound(self, axis, direction: int, end: float, ut1: float, which: dict, speed: float,
                     other_path, other_end: float):
-        """The bound of a move of ``axis`` towards ``end`` at ``speed`` while the other axis
-        moves (``other_path``: its predicted positions, at rest after ``other_end``): the
-        farthest rest position ``g`` such that the two axes' simultaneous path — ``axis`` on
-        the profile the planner will run to rest at ``g``, the other on its own, each braking
-        at its own deceleration — stays out of the envelope, also when this move starts up to
-        ``PAIR_DELAYS`` late. The result is always a ``g`` whose path was judged good (bisection
-        keeps the good end). Raises :class:`EnvelopeError` when even stopping now is not."""
-        first = axis is self.axes[0]
-        state = self._state(axis)
-        dyn = axis.dynamics
-        brake = _SOLVER.stop(state, max_velocity=max(dyn.max_velocity, abs(state.velocity)),
-                             max_acceleration=dyn.max_acceleration, max_jerk=dyn.max_jerk,
-                             discrete=False)
-        rest = float(brake.at_time(brake.duration)[0][0])
-        lo = rest if (rest - state.position) * direction > 0 else float(state.position)
-        ut1_utc = self.ut1_utc()
-        vmax = max(speed, float(self._other(axis).section.max_velocity))
-        why = ["the envelope"]
-
-        def good(goal: float) -> bool:
-            traj = _traj(state, goal, dyn, speed)
-            horizon = max(ut1 + traj.duration, other_end) + max(self.PAIR_DELAYS)
-            n = max(2, int(math.ceil((horizon - ut1) * vmax / STEP)) + 1)
-            times = np.linspace(ut1, horizon, n)
-            there = other_path(times)
-            for delay in self.PAIR_DELAYS:
-                own = _evaluate(traj, np.clip(times - ut1 - delay, 0.0, None))
-                a1, a2 = (own, there) if first else (there, own)
-                j = self.judge(a1, a2, times - ut1_utc, margin=0.0, **which)
-                if not j.ok:
-                    why[0] = j.text
-                    return False
-            return True
-
-        if good(end):
-            return None
-        if not good(lo):
+        """:func:`pair_bound` of a move of ``axis`` while the other axis moves."""
+        try:
+            return pair_bound(self, ut1, self._state(axis), axis.dynamics, direction, end, speed,
+                              other_path, other_end, axis is self.axes[0], which)
+        except EnvelopeError as exc:
             raise EnvelopeError(f"{axis.module_name}: moving {'up' if direction > 0 else 'down'} "
-                                f"while {self._other(axis).module_name} moves would enter {why[0]}")
-        hi = end
-        for _ in range(24):
-            mid = 0.5 * (lo + hi)
-            if good(mid):
-                lo = mid
-            else:
-                hi = mid
-            if abs(hi - lo) < 1e-4:
-                break
-        return lo
+                                f"while {self._other(axis).module_name} moves would enter "
+                                f"{exc.message}") from None
 
     def _other(self, axis):
         if not self.axes:
@@ -729,6 +678,89 @@ class Envelope:
 def _speed(axis) -> float | None:
     planner = getattr(axis, "planner", None)
     return float(planner.speed) if planner is not None else None
+
+
+#: s the start of a move may lag behind its judgement (the command reaches the control loop a
+#: cycle or more later; the other axis's state is a cycle old): the simultaneous path of two
+#: axes is judged with each of these delays of the new move
+PAIR_DELAYS = (0.0, 0.1, 0.25)
+#: degrees a pair's path keeps from the borders: its samples are 0.25° apart along the faster
+#: axis and the Sun's direction is interpolated (0.004°); a bound at the border itself would
+#: graze it between samples (a 0.01° dip below a horizon table's corner was seen)
+PAIR_MARGIN = 0.05
+
+
+def pair_bound(env: Envelope, ut1: float, state: Setpoint, dyn: AxisDynamics, direction: int,
+               end: float, speed: float, other_path: Callable, other_end: float, first: bool,
+               which: dict, delays=PAIR_DELAYS) -> float | None:
+    """The bound of a move of one main axis (axis 1 when ``first``) from ``state`` towards
+    ``end`` at ``speed`` while the other axis moves (``other_path``: UT1 times -> its predicted
+    positions, at rest after ``other_end``): the farthest rest position ``g`` such that the
+    two axes' simultaneous path — this axis on the profile the planner runs to rest at ``g``
+    (its own deceleration), the other on its own — stays out of the envelope, also when this
+    move starts up to ``delays`` late; None when ``end`` itself is good. The result is always
+    a ``g`` whose path was judged good (the bisection keeps the good end). Raises
+    :class:`EnvelopeError` (the border's words) when even braking now is not good."""
+    brake = _SOLVER.stop(state, max_velocity=max(dyn.max_velocity, abs(state.velocity)),
+                         max_acceleration=dyn.max_acceleration, max_jerk=dyn.max_jerk,
+                         discrete=False)
+    rest = float(brake.at_time(brake.duration)[0][0])
+    lo = rest if (rest - state.position) * direction > 0 else float(state.position)
+    ut1_utc = env.ut1_utc()
+    probe = np.linspace(ut1, max(other_end, ut1 + 1e-3), 400)
+    there = other_path(probe)
+    other_speed = float(np.max(np.abs(np.diff(there)))) / (probe[1] - probe[0])
+    vmax = max(speed, abs(state.velocity), 1.2 * other_speed, 1e-3)
+    why = ["the envelope"]
+
+    def good(goal: float) -> bool:
+        traj = _traj(state, goal, dyn, speed)
+        horizon = max(ut1 + traj.duration, other_end) + max(delays)
+        n = max(2, int(math.ceil((horizon - ut1) * vmax / STEP)) + 1)
+        times = np.linspace(ut1, horizon, n)
+        there = other_path(times)
+        for delay in delays:
+            own = _evaluate(traj, np.clip(times - ut1 - delay, 0.0, None))
+            a1, a2 = (own, there) if first else (there, own)
+            j = env.judge(a1, a2, times - ut1_utc, margin=PAIR_MARGIN, **which)
+            if not j.ok:
+                why[0] = j.text
+                return False
+        return True
+
+    if good(end):
+        return None
+    if not good(lo):
+        raise EnvelopeError(why[0])
+    hi = end
+    for _ in range(24):
+        mid = 0.5 * (lo + hi)
+        if good(mid):
+            lo = mid
+        else:
+            hi = mid
+        if abs(hi - lo) < 1e-4:
+            break
+    return lo
+
+
+def offset_path(path: Callable, ut1: float, end: float, old: float, new: float,
+                dyn: AxisDynamics):
+    """An OFFSET change from ``old`` to ``new`` on a tracked path (``path``: UT1 times -> the
+    drive positions with ``old``, queued up to ``end``): (UT1 times, drive positions) from
+    ``ut1`` to the path's end — the change as a rest-to-rest profile of the axis's dynamics
+    added to the path (the follower's intercept of ``path + offset``), sampled every half
+    ``STEP`` of the change while it moves, then every 0.5 s."""
+    change = float(new) - float(old)
+    blend = _traj(Setpoint(0.0), change, dyn, None)
+    t_blend = blend.duration
+    t1 = max(float(end), ut1 + t_blend)
+    dense = np.linspace(ut1, ut1 + t_blend, max(2, int(math.ceil(abs(change) / (STEP / 2))) + 1))
+    times = dense
+    if t1 > ut1 + t_blend:
+        sparse = np.linspace(ut1 + t_blend, t1, int(min(20000, max(2, (t1 - ut1 - t_blend) / 0.5))))
+        times = np.concatenate((dense, sparse[1:]))
+    return times, path(times) + _evaluate(blend, times - ut1)
 
 
 def _leg_estimate(a: tuple[float, float], b: tuple[float, float], dynamics) -> float:
