@@ -492,6 +492,55 @@ def test_alpaca_moveaxis_of_both_axes_at_once_stays_out_of_the_sun_cone(live):
         t.Disconnect()
 
 
+def test_alpaca_moveaxis_pair_is_bounded_again_when_one_axis_stops(live):
+    """Issue 39 item 4, the other way round: 75° of azimuth east of the Sun and 33° above it,
+    the altitude lowers fast first (clear on its own), then the azimuth moves slowly towards
+    the Sun — bounded on the pair's path, on which the tube has sunk far below the Sun when
+    the azimuth gets there. The altitude is stopped 6° above the Sun (MoveAxis(1, 0)): the
+    azimuth's running move is judged again with the altitude standing there and ends before
+    the cone; the tube never comes within 30° of the Sun."""
+    pytest.importorskip("alpaca", reason="alpyca (the 'dev' extra) is not installed")
+    from alpaca.telescope import Telescope, TelescopeAxes
+
+    async def start():
+        c = await Client.connect(live.port)
+        try:
+            await ready(c)
+            saz, szd = sun_now(live)
+            await place(c, live, saz - 75.0, szd - 33.0)
+        finally:
+            await c.close()
+
+    asyncio.run(start())
+    t = Telescope(f"127.0.0.1:{live.service.alpaca_port}", 0)
+    t.Connect()
+    az, zd = live.telescope.axis("AZ"), live.telescope.axis("ZD")
+    try:
+        until(lambda: not t.AtPark, "ready")
+        t.Tracking = False
+        _saz, szd = sun_now(live)
+        t.MoveAxis(TelescopeAxes.axisSecondary, -3.0)
+        until(lambda: zd.motion_state & 1, "moving")
+        t.MoveAxis(TelescopeAxes.axisPrimary, 2.0)
+        closest, stopped = 180.0, False
+        deadline = time.monotonic() + WAIT
+        while True:
+            a1, a2 = az.real_position, zd.real_position
+            closest = min(closest, sep_from_sun(live, a1, a2))
+            if not stopped and a2 >= szd - 6.0:
+                t.MoveAxis(TelescopeAxes.axisSecondary, 0.0)
+                stopped = True
+            if stopped and not (az.motion_state & 1 or zd.motion_state & 1):
+                break
+            assert time.monotonic() < deadline, "the axes did not stop"
+            time.sleep(0.005)
+        closest = min(closest, sep_from_sun(live, az.real_position, zd.real_position))
+        assert closest >= 30.0 - 0.02, closest
+    finally:
+        t.AbortSlew()
+        t.Disconnect()
+
+
 async def _ready_over_tpl2(live, east: bool = True) -> None:
     c = await Client.connect(live.port)
     try:

@@ -712,6 +712,11 @@ def pair_bound(env: Envelope, ut1: float, state: Setpoint, dyn: AxisDynamics, di
     other_speed = float(np.max(np.abs(np.diff(there)))) / (probe[1] - probe[0])
     vmax = max(speed, abs(state.velocity), 1.2 * other_speed, 1e-3)
     why = ["the envelope"]
+    # the other axis's own path may run to a border (its move bounded there): the pair keeps
+    # PAIR_MARGIN, or what the other's path alone keeps, if that is less
+    still = np.full(probe.shape, float(state.position))
+    alone, _w = env.margins(*((still, there) if first else (there, still)), probe - ut1_utc, **which)
+    margin = max(0.0, min(PAIR_MARGIN, float(alone.min())))
 
     def good(goal: float) -> bool:
         traj = _traj(state, goal, dyn, speed)
@@ -722,7 +727,7 @@ def pair_bound(env: Envelope, ut1: float, state: Setpoint, dyn: AxisDynamics, di
         for delay in delays:
             own = _evaluate(traj, np.clip(times - ut1 - delay, 0.0, None))
             a1, a2 = (own, there) if first else (there, own)
-            j = env.judge(a1, a2, times - ut1_utc, margin=PAIR_MARGIN, **which)
+            j = env.judge(a1, a2, times - ut1_utc, margin=margin, **which)
             if not j.ok:
                 why[0] = j.text
                 return False
