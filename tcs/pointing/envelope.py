@@ -19,9 +19,12 @@ what the drives will really do) sampled in time, against three kinds of border:
 * **Keep-out zones** (``[[envelope.keepout]]``): rectangles of the mechanical axis angles
   (axis 1 modulo 360°): pier, dome ring.
 
-The sky direction of a mechanical position is taken without the pointing model (arcminutes;
-``[envelope] margin`` covers it): AZ-ZD through :func:`~tcs.pointing.orientation.to_normal`,
-RA-DEC through it and ``erfa.hd2ae``.
+The sky direction of a mechanical position is read twice (:meth:`Envelope.readings`): the bare
+axis angles (AZ-ZD through :func:`~tcs.pointing.orientation.to_normal`, RA-DEC through it and
+``erfa.hd2ae``) and, with a pointing model, the same through the active model's inverse (where
+the model says the tube points). A sample must be clear of the Sun cone and the horizon in
+both: neither a large right model nor a wrong one (IE = 9° written at operator level, a bad
+Alpaca sync) brings the tube into the cone.
 
 **Margins and escape.** A sample's margin is its distance (degrees) inside the allowed
 region, the smallest over the borders. A path is good while every margin is ≥ the margin
@@ -40,11 +43,16 @@ on OpenTCI) names the border. Routes are executed by :meth:`Envelope.run_route` 
 consecutive TARGETPOS moves of both axes.
 
 **Guards.** :meth:`Envelope.guard` is installed on the main axes (``Axis.envelope``) and
-judges every other motion request before the axis takes it: TARGETPOS and OFFSET (Sun cone
-and keep-outs — engineering moves keep the software limits as before, no horizon), a client
-TRAJECTORY run (the whole queued path, all borders), ``move_toward`` (Alpaca MoveAxis, jogs:
-the move is bounded to stop at the border). The other axis is predicted as it will move: its
-approved move (recorded here), its queued trajectory, its planner target, or at rest.
+judges every other motion request before the axis takes it: TARGETPOS (on the cable-wrap turn
+the axis resolved with the planner's rule and will drive) and OFFSET (Sun cone and keep-outs —
+engineering moves keep the software limits as before, no horizon); an OFFSET while tracking
+(:func:`offset_path`: the offset move and the queued path with it, all borders); a client
+TRAJECTORY run (the whole queued path, all borders); ``move_toward`` (Alpaca MoveAxis, jogs:
+the move is bounded to stop at the border — while the other axis moves, on the pair's
+simultaneous path, :func:`pair_bound`; when one axis of a pair is stopped, the other's running
+move is judged again and ``Axis.limit_move`` brings its end nearer). The other axis is
+predicted as it will move: its approved move (recorded here, jogs at their speed), its queued
+trajectory, its planner target, or at rest. docs/safety-envelope.md says it for users.
 
 What may touch it
 -----------------
