@@ -18,11 +18,14 @@ import numpy as np
 import pytest
 from ruckig import InputParameter, Ruckig, Trajectory
 
+from tcs.axes.limits import SoftLimits
+from tcs.axes.motion import MotionPlanner
 from tcs.axes.profile import AxisDynamics, Setpoint
 from tcs.config.envelope import EnvelopeSection, KeepOutSection
 from tcs.errors import ErrorNumber
 from tcs.pointing.astrometry import Astrometry, Refraction, Site, TimeBase
-from tcs.pointing.envelope import Envelope, EnvelopeError, plan_route, sun_icrs
+from tcs.pointing.envelope import Envelope, EnvelopeError, offset_path, pair_bound, plan_route, sun_icrs
+from tcs.pointing.model import PointingModel
 
 SITE = Site(28.7606, -17.8792, 2326.0)          # hwconfig/sim.toml
 ASTRO = Astrometry(SITE, TimeBase(37.0, 0.0), Refraction(mode=1), context_interval=60.0)
@@ -241,3 +244,212 @@ def test_a_slew_that_cannot_avoid_the_sun_is_refused_with_a_clear_error():
     with pytest.raises(EnvelopeError) as err:
         plan_route(env, t, (Setpoint(0.0), Setpoint(0.0)), target, (AZ, ZD), RANGES)
     assert "Sun avoidance cone (30" in err.value.message
+
+
+# ------------------------------------------- issue 39: the path the axes really take (randomized)
+
+def one_axis(x0, x1, dyn, speed=None):
+    """One axis from rest at ``x0`` to rest at ``x1`` with ruckig itself: a function of time
+    from the start (held at the ends) and the duration."""
+    inp = InputParameter(1)
+    inp.current_position, inp.target_position = [x0], [x1]
+    inp.max_velocity = [speed or dyn.max_velocity]
+    inp.max_acceleration, inp.max_jerk = [dyn.max_acceleration], [dyn.max_jerk]
+    traj = Trajectory(1)
+    Ruckig(1, 0.01).calculate(inp, traj)
+    grid = np.linspace(0.0, traj.duration, max(2, int(traj.duration / 0.01) + 1))
+    pos = np.array([traj.at_time(x)[0][0] for x in grid])
+    return (lambda t: np.interp(t, grid, pos)), traj.duration
+
+
+def daytime(rng):
+    t = rng.uniform(T2020, T2040)
+    return math.floor(t / 86400.0) * 86400.0 + 13.2 * 3600.0 + rng.uniform(-3.0, 3.0) * 3600.0
+
+
+def random_model(rng) -> PointingModel:
+    """Operator-level terms: IA and IE up to ±9° (writable up to ±10°, syncs add to them),
+    the others of a badly aligned mount (NPAE/CA 3′, AN/AW 6′, TF 12′)."""
+    terms = {"IA": rng.uniform(-9.0, 9.0), "IE": rng.uniform(-9.0, 9.0)}
+    for name, size in (("NPAE", 0.05), ("CA", 0.05), ("AN", 0.1), ("AW", 0.1), ("TF", 0.2)):
+        terms[name] = rng.uniform(-size, size)
+    return PointingModel("AZ-ZD", terms, SITE.latitude)
+
+
+def violations_model(model, a1, a2, utc):
+    """:func:`violations` of the bare axis angles or of the sky the model says (either)."""
+    a1, a2 = np.asarray(a1, float), np.asarray(a2, float)
+    sun, low, keep = violations(a1, a2, utc)
+    i1, i2 = a1.copy(), a2.copy()
+    far = np.abs(a2 - model.corrections(a1, a2)[1]) >= 3.0   # (within 3° of the mount's pole
+    # the fixed-point inverse may not converge; the azimuth means little there: first order)
+    if far.any():
+        i1[far], i2[far] = model.invert(a1[far], a2[far])
+    if (~far).any():
+        d1, d2 = model.corrections(a1[~far], a2[~far])
+        i1[~far], i2[~far] = a1[~far] - d1, a2[~far] - d2
+    sun_m, low_m, _keep = violations(i1, i2, utc)
+    return sun | sun_m, low | low_m, keep
+
+
+def test_random_slews_with_a_pointing_model_stay_out_in_both_readings():
+    """Seeded: 150 slews around the Sun, each with a random pointing model of operator size
+    (IA/IE up to 9°): every planned route, re-simulated, is outside the Sun cone and above the
+    horizon both as the axis angles say and as the model says (the sky through its inverse)."""
+    rng = np.random.default_rng(39007)
+    counts = {"done": 0, "refused": 0}
+    for _ in range(150):
+        model = random_model(rng)
+        env = envelope()
+        env._model = lambda m=model: m
+        t = daytime(rng)
+        start = random_place(rng, t, True)
+        for _try in range(20):   # a start clear in both readings (a path may leave one that is not)
+            if not any(v[0] for v in violations_model(model, np.array([start[0]]), np.array([start[1]]),
+                                                      np.array([t]))):
+                break
+            start = random_place(rng, t, True)
+        else:
+            continue
+        end = random_place(rng, t, True)
+        try:
+            route = plan_route(env, t, (Setpoint(start[0]), Setpoint(start[1])), end, (AZ, ZD), RANGES)
+        except EnvelopeError as exc:
+            assert exc.number == ErrorNumber.SOFTLIMIT
+            counts["refused"] += 1
+            continue
+        counts["done"] += 1
+        here, when = start, t
+        for goal in route.waypoints + (route.end,):
+            times, a1, a2, duration = resimulate(here, goal, when)
+            sun, low, keep = violations_model(model, a1, a2, times)
+            assert not sun.any() and not low.any() and not keep.any(), (model, route)
+            here, when = goal, when + duration
+    assert min(counts.values()) > 15, counts
+
+
+def test_random_targetpos_is_judged_on_the_turn_the_planner_drives():
+    """Seeded: 300 engineering AZ.TARGETPOS at the Sun's zenith distance from random azimuths
+    of the ±270° wrap to random written targets. The envelope judges the turn
+    ``MotionPlanner.resolve_target`` gives (what the axis does); when it accepts, the real
+    planner, stepped from the start with the written value, drives exactly there and never
+    comes within the cone; written-as-is judgements that would have passed a driven path
+    through the cone occur (the bug of issue 39 item 3)."""
+    rng = np.random.default_rng(39003)
+    env = envelope(horizon=(), keepout=())
+    counts = {"accepted": 0, "refused": 0, "turn would have lied": 0}
+    for i in range(300):
+        t = daytime(rng)
+        saz, salt = sun_altaz(np.array([t]))
+        zd = float(np.clip(90.0 - salt[0] + rng.uniform(-15.0, 15.0), 0.0, 74.0))
+        start = rng.uniform(-270.0, 270.0)
+        written = rng.uniform(-270.0, 270.0)
+        if i % 2:   # the short way through the Sun's azimuth, written on the other turn
+            side = rng.choice([-1.0, 1.0])
+            sun1 = float(saz[0]) + 360.0 * rng.integers(-1, 1)
+            start, short = sun1 + side * rng.uniform(65.0, 90.0), sun1 - side * rng.uniform(65.0, 90.0)
+            written = short + 360.0 if short + 360.0 <= 270.0 else short - 360.0
+            if not (-270.0 <= start <= 270.0 and -270.0 <= short <= 270.0 and -270.0 <= written <= 270.0):
+                continue
+        if violations(np.array([start]), np.array([zd]), np.array([t]))[0][0]:
+            continue
+        planner = MotionPlanner(AZ, SoftLimits(-270.0, 270.0, 360.0), 0.05, position=start)
+        resolved = planner.resolve_target(written, 0.0, start)
+        starts = (Setpoint(start), Setpoint(zd))
+        j = env.check_move(t, starts, (resolved, zd), (AZ, ZD), margin=0.0, horizon=False)
+        as_written = env.check_move(t, starts, (written, zd), (AZ, ZD), margin=0.0, horizon=False)
+        if not j.ok:
+            counts["refused"] += 1
+            counts["turn would have lied"] += as_written.ok
+            continue
+        counts["accepted"] += 1
+        planner.set_target(written)
+        path = [start]
+        while planner.moving:
+            path.append(planner.step().position)
+        assert path[-1] == pytest.approx(resolved, abs=1e-9)
+        a1 = np.array(path)
+        sun, _low, _keep = violations(a1, np.full(a1.shape, zd), t + 0.05 * np.arange(a1.size))
+        assert not sun.any(), (start, written, resolved)
+    assert min(counts.values()) > 10, counts
+
+
+def test_random_moveaxis_pairs_never_enter_the_envelope():
+    """Seeded: 120 pairs of MoveAxis near the Sun: one axis moves (a path clear on its own),
+    the other starts a move of its own; :func:`pair_bound` bounds the second on the pair's
+    simultaneous path. Re-simulated with ruckig — the second starting on time or 0.1 s late —
+    the two axes together never enter the cone, go below the horizon table or into the
+    keep-out; bounded and free second moves both occur."""
+    rng = np.random.default_rng(39004)
+    env = envelope()
+    which = dict(horizon=True, sun=True, keepouts=True)
+    counts = {"free": 0, "bounded": 0, "refused": 0}
+    dyn = (AZ, ZD)
+    for _ in range(120):
+        t = daytime(rng)
+        start = random_place(rng, t, True)
+        a = int(rng.integers(2))          # the axis that moves first
+        b = 1 - a
+        goal_a = float(np.clip(start[a] + rng.choice([-1.0, 1.0]) * rng.uniform(10.0, 70.0), *RANGES[a]))
+        speed_a = rng.uniform(0.3, 1.0) * dyn[a].max_velocity
+        path_a, dur_a = one_axis(start[a], goal_a, dyn[a], speed_a)
+        grid = t + np.linspace(0.0, dur_a, max(2, int(dur_a * 20)))
+        alone = (path_a(grid - t), np.full(grid.shape, start[b]))[:: 1 if a == 0 else -1]
+        if any(v.any() for v in violations(*alone, grid)):
+            continue                      # (the first move's own bound would have cut it)
+        direction = int(rng.choice([-1, 1]))
+        end_b = float(np.clip(start[b] + direction * rng.uniform(15.0, 60.0), *RANGES[b]))
+        speed_b = rng.uniform(0.3, 1.0) * dyn[b].max_velocity
+        try:
+            g = pair_bound(env, t, Setpoint(start[b]), dyn[b], direction, end_b, speed_b,
+                           lambda x: path_a(np.asarray(x) - t), t + dur_a, b == 0, which)
+        except EnvelopeError:
+            counts["refused"] += 1
+            continue
+        counts["free" if g is None else "bounded"] += 1
+        goal_b = end_b if g is None else g
+        path_b, dur_b = one_axis(start[b], goal_b, dyn[b], speed_b)
+        for late in (0.0, 0.1):
+            times = np.arange(0.0, max(dur_a, dur_b + late) + 0.02, 0.02)
+            pa, pb = path_a(times), path_b(times - late)
+            a1, a2 = (pa, pb) if a == 0 else (pb, pa)
+            sun, low, keep = violations(a1, a2, t + times)
+            assert not (sun.any() or low.any() or keep.any()), (start, a, goal_a, goal_b, late)
+    assert counts["free"] > 10 and counts["bounded"] > 10, counts
+
+
+def test_random_offsets_while_tracking_are_judged_on_their_path():
+    """Seeded: 300 OFFSETs of up to ±40° on one axis of a sidereal target tracked for 10 min
+    (half of them by day): when the envelope accepts the offset path (:func:`offset_path`,
+    the change as a rest-to-rest profile on the tracked path), the path re-simulated with
+    ruckig every 0.1 s stays outside every border; accepted and refused offsets both occur."""
+    rng = np.random.default_rng(39005)
+    env = envelope()
+    counts = {"accepted": 0, "refused": 0}
+    for i in range(300):
+        t0 = daytime(rng) if i % 2 else rng.uniform(T2020, T2040)
+        ra, dec = rng.uniform(0.0, 24.0), math.degrees(math.asin(rng.uniform(-1.0, 1.0)))
+        grid = t0 + np.arange(0.0, 600.0 + 1.0, 5.0)
+        obs = ASTRO.observed(ra, dec, grid)
+        track = [np.unwrap(np.asarray(obs.az), period=360.0), np.asarray(obs.zd)]
+        if any(v.any() for v in violations(*track, grid)):
+            continue
+        axis = int(rng.integers(2))
+        offset = rng.uniform(-40.0, 40.0)
+        dyn = (AZ, ZD)[axis]
+        times, own = offset_path(lambda x: np.interp(x, grid, track[axis]), t0, grid[-1], 0.0,
+                                 offset, dyn)
+        other = np.interp(times, grid, track[1 - axis])
+        j = env.judge(*((own, other) if axis == 0 else (other, own)), times, margin=0.0,
+                      horizon=True, sun=True, keepouts=True)
+        if not j.ok:
+            counts["refused"] += 1
+            continue
+        counts["accepted"] += 1
+        blend, _d = one_axis(0.0, offset, dyn)
+        fine = np.arange(0.0, 600.0, 0.1)
+        mine = np.interp(t0 + fine, grid, track[axis]) + blend(fine)
+        rest = np.interp(t0 + fine, grid, track[1 - axis])
+        sun, low, keep = violations(*((mine, rest) if axis == 0 else (rest, mine)), t0 + fine)
+        assert not (sun.any() or low.any() or keep.any()), (ra, dec, t0, axis, offset)
+    assert min(counts.values()) > 10, counts

@@ -361,6 +361,186 @@ def test_alpaca_moveaxis_stops_at_the_sun_cone(live):
         t.Disconnect()
 
 
+async def test_targetpos_is_judged_on_the_cable_wrap_turn_the_axis_takes(live):
+    """Issue 39 item 3: from 60° past the Sun's azimuth on the negative turn, AZ.TARGETPOS
+    written on the positive turn (a path via north, clear of the Sun) is driven on the nearest
+    turn, through the Sun's azimuth: that path is judged — FAILED 9 naming the cone, nothing
+    moves."""
+    c = await Client.connect(live.port)
+    try:
+        await ready(c)
+        saz, szd = sun_now(live)
+        sun1 = saz - 360.0                       # the Sun's azimuth on the negative turn
+        await place(c, live, 0.0, 5.0)           # (so that the nearest turn of the next is it)
+        await place(c, live, sun1 + 60.0, szd, turn=False)
+        az0 = await c.num("AZ.REALPOS")
+        written = sun1 - 60.0 + 360.0            # nearest turn: sun1 - 60, through the Sun
+        assert abs(written - az0) > 180.0 and -270.0 < written - 360.0 < az0
+        lines = await c.set(f"AZ.TARGETPOS={written!r}")
+        assert any("DATA ERROR AZ.TARGETPOS FAILED 9" in x for x in lines), lines
+        assert "Sun avoidance cone (30" in next(x for x in lines if " EVENT ERROR AZ:9 " in x)
+        assert abs(await c.num("AZ.REALPOS") - az0) < 0.01
+        # the other way round (the far turn written, the near one clear): taken, on that turn
+        far = az0 + 20.0 + (360.0 if az0 + 380.0 <= 270.0 else -360.0)
+        lines = await c.set(f"AZ.TARGETPOS={far!r}")
+        assert ok(lines, "AZ.TARGETPOS"), lines
+        assert abs(await c.num("AZ.REALPOS") - (az0 + 20.0)) < 0.01
+    finally:
+        await c.close()
+
+
+async def test_an_offset_while_tracking_is_judged_before_it_is_applied(live):
+    """Issue 39 item 5: tracking a star 60° of azimuth east of the Sun at its zenith distance
+    (37° from it), AZ.OFFSET=45 would take the tube 10° from the Sun: FAILED 9 naming the
+    cone, the offset stays 0, tracking goes on; a small offset is taken."""
+    c = await Client.connect(live.port)
+    try:
+        await ready(c)
+        saz, szd = sun_now(live)
+        await place(c, live, saz - 60.0, szd)
+        await star_at(c, live, saz - 60.0, szd)
+        c.forget()
+        cmd = await c.start("POINTING.TRACK=1")
+        await c.event(rf"^(?:0|{cmd}) EVENT INFO POINTING:1014 ")
+        await c.wait("AZ.MOTION_STATE", lambda v: int(v) & 2 and int(v) & 8)
+        az0 = await c.num("AZ.REALPOS")
+        lines = await c.set("AZ.OFFSET=45")
+        assert any("DATA ERROR AZ.OFFSET FAILED 9" in x for x in lines), lines
+        assert "Sun avoidance cone (30" in next(x for x in lines if " EVENT ERROR AZ:9 " in x)
+        assert await c.num("AZ.OFFSET") == 0.0
+        assert await c.num("POINTING.TRACK") == 1
+        assert abs(await c.num("AZ.REALPOS") - az0) < 0.5     # (the star's motion only)
+        lines = await c.set("AZ.OFFSET=-0.5")
+        assert ok(lines, "AZ.OFFSET"), lines
+    finally:
+        await c.set("POINTING.TRACK=0")
+        await c.wait("POINTING.TRACK", lambda v: v == 0)
+        await c.set("AZ.OFFSET=0")
+        await c.close()
+
+
+async def test_a_pointing_model_term_does_not_move_the_tube_into_the_cone(live):
+    """Issue 39 item 7: with POINTING.POINTINGPARAMS.IE = 9° (operator level), an OpenTSI goto
+    (OBJECT.HORIZONTAL, POINTING.TRACK=2) to 25° above the Sun is demanded 34° from it on the
+    encoders; the envelope reads the sky through the model too: FAILED 9 naming the cone, and
+    the tube does not move. A goto clear in both readings is done."""
+    await _ready_over_tpl2(live, east=False)
+    c = await Client.connect(live.port)
+    t = await Client.connect(live.service.opentsi_port)
+    try:
+        lines = await c.set("POINTING.POINTINGPARAMS.IE=9")
+        assert ok(lines, "POINTING.POINTINGPARAMS.IE"), lines
+        saz, szd = sun_now(live)
+        az0, zd0 = await c.nums("AZ.REALPOS", "ZD.REALPOS")
+        lines = await t.set(f"OBJECT.HORIZONTAL.AZ={saz!r};OBJECT.HORIZONTAL.ALT={90.0 - szd + 25.0!r}")
+        assert lines[-1].endswith("COMMAND COMPLETE"), lines
+        lines = await t.set("POINTING.TRACK=2")
+        assert any("DATA ERROR POINTING.TRACK FAILED 9" in x for x in lines), lines
+        assert any("Sun avoidance cone" in x for x in lines if " EVENT ERROR " in x), lines
+        az1, zd1 = await c.nums("AZ.REALPOS", "ZD.REALPOS")
+        assert abs(az1 - az0) < 0.01 and abs(zd1 - zd0) < 0.01
+        # 45° above the Sun, 36° on the encoders: clear in both readings, done
+        lines = await t.set(f"OBJECT.HORIZONTAL.ALT={90.0 - szd + 36.0!r}")
+        lines = await t.set("POINTING.TRACK=2")
+        assert ok(lines, "POINTING.TRACK"), lines
+    finally:
+        await c.set("POINTING.POINTINGPARAMS.IE=0")
+        await c.close()
+        await t.close()
+
+
+def test_alpaca_moveaxis_of_both_axes_at_once_stays_out_of_the_sun_cone(live):
+    """Issue 39 item 4: 60° of azimuth east of the Sun, 33° above it (37° away): alone, each
+    axis passes the Sun clear (no bound); MoveAxis(0, +8) and then MoveAxis(1, -4.4) together
+    would sweep the tube through the Sun. The second move is bounded on the pair's path:
+    sampled every cycle, the tube never comes within 30° of the Sun, and the azimuth passes
+    the Sun's."""
+    pytest.importorskip("alpaca", reason="alpyca (the 'dev' extra) is not installed")
+    from alpaca.telescope import Telescope, TelescopeAxes
+
+    async def start():
+        c = await Client.connect(live.port)
+        try:
+            await ready(c)
+            saz, szd = sun_now(live)
+            await place(c, live, saz - 60.0, szd - 33.0)
+        finally:
+            await c.close()
+
+    asyncio.run(start())
+    t = Telescope(f"127.0.0.1:{live.service.alpaca_port}", 0)
+    t.Connect()
+    az, zd = live.telescope.axis("AZ"), live.telescope.axis("ZD")
+    try:
+        until(lambda: not t.AtPark, "ready")
+        t.Tracking = False
+        saz, _szd = sun_now(live)
+        t.MoveAxis(TelescopeAxes.axisPrimary, 8.0)
+        until(lambda: az.motion_state & 1, "moving")
+        t.MoveAxis(TelescopeAxes.axisSecondary, -4.4)
+        closest, passed = 180.0, False
+        deadline = time.monotonic() + WAIT
+        while not passed:
+            a1, a2 = az.real_position, zd.real_position
+            closest = min(closest, sep_from_sun(live, a1, a2))
+            passed = math.remainder(a1 - saz, 360.0) > 30.0
+            assert time.monotonic() < deadline, "the azimuth did not pass the Sun"
+            time.sleep(0.005)
+        assert closest >= 30.0 - 0.02, closest
+    finally:
+        t.AbortSlew()
+        t.Disconnect()
+
+
+def test_alpaca_moveaxis_pair_is_bounded_again_when_one_axis_stops(live):
+    """Issue 39 item 4, the other way round: 75° of azimuth east of the Sun and 33° above it,
+    the altitude lowers fast first (clear on its own), then the azimuth moves slowly towards
+    the Sun — bounded on the pair's path, on which the tube has sunk far below the Sun when
+    the azimuth gets there. The altitude is stopped 6° above the Sun (MoveAxis(1, 0)): the
+    azimuth's running move is judged again with the altitude standing there and ends before
+    the cone; the tube never comes within 30° of the Sun."""
+    pytest.importorskip("alpaca", reason="alpyca (the 'dev' extra) is not installed")
+    from alpaca.telescope import Telescope, TelescopeAxes
+
+    async def start():
+        c = await Client.connect(live.port)
+        try:
+            await ready(c)
+            saz, szd = sun_now(live)
+            await place(c, live, saz - 75.0, szd - 33.0)
+        finally:
+            await c.close()
+
+    asyncio.run(start())
+    t = Telescope(f"127.0.0.1:{live.service.alpaca_port}", 0)
+    t.Connect()
+    az, zd = live.telescope.axis("AZ"), live.telescope.axis("ZD")
+    try:
+        until(lambda: not t.AtPark, "ready")
+        t.Tracking = False
+        _saz, szd = sun_now(live)
+        t.MoveAxis(TelescopeAxes.axisSecondary, -3.0)
+        until(lambda: zd.motion_state & 1, "moving")
+        t.MoveAxis(TelescopeAxes.axisPrimary, 2.0)
+        closest, stopped = 180.0, False
+        deadline = time.monotonic() + WAIT
+        while True:
+            a1, a2 = az.real_position, zd.real_position
+            closest = min(closest, sep_from_sun(live, a1, a2))
+            if not stopped and a2 >= szd - 6.0:
+                t.MoveAxis(TelescopeAxes.axisSecondary, 0.0)
+                stopped = True
+            if stopped and not (az.motion_state & 1 or zd.motion_state & 1):
+                break
+            assert time.monotonic() < deadline, "the axes did not stop"
+            time.sleep(0.005)
+        closest = min(closest, sep_from_sun(live, az.real_position, zd.real_position))
+        assert closest >= 30.0 - 0.02, closest
+    finally:
+        t.AbortSlew()
+        t.Disconnect()
+
+
 async def _ready_over_tpl2(live, east: bool = True) -> None:
     c = await Client.connect(live.port)
     try:

@@ -300,6 +300,7 @@ class Axis(ModuleHealth):
         self._drive_reboots = 0
         self._discrete_target: int | None = None
         self._discrete_sent = False
+        self._jog: tuple | None = None  # (speed, direction, future) of the last move_toward
         self._after_homing = False  # a homing run ended early: wait for CSP and standstill
         self._pending: dict[str, tuple[asyncio.Future, Any]] = {}
         self._joined: dict[str, list[asyncio.Future]] = {}  # later requests ending with _pending's
@@ -384,7 +385,10 @@ class Axis(ModuleHealth):
 
     def set_target(self, value: float, *, checked: bool = False):
         """``TARGETPOS`` (long-running; a newer target supersedes this one with 10).
-        ``checked``: the caller planned the path against the envelope already (routes)."""
+        ``checked``: the caller planned the path against the envelope already (routes): the
+        axis goes to ``value`` on exactly that turn. Otherwise a cyclic axis's turn (the
+        cable-wrap choice) is resolved here, once, by the planner's rule from where the demand
+        is now; the envelope judges that turn and the planner is handed it as it is."""
         self._require(what="move")
         value = float(value)
         if self.discrete:
@@ -394,8 +398,11 @@ class Axis(ModuleHealth):
         elif not self.limits.contains(value + self.offset):
             raise RangeRefused(f"{self.module_name}: {value} (+ offset {self.offset}) is outside "
                                f"[{self.section.min}, {self.section.max}]")
-        elif self.envelope is not None and not checked:
-            self.envelope(self, "target", value)
+        else:
+            if not checked and self.section.cyclic:
+                value = self.planner.resolve_target(value, self.offset, self._sp.position) - self.offset
+            if self.envelope is not None and not checked:
+                self.envelope(self, "target", value)
         future = self._future()
         self._send("target", value, future)
         return future
@@ -469,9 +476,19 @@ class Axis(ModuleHealth):
             raise RangeRefused(f"{self.module_name}: at the {'upper' if direction > 0 else 'lower'} "
                                f"limit {goal:g} already")
         future = self._future()
-        self._send("jog", (float(goal), min(speed, self.section.max_velocity), 1 if direction > 0 else -1),
-                   future)
+        speed = min(speed, self.section.max_velocity)
+        self._send("jog", (float(goal), speed, 1 if direction > 0 else -1), future)
+        if self.envelope is not None:   # (the other axis's judgements predict this move)
+            self.envelope(self, "moving", (float(goal), speed, 1 if direction > 0 else -1), sky=sky)
         return future
+
+    def limit_move(self, goal: float) -> None:
+        """The safety envelope brings the end of a running :meth:`move_toward` nearer (the
+        other axis's motion changed): the move ends at rest at ``goal`` (drive frame) at its
+        speed, or stops at once when it cannot brake before ``goal`` with its normal
+        deceleration; never further, never the other way. Anything else running is left
+        alone. Returns at once."""
+        self._send("bound", float(goal))
 
     def set_stop(self, value: int) -> None:
         """``STOP``: quick stop, cancel targets and trajectories (returns at once)."""
@@ -479,6 +496,11 @@ class Axis(ModuleHealth):
 
     def stop(self) -> None:
         self._send("stop")
+        if self.envelope is not None:   # the other axis's running move is judged again
+            try:
+                self.envelope(self, "stop")
+            except Exception:   # (a STOP is never refused)
+                log.exception("%s: the envelope's judgement after STOP failed", self.module_name)
 
     def shutdown(self) -> None:
         """Service stopping: stop, then power off (no reply is waited for)."""
@@ -745,7 +767,7 @@ class Axis(ModuleHealth):
                     self.planner.take_over(self._sp)  # from the follower's (moving) setpoint
                 elif not self.planner.moving:
                     self.planner.take_over(self._sp)
-                self.planner.set_target(value)
+                self.planner.set_target(value, resolve=False)   # (the turn set_target chose)
             self.emit(INFO, ErrorNumber.MOTIONCHANGE, f"moving to {value:g}", cause)
         elif kind == "offset":
             # checked before anything changes: a refused offset (RANGE) keeps the old one and
@@ -788,7 +810,26 @@ class Axis(ModuleHealth):
             elif not self.planner.moving:
                 self.planner.take_over(self._sp)
             self.planner.move_to(goal, speed)
+            self._jog = (speed, direction, future)
             self.emit(INFO, ErrorNumber.MOTIONCHANGE, f"moving towards {goal:g} at {speed:g}/s", cause)
+        elif kind == "bound":   # the envelope brings a running move_toward's end nearer
+            jog = self._jog
+            pending = self._pending.get("target")
+            if (jog is None or pending is None or pending[0] is not jog[2] or self._running
+                    or not self.planner.moving):
+                return
+            speed, direction, _future = jog
+            if (self.planner.demanded_target - value) * direction <= 1e-12:
+                return   # (ends there or nearer already)
+            d = self.dynamics
+            sp = self.planner.setpoint
+            rest = sp.position + sp.velocity * abs(sp.velocity) / (2.0 * d.max_acceleration)
+            if (value - sp.position) * direction <= 0 or (rest - value) * direction >= 0:
+                self.planner.stop(quick=True)
+            else:
+                self.planner.move_to(value, speed)
+            self.emit(INFO, ErrorNumber.MOTIONCHANGE, f"safety envelope: the move ends at "
+                      f"{self.planner.demanded_target:g}", cause)
         elif kind == "stop":
             self._stop_motion(TcsError(f"{self.module_name}: stopped", ErrorNumber.TARGETCHANGE))
             if self._homing:  # STOP ends referencing too (CABINET.STOP during a REINIT)

@@ -199,11 +199,13 @@ class MotionPlanner:
         """
         self._speed = checked_speed(velocity, self.dynamics)
 
-    def set_target(self, position: float) -> float:
+    def set_target(self, position: float, resolve: bool = True) -> float:
         """``TARGETPOS`` written: move so that the drive reaches ``position + offset``.
 
         On a cyclic axis, ``position + k·cycle`` inside the limits with the shortest travel
-        is taken (cable wrap: never through a limit).
+        is taken (cable wrap: never through a limit) — :meth:`resolve_target`. ``resolve``
+        False: ``position`` is that turn already (the axis resolved it once, when the safety
+        envelope judged the path, so the turn judged is the turn driven) and is taken as it is.
 
         Returns
         -------
@@ -215,11 +217,24 @@ class MotionPlanner:
         RangeRefused
             The target (plus offset) is outside the software limits; nothing changes.
         """
-        demanded = self.limits.resolve(float(position) + self._offset, self._sp.position,
-                                       what="target position (with offset)")
+        if resolve:
+            demanded = self.resolve_target(position, self._offset, self._sp.position)
+        else:
+            demanded = float(position) + self._offset
+            if not (math.isfinite(demanded) and self.limits.contains(demanded)):
+                raise RangeRefused(f"target position (with offset) {demanded!r} is outside the "
+                                   "software limits")
         self._target = demanded - self._offset
         self._plan_to(demanded)
         return self._target
+
+    def resolve_target(self, position: float, offset: float, current: float) -> float:
+        """The drive position a ``TARGETPOS`` of ``position`` goes to with ``offset``, from the
+        drive position ``current``: the cable-wrap choice of :meth:`SoftLimits.resolve`
+        (pure: callable from any thread; the one rule both the planner and the safety
+        envelope's judgement use)."""
+        return self.limits.resolve(float(position) + float(offset), float(current),
+                                   what="target position (with offset)")
 
     def move_to(self, demanded: float, speed: float) -> None:
         """Move to rest at the drive position ``demanded`` (no cyclic resolution: a MoveAxis

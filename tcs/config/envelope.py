@@ -12,7 +12,8 @@ path of the main axes inside (:mod:`tcs.pointing.envelope`).
   wraps through 0) and ``axis2 = [lo, hi]`` (ZD or Dec, as the axis reads, reverse
   orientation included).
 * ``margin``: degrees kept from every border by a *planned* slew (the prediction of the
-  ruckig profiles is exact, this covers the pointing model and the Sun's motion meanwhile).
+  ruckig profiles is exact, this covers the sampling and the Sun's motion meanwhile; the
+  pointing model is judged itself: the sky is read both bare and through the model).
 """
 
 from __future__ import annotations

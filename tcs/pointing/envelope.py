@@ -19,9 +19,12 @@ what the drives will really do) sampled in time, against three kinds of border:
 * **Keep-out zones** (``[[envelope.keepout]]``): rectangles of the mechanical axis angles
   (axis 1 modulo 360°): pier, dome ring.
 
-The sky direction of a mechanical position is taken without the pointing model (arcminutes;
-``[envelope] margin`` covers it): AZ-ZD through :func:`~tcs.pointing.orientation.to_normal`,
-RA-DEC through it and ``erfa.hd2ae``.
+The sky direction of a mechanical position is read twice (:meth:`Envelope.readings`): the bare
+axis angles (AZ-ZD through :func:`~tcs.pointing.orientation.to_normal`, RA-DEC through it and
+``erfa.hd2ae``) and, with a pointing model, the same through the active model's inverse (where
+the model says the tube points). A sample must be clear of the Sun cone and the horizon in
+both: neither a large right model nor a wrong one (IE = 9° written at operator level, a bad
+Alpaca sync) brings the tube into the cone.
 
 **Margins and escape.** A sample's margin is its distance (degrees) inside the allowed
 region, the smallest over the borders. A path is good while every margin is ≥ the margin
@@ -40,14 +43,18 @@ on OpenTCI) names the border. Routes are executed by :meth:`Envelope.run_route` 
 consecutive TARGETPOS moves of both axes.
 
 **Guards.** :meth:`Envelope.guard` is installed on the main axes (``Axis.envelope``) and
-judges every other motion request before the axis takes it: TARGETPOS and OFFSET (Sun cone
-and keep-outs — engineering moves keep the software limits as before, no horizon), a client
-TRAJECTORY run (the whole queued path, all borders), ``move_toward`` (Alpaca MoveAxis, jogs:
-the move is bounded to stop at the border), a homing search (each way its method may sweep,
-at its search speed, the other axis where it stands, all borders: refused when a border is
-within its stopping distance, else the border where the axis halts the run). The other axis is
-predicted as it will move: its approved move (recorded here), its queued trajectory, its
-planner target, or at rest.
+judges every other motion request before the axis takes it: TARGETPOS (on the cable-wrap turn
+the axis resolved with the planner's rule and will drive) and OFFSET (Sun cone and keep-outs —
+engineering moves keep the software limits as before, no horizon); an OFFSET while tracking
+(:func:`offset_path`: the offset move and the queued path with it, all borders); a client
+TRAJECTORY run (the whole queued path, all borders); ``move_toward`` (Alpaca MoveAxis, jogs:
+the move is bounded to stop at the border — while the other axis moves, on the pair's
+simultaneous path, :func:`pair_bound`; when one axis of a pair is stopped, the other's running
+move is judged again and ``Axis.limit_move`` brings its end nearer); a homing search (each way
+its method may sweep, at its search speed, the other axis where it stands, all borders: refused
+when a border is within its stopping distance, else the border where the axis halts the run). The other axis is
+predicted as it will move: its approved move (recorded here, jogs at their speed), its queued
+trajectory, its planner target, or at rest. docs/safety-envelope.md says it for users.
 
 What may touch it
 -----------------
@@ -70,7 +77,7 @@ from tcs.errors import ErrorNumber, TcsError, gather_all
 from tcs.pointing.orientation import to_normal
 
 __all__ = ["Envelope", "EnvelopeError", "Judgement", "Route", "sun_icrs", "move_samples",
-           "plan_route", "STEP"]
+           "plan_route", "pair_bound", "offset_path", "STEP"]
 
 #: degrees between the samples of a predicted slew (along the faster axis)
 STEP = 0.25
@@ -78,6 +85,10 @@ _SUN_GRID = 300.0         # s between the Sun directions that are interpolated (
 #                           the chord of linear interpolation is within 0.004° of the arc)
 _TOL = 1e-6
 _WAYPOINT_STEP = 5.0      # degrees between the intermediate axis-2 angles a detour may use
+_MODEL_ITERATIONS = 4     # steps of the model's fixed-point inverse: exact for the index terms
+#                           (IA, IE); with a badly aligned mount's others (NPAE, CA 3′, AN, AW
+#                           6′) within 0.0002° from 3° off the mount's pole on (nearer, the
+#                           azimuth means little)
 
 
 class EnvelopeError(TcsError):
@@ -191,8 +202,11 @@ class Envelope:
 
     def __init__(self, section, mount: str, *, floor: Callable[[], float],
                  astrometry: Callable, utc: Callable[[], float] = _time.time,
-                 ut1_utc: Callable[[], float] = lambda: 0.0):
+                 ut1_utc: Callable[[], float] = lambda: 0.0,
+                 model: Callable[[], object] | None = None):
         self.section = section
+        #: () -> the active :class:`~tcs.pointing.model.PointingModel` (None: no model)
+        self._model = model
         self.mount = mount
         self._floor = floor
         self._astrometry = astrometry
@@ -204,7 +218,9 @@ class Envelope:
         self.keepouts = [(k.name, float(k.axis1[0]), float(k.axis1[1]), float(k.axis2[0]),
                           float(k.axis2[1])) for k in section.keepout]
         self._sun_cache: dict[tuple[int, int], np.ndarray] = {}
-        self._approved: dict[int, tuple] = {}   # id(axis) -> (ut1 t0, trajectory, target)
+        #: id(axis) -> the move approved last: (ut1 t0, trajectory, target (drive frame),
+        #: speed, jog) — ``jog`` (direction, sky) for a move_toward, else None
+        self._approved: dict[int, tuple] = {}
         self.axes: tuple = ()
 
     # -- borders --------------------------------------------------------------------------------
@@ -225,8 +241,33 @@ class Envelope:
         table = np.interp(az, self._haz, self._halt, period=360.0)
         return np.maximum(table, floor)
 
+    def model(self):
+        """The active pointing model when it has a term that is not 0, else None."""
+        model = self._model() if self._model is not None else None
+        if model is None or not any(v != 0.0 for v in model.coefficients.values()):
+            return None
+        return model
+
+    def readings(self, a1, a2) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Every sky (az, alt) the tube may point to at mechanical ``a1``, ``a2``: the bare
+        axis angles, and — with a pointing model — the angles through the model's inverse
+        (where the model says the tube points). A sample must be clear of the borders in
+        both: a wrong model (IE = 9° written by hand) cannot bring the tube into the cone,
+        nor can a right one whose terms are large."""
+        out = [self.sky(a1, a2)]
+        model = self.model()
+        if model is not None:
+            m1, m2 = np.asarray(a1, float), np.asarray(a2, float)
+            i1, i2 = m1, m2
+            for _ in range(_MODEL_ITERATIONS):   # the model's fixed-point inverse, a few steps
+                d1, d2 = model.corrections(i1, i2)
+                i1, i2 = m1 - d1, m2 - d2
+            out.append(self.sky(i1, i2))
+        return out
+
     def sky(self, a1, a2):
-        """(az, alt) degrees of mechanical axis angles (pointing model left out)."""
+        """(az, alt) degrees of mechanical axis angles (pointing model left out: see
+        :meth:`readings`)."""
         n1, n2, _rev = to_normal(np.asarray(a1, float), np.asarray(a2, float), self.mount)
         if self.mount == "AZ-ZD":
             return np.mod(n1, 360.0), 90.0 - np.asarray(n2)
@@ -275,23 +316,24 @@ class Envelope:
         m = np.full(a1.shape, np.inf)
         why = np.zeros(a1.shape, dtype=np.int8)
         need_sun = sun and self.sun_radius > 0.0
-        if horizon or need_sun:
-            az, alt = self.sky(a1, a2)
-        if horizon:
-            h = np.asarray(alt) - self.min_altitude(az)
-            worse = h < m
-            m = np.where(worse, h, m)
-            why[worse] = 1
+        readings = self.readings(a1, a2) if horizon or need_sun else []
+        for az, alt in readings:
+            if horizon:
+                h = np.asarray(alt) - self.min_altitude(az)
+                worse = h < m
+                m = np.where(worse, h, m)
+                why[worse] = 1
         if need_sun:
             utc = np.broadcast_to(np.asarray(utc, float), a1.shape)
-            s = self.sun_vectors(utc)
-            t = _unit(az, alt)
-            sep = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", s.reshape(-1, 3), t.reshape(-1, 3)),
-                                               -1.0, 1.0))).reshape(a1.shape)
-            d = sep - self.sun_radius
-            worse = d < m
-            m = np.where(worse, d, m)
-            why[worse] = 2
+            s = self.sun_vectors(utc).reshape(-1, 3)
+            for az, alt in readings:
+                t = _unit(az, alt)
+                sep = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", s, t.reshape(-1, 3)),
+                                                   -1.0, 1.0))).reshape(a1.shape)
+                d = sep - self.sun_radius
+                worse = d < m
+                m = np.where(worse, d, m)
+                why[worse] = 2
         if keepouts:
             for i, (_name, lo1, hi1, lo2, hi2) in enumerate(self.keepouts):
                 width = (hi1 - lo1) % 360.0 or 360.0
@@ -374,20 +416,33 @@ class Envelope:
 
     def _predict(self, axis, times_ut1: np.ndarray) -> np.ndarray:
         """Where ``axis`` (mechanical frame) will be at ``times_ut1`` when left alone."""
+        return self._prediction(axis, float(times_ut1[0]))[0](times_ut1)
+
+    def _prediction(self, axis, t0: float):
+        """(positions at UT1 times, UT1 when the motion ends) of ``axis`` left alone from
+        ``t0``: its approved move (a young one as approved, an older one re-planned from where
+        the axis is, at its speed), its queued trajectory, its planner target, or at rest."""
         record = self._approved.get(id(axis))
         if record is not None:
-            t0, traj, target = record
-            young = times_ut1[0] - t0 < 1.0    # (the loop may not have published the target yet)
-            if t0 + traj.duration > times_ut1[0] - 1.0 and (
+            start, traj, target, speed, _jog = record
+            young = t0 - start < 1.0    # (the loop may not have published the target yet)
+            if start + traj.duration > t0 - 1.0 and (
                     young or abs(axis.target_position + axis.offset - target) < 1e-6):
-                return _evaluate(traj, times_ut1 - t0)
+                if young:
+                    return (lambda t, s=start, tr=traj: _evaluate(tr, np.asarray(t) - s)), start + traj.duration
+                if not axis.motion_state & 1:
+                    here = float(axis.real_position)
+                    return (lambda t: np.full(np.shape(t), here)), t0
+                tr = _traj(self._state(axis), target, axis.dynamics, speed)
+                return (lambda t, tr=tr: _evaluate(tr, np.asarray(t) - t0)), t0 + tr.duration
             self._approved.pop(id(axis), None)
         if axis.trajectory_running and len(axis.queue):
-            return self._queued(axis, times_ut1)
+            return (lambda t: self._queued(axis, np.asarray(t, float))), float(axis.queue.end_time)
         if axis.motion_state & 1:
-            traj = _traj(self._state(axis), axis.target_position + axis.offset, axis.dynamics, None)
-            return _evaluate(traj, times_ut1 - times_ut1[0])
-        return np.full(times_ut1.shape, float(axis.real_position))
+            tr = _traj(self._state(axis), axis.target_position + axis.offset, axis.dynamics, _speed(axis))
+            return (lambda t, tr=tr: _evaluate(tr, np.asarray(t) - t0)), t0 + tr.duration
+        here = float(axis.real_position)
+        return (lambda t: np.full(np.shape(t), here)), t0
 
     @staticmethod
     def _queued(axis, times_ut1: np.ndarray) -> np.ndarray:
@@ -420,6 +475,13 @@ class Envelope:
             return self._homing_bound(axis, other, int(value), ut1, kw.get("speed"), kw.get("reach", 0.0))
         if kind == "jog":
             return self._jog_bound(axis, other, int(value), ut1, bool(kw.get("sky")), kw.get("speed"))
+        if kind == "moving":   # the move_toward accepted: (goal, speed, direction)
+            goal, speed, direction = value
+            self.moving(axis, goal, speed, direction, bool(kw.get("sky")))
+            return None
+        if kind == "stop":
+            self.stopping(axis)
+            return None
         if kind == "points":   # ADDPOINTS while the trajectory runs: the new points
             which = dict(horizon=True, sun=True, keepouts=True)
             times = np.asarray(value[0], float)
@@ -463,7 +525,7 @@ class Envelope:
                 what = f"TARGETPOS {float(value):g}"
             else:   # offset: the target shifts by the change
                 if axis.trajectory_running:
-                    return None   # (the tracked path is judged by its owner at every refill)
+                    return self._tracked_offset(axis, other, float(value), ut1)
                 target = axis.target_position + float(value)
                 what = f"OFFSET {float(value):g}"
             traj = _traj(self._state(axis), target, axis.dynamics, _speed(axis))
@@ -477,7 +539,25 @@ class Envelope:
         if not j.ok:
             self._refuse(axis, what, j, a1, a2)
         if kind in ("target", "offset"):
-            self._approved[id(axis)] = (ut1, traj, target)
+            self._approved[id(axis)] = (ut1, traj, target, _speed(axis), None)
+        return None
+
+    def _tracked_offset(self, axis, other, value: float, ut1: float) -> None:
+        """An OFFSET while ``axis`` runs a trajectory (tracking), judged before it is applied:
+        the offset move and the queued path with the new offset to its end
+        (:func:`offset_path`), with the other axis as it will move; every border (a tracked
+        path keeps the horizon too). Raises :class:`EnvelopeError` (FAILED 9)."""
+        q = axis.queue
+        if not len(q) or q.end_time is None:
+            return None
+        times, own = offset_path(lambda t: self._queued(axis, t), ut1, float(q.end_time),
+                                 float(axis.offset), value, axis.dynamics)
+        other_path = self._predict(other, times)
+        a1, a2 = (own, other_path) if axis is self.axes[0] else (other_path, own)
+        j = self.judge(a1, a2, times - self.ut1_utc(), margin=0.0,
+                       horizon=True, sun=True, keepouts=True)
+        if not j.ok:
+            raise EnvelopeError(f"{axis.module_name}: OFFSET {value:g} while tracking would enter {j.text}")
         return None
 
     def approve(self, axis, target_mech: float) -> None:
@@ -485,7 +565,7 @@ class Envelope:
         predicts it."""
         ut1 = self.utc() + self.ut1_utc()
         self._approved[id(axis)] = (ut1, _traj(self._state(axis), target_mech, axis.dynamics, None),
-                                    target_mech)
+                                    target_mech, None, None)
 
     def _jog_bound(self, axis, other, direction: int, ut1: float, sky: bool, speed):
         sec = axis.section
@@ -498,6 +578,11 @@ class Envelope:
                 and not (which["keepouts"] and self.keepouts):
             return None
         speed = float(speed or sec.max_velocity)
+        other_path, other_end = self._prediction(other, ut1)
+        probe = np.linspace(ut1, max(other_end, ut1), 50)
+        still = float(other.real_position)
+        if other_end > ut1 + 1e-3 and np.ptp(np.append(other_path(probe), still)) > 1e-6:
+            return self._pair_bound(axis, direction, end, ut1, which, speed, other_path, other_end)
         n = int(abs(end - here) / (STEP / 2)) + 2
         pos = np.linspace(here, end, n)
         times = ut1 + np.abs(pos - here) / speed   # when the jog gets there (at least)
@@ -552,6 +637,59 @@ class Envelope:
                                 f"stopping distance {reach:.2f}° (move the other axis away first)")
         return border, words
 
+    def _pair_bound(self, axis, direction: int, end: float, ut1: float, which: dict, speed: float,
+                    other_path, other_end: float):
+        """:func:`pair_bound` of a move of ``axis`` while the other axis moves."""
+        try:
+            return pair_bound(self, ut1, self._state(axis), axis.dynamics, direction, end, speed,
+                              other_path, other_end, axis is self.axes[0], which)
+        except EnvelopeError as exc:
+            raise EnvelopeError(f"{axis.module_name}: moving {'up' if direction > 0 else 'down'} "
+                                f"while {self._other(axis).module_name} moves would enter "
+                                f"{exc.message}") from None
+
+    def _other(self, axis):
+        if not self.axes:
+            return None
+        return self.axes[1] if axis is self.axes[0] else self.axes[0]
+
+    def moving(self, axis, goal: float, speed: float, direction: int, sky: bool) -> None:
+        """A move_toward of ``axis`` was accepted (to rest at the drive position ``goal`` at
+        ``speed``): recorded, so that the other axis's judgements predict it."""
+        ut1 = self.utc() + self.ut1_utc()
+        self._approved[id(axis)] = (ut1, _traj(self._state(axis), goal, axis.dynamics, speed),
+                                    float(goal), float(speed), (int(direction), bool(sky)))
+
+    def stopping(self, axis) -> None:
+        """``axis`` was told to stop (STOP, MoveAxis rate 0): the other axis's running
+        move_toward was bounded on the pair's path with this one moving on; judged again with
+        this one stopping where it does, and its end brought nearer when that path would
+        enter the envelope (never further)."""
+        other = self._other(axis)
+        if other is None:
+            return
+        ut1 = self.utc() + self.ut1_utc()
+        state = self._state(axis)
+        dyn = axis.dynamics
+        stop = _SOLVER.stop(state, max_velocity=max(dyn.max_velocity, abs(state.velocity)),
+                            max_acceleration=dyn.stop_acceleration, max_jerk=dyn.stop_jerk,
+                            discrete=False)
+        rest = float(stop.at_time(stop.duration)[0][0])
+        self._approved[id(axis)] = (ut1, stop, rest, None, None)
+        record = self._approved.get(id(other))
+        if record is None or record[4] is None or not other.motion_state & 1:
+            return
+        _t0, _traj_o, goal, speed, (direction, sky) = record
+        if abs(other.target_position + other.offset - goal) > 1e-6:
+            return
+        try:
+            bound = self._jog_bound(other, axis, direction, ut1, sky, speed)
+        except EnvelopeError:
+            bound = float(other.real_position)   # stop it now
+        if bound is not None and (goal - bound) * direction > 1e-9:
+            self.moving(other, bound, speed, direction, sky)
+            other.limit_move(bound)
+
     async def run_route(self, route: Route, axis1, axis2) -> None:
         """Move through ``route.waypoints`` (each a TARGETPOS of both axes, awaited) — the
         final move is the caller's (a tracking intercept or :meth:`goto`)."""
@@ -581,6 +719,94 @@ class Envelope:
 def _speed(axis) -> float | None:
     planner = getattr(axis, "planner", None)
     return float(planner.speed) if planner is not None else None
+
+
+#: s the start of a move may lag behind its judgement (the command reaches the control loop a
+#: cycle or more later; the other axis's state is a cycle old): the simultaneous path of two
+#: axes is judged with each of these delays of the new move
+PAIR_DELAYS = (0.0, 0.1, 0.25)
+#: degrees a pair's path keeps from the borders: its samples are 0.25° apart along the faster
+#: axis and the Sun's direction is interpolated (0.004°); a bound at the border itself would
+#: graze it between samples (a 0.01° dip below a horizon table's corner was seen)
+PAIR_MARGIN = 0.05
+
+
+def pair_bound(env: Envelope, ut1: float, state: Setpoint, dyn: AxisDynamics, direction: int,
+               end: float, speed: float, other_path: Callable, other_end: float, first: bool,
+               which: dict, delays=PAIR_DELAYS) -> float | None:
+    """The bound of a move of one main axis (axis 1 when ``first``) from ``state`` towards
+    ``end`` at ``speed`` while the other axis moves (``other_path``: UT1 times -> its predicted
+    positions, at rest after ``other_end``): the farthest rest position ``g`` such that the
+    two axes' simultaneous path — this axis on the profile the planner runs to rest at ``g``
+    (its own deceleration), the other on its own — stays out of the envelope, also when this
+    move starts up to ``delays`` late; None when ``end`` itself is good. The result is always
+    a ``g`` whose path was judged good (the bisection keeps the good end). Raises
+    :class:`EnvelopeError` (the border's words) when even braking now is not good."""
+    brake = _SOLVER.stop(state, max_velocity=max(dyn.max_velocity, abs(state.velocity)),
+                         max_acceleration=dyn.max_acceleration, max_jerk=dyn.max_jerk,
+                         discrete=False)
+    rest = float(brake.at_time(brake.duration)[0][0])
+    lo = rest if (rest - state.position) * direction > 0 else float(state.position)
+    ut1_utc = env.ut1_utc()
+    probe = np.linspace(ut1, max(other_end, ut1 + 1e-3), 400)
+    there = other_path(probe)
+    other_speed = float(np.max(np.abs(np.diff(there)))) / (probe[1] - probe[0])
+    vmax = max(speed, abs(state.velocity), 1.2 * other_speed, 1e-3)
+    why = ["the envelope"]
+    # the other axis's own path may run to a border (its move bounded there): the pair keeps
+    # PAIR_MARGIN, or what the other's path alone keeps, if that is less
+    still = np.full(probe.shape, float(state.position))
+    alone, _w = env.margins(*((still, there) if first else (there, still)), probe - ut1_utc, **which)
+    margin = max(0.0, min(PAIR_MARGIN, float(alone.min())))
+
+    def good(goal: float) -> bool:
+        traj = _traj(state, goal, dyn, speed)
+        horizon = max(ut1 + traj.duration, other_end) + max(delays)
+        n = max(2, int(math.ceil((horizon - ut1) * vmax / STEP)) + 1)
+        times = np.linspace(ut1, horizon, n)
+        there = other_path(times)
+        for delay in delays:
+            own = _evaluate(traj, np.clip(times - ut1 - delay, 0.0, None))
+            a1, a2 = (own, there) if first else (there, own)
+            j = env.judge(a1, a2, times - ut1_utc, margin=margin, **which)
+            if not j.ok:
+                why[0] = j.text
+                return False
+        return True
+
+    if good(end):
+        return None
+    if not good(lo):
+        raise EnvelopeError(why[0])
+    hi = end
+    for _ in range(24):
+        mid = 0.5 * (lo + hi)
+        if good(mid):
+            lo = mid
+        else:
+            hi = mid
+        if abs(hi - lo) < 1e-4:
+            break
+    return lo
+
+
+def offset_path(path: Callable, ut1: float, end: float, old: float, new: float,
+                dyn: AxisDynamics):
+    """An OFFSET change from ``old`` to ``new`` on a tracked path (``path``: UT1 times -> the
+    drive positions with ``old``, queued up to ``end``): (UT1 times, drive positions) from
+    ``ut1`` to the path's end — the change as a rest-to-rest profile of the axis's dynamics
+    added to the path (the follower's intercept of ``path + offset``), sampled every half
+    ``STEP`` of the change while it moves, then every 0.5 s."""
+    change = float(new) - float(old)
+    blend = _traj(Setpoint(0.0), change, dyn, None)
+    t_blend = blend.duration
+    t1 = max(float(end), ut1 + t_blend)
+    dense = np.linspace(ut1, ut1 + t_blend, max(2, int(math.ceil(abs(change) / (STEP / 2))) + 1))
+    times = dense
+    if t1 > ut1 + t_blend:
+        sparse = np.linspace(ut1 + t_blend, t1, int(min(20000, max(2, (t1 - ut1 - t_blend) / 0.5))))
+        times = np.concatenate((dense, sparse[1:]))
+    return times, path(times) + _evaluate(blend, times - ut1)
 
 
 def _leg_estimate(a: tuple[float, float], b: tuple[float, float], dynamics) -> float:

@@ -315,7 +315,8 @@ class Pointing(ModuleHealth):
         #: the safety envelope (Sun cone, horizon table, keep-outs) on every planned path
         self.envelope = Envelope(telescope.config.envelope, self.mount,
                                  floor=lambda: self.config.min_altitude, astrometry=self.astrometry,
-                                 utc=self.utc, ut1_utc=lambda: self.ut1_utc)
+                                 utc=self.utc, ut1_utc=lambda: self.ut1_utc,
+                                 model=lambda: self.params.model)
         self.envelope.attach(axis1, axis2)
 
     # -- time, site, pipeline -------------------------------------------------------------------

@@ -257,8 +257,13 @@ def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derot
             speed=(axis1.section.max_velocity, axis2.section.max_velocity))
 
     chosen = choose(mode)
+
+    def demand(path, n=None):   # the drives' positions of a chosen path: the model applied
+        d1, d2 = pipeline.model.apply(path.axis1[:n], path.axis2[:n])
+        return np.asarray(d1, float) + off1, np.asarray(d2, float) + off2
+
     if envelope is not None and mode in (2, 4) and not envelope.judge(
-            chosen.axis1[:1] + off1, chosen.axis2[:1] + off2, times[:1] - ut1_utc, escape=False).ok:
+            *demand(chosen, 1), times[:1] - ut1_utc, escape=False).ok:
         try:   # the envelope (a keep-out: the pier) forbids this side: the other one, if it can
             chosen = choose(1 if chosen.reverse else 3)
         except TcsError:
@@ -269,8 +274,8 @@ def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derot
     slew = chosen.slew_time
     route = None
     if envelope is not None:
-        in_limits, route = _envelope_plan(envelope, chosen, times, in_limits, slew, axis1, axis2,
-                                          ut1_utc)
+        in_limits, route = _envelope_plan(envelope, demand(chosen), times, in_limits, slew,
+                                          axis1, axis2, ut1_utc)
         slew = max(slew, route.duration) if route.waypoints else slew
         route = route if route.waypoints else None
     if derotator is not None:
@@ -292,18 +297,19 @@ def plan_track(request: TrackRequest, pipeline: Pipeline, *, axis1, axis2, derot
     return Plan(request, chosen.reverse, lanes, slew, until, dome, route)
 
 
-def _envelope_plan(envelope, chosen, times, in_limits: int, slew: float, axis1, axis2, ut1_utc: float):
-    """The tracked path judged against the envelope (refused when it starts inside: 9), and
-    the route of the slew onto it (:func:`tcs.pointing.envelope.plan_route`)."""
+def _envelope_plan(envelope, drives, times, in_limits: int, slew: float, axis1, axis2, ut1_utc: float):
+    """The tracked path — ``drives``: the drive positions, model and OFFSET included, as the
+    axes will run them (the envelope reads the sky through the model itself) — judged against
+    the envelope (refused when it starts inside: 9), and the route of the slew onto it
+    (:func:`tcs.pointing.envelope.plan_route`)."""
     from tcs.axes.profile import Setpoint
     from tcs.pointing.envelope import plan_route
-    off1, off2 = axis1.offset, axis2.offset
-    j = envelope.judge(chosen.axis1 + off1, chosen.axis2 + off2, times - ut1_utc, escape=False)
+    p1, p2 = drives
+    j = envelope.judge(p1, p2, times - ut1_utc, escape=False)
     if j.good == 0:
         raise TcsError(f"the target is inside {j.text}", ErrorNumber.SOFTLIMIT)
     arrive = float(times[0]) + slew
-    end = (float(np.interp(arrive, times, chosen.axis1)) + off1,
-           float(np.interp(arrive, times, chosen.axis2)) + off2)
+    end = (float(np.interp(arrive, times, p1)), float(np.interp(arrive, times, p2)))
     starts = (Setpoint(float(axis1.real_position), float(axis1.current_speed)),
               Setpoint(float(axis2.real_position), float(axis2.current_speed)))
     route = plan_route(envelope, float(times[0]) - ut1_utc, starts, end,
