@@ -134,6 +134,7 @@ async def test_zda_without_a_validated_fix_is_not_time():
 
 
 FIXTURE_DAY = utc(2023, 3, 14, 12, 0, 5)
+F9P_DAY = utc(2021, 6, 2, 9, 41, 12)
 
 RMC_1980 = nmea("GPGGA,120005.00,4807.0380,N,01131.0000,E,1,08,0.9,545.4,M,46.9,M,,",
                 "GPRMC,120005.00,A,4807.0380,N,01131.0000,E,0.0,0.0,050180,,,A")
@@ -230,6 +231,25 @@ async def test_ubx_bytes_before_the_sentences_on_the_same_line():
         assert st.time_source.endswith(("RMC", "ZDA"))
 
 
+async def test_kilobytes_of_binary_before_a_sentence():
+    """UBX RXM-RAWX-sized binary (6 kB without a newline byte) before each RMC: still read."""
+    blob = bytes(b for b in range(256) if b not in (0x0A, 0x24)) * 24
+    data = blob + nmea("GNRMC,094112.00,A,5231.04821,N,01323.51215,E,0.012,,020621,,,A,V",
+                       "GNZDA,094112.00,02,06,2021,00,00")
+    async with replayed(data, F9P_DAY, rate=10.0) as (reader, events):
+        st = await reader.wait_for(lambda s: s.time_good and s.position_good and s.sentences >= 20, WAIT)
+        assert st.latitude == pytest.approx(52.5174702, abs=1e-6)
+
+
+def test_a_sentence_cut_after_kilobytes_of_binary_is_kept():
+    """The bytes up to the middle of a sentence arrive after 6 kB of binary, the rest later."""
+    reader = GpsReader(section("unused"), wall=lambda: F9P_DAY)
+    rmc = nmea("GNRMC,094112.00,A,5231.04821,N,01323.51215,E,0.012,,020621,,,A,V")
+    reader.feed(bytes(range(0x30, 0x70)) * 100 + rmc[:30])
+    reader.feed(rmc[30:])
+    assert reader.status.latitude == pytest.approx(52.5174702, abs=1e-6) and reader.status.garbage == 1
+
+
 # ------------------------------------------------------------------ 6 position from every sentence
 
 @pytest.mark.parametrize("kinds", [("RMC", "ZDA"), ("GLL",), ("GNS", "ZDA"), ("PUBX", "GSV")],
@@ -274,7 +294,6 @@ async def test_glonass_gga_does_not_overwrite_the_gps_count():
 # ------------------------------------------------------------------ record-like fixtures
 
 # (name, data, wall clock, position good?, time valid?, a text the reason holds)
-F9P_DAY = utc(2021, 6, 2, 9, 41, 12)
 FIXTURES = [
     ("sirf-cold-start",
      nmea("GPGGA,000012.000,0000.0000,N,00000.0000,E,0,00,50.0,0.0,M,0.0,M,,0000",

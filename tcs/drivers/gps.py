@@ -378,17 +378,20 @@ class GpsReader:
     def feed(self, data: bytes) -> None:
         """Process received bytes (also for replaying a log without a port: values and
         counters update; the good states need an open port)."""
+        now = self.clock()       # the bytes' arrival: every line in them is stamped with it
+        wall = self.wall()
         self._buffer += data
         *lines, self._buffer = self._buffer.split(b"\n")
-        if len(self._buffer) > MAX_BUFFER:
-            self._buffer = b""
+        if len(self._buffer) > MAX_BUFFER:   # kilobytes of binary without a newline: keep only
+            cut = self._buffer.rfind(b"$", len(self._buffer) - MAX_LINE)   # a sentence's start
+            self._buffer = self._buffer[cut:] if cut >= 0 else b""
             self.garbage += 1
         for line in lines:
-            self._line(line.strip())
+            self._line(line.strip(), now, wall)
         self._evaluate()
         bump_epoch()  # GPS.* and LOCAL.* may have changed (tcs.state_epoch)
 
-    def _line(self, raw: bytes) -> None:
+    def _line(self, raw: bytes, now: float, wall: float) -> None:
         if not raw:
             return
         found = SENTENCE.findall(raw)
@@ -397,8 +400,6 @@ class GpsReader:
             return
         if len(found) > 1 or len(found[0]) < len(raw):
             self.mixed += 1      # binary (UBX, SBF …) or a broken sentence before it on the line
-        now = self.clock()       # the line's arrival: what the receiver's time is extrapolated from
-        wall = self.wall()
         for sentence in found:
             self._sentence(sentence, now, wall)
 

@@ -190,16 +190,12 @@ def _float(text: str) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _field(data: list[str], i: int) -> str:
-    return data[i].strip() if i < len(data) else ""
-
-
 # ------------------------------------------------------------------ sentences
 
 def judge(talker: str, kind: str, data: list[str], wall: float) -> Reading | None:
     """Judge one sentence: ``talker`` ("GP", "" for proprietary), ``kind`` ("GGA", "PUBX00"),
     its fields, and the system clock ``wall`` at its arrival (for the date)."""
-    f = lambda i: _field(data, i)  # noqa: E731
+    f = ([x.strip() for x in data] + [""] * 20).__getitem__   # missing trailing fields are empty
     if kind == "GGA":
         return _position(kind, talker, f, lat=1, quality_field=5, sats=6, hdop=7, alt=8, alt_unit=9)
     if kind == "GNS":
