@@ -395,3 +395,20 @@ def test_judge_names_what_is_wrong():
     assert r.fix and r.height == 545.4 and r.satellites == 9
     assert judge("GP", "GLL", "4807.038,N,01131.000,E,120005,V,N".split(","), day).reason == "GLL status V (not valid)"
     assert "unknown" in judge("GP", "GLL", "4807.038,N,01131.000,E,120005,A,X".split(","), day).reason
+
+
+async def test_gga_every_four_seconds_vouches_for_the_zda_between():
+    """GGA (the only position sentence) every 4th burst, ZDA in every one: the time stays
+    valid between the fixes; the position follows position_timeout."""
+    async with simulated(kinds=("GGA", "ZDA"), gga_every=20) as (sim, reader, events):
+        await reader.wait_for(lambda s: s.time_good, WAIT)
+        first = sim.bursts
+        await reader.wait_for(lambda s: sim.bursts >= first + 50, WAIT)   # 2.5 s, two more GGAs
+        assert not [e for e in events if e.number == ErrorNumber.TIME_LOOSE]
+
+
+async def test_lines_ended_by_cr_alone():
+    data = nmea("GPRMC,094112.00,A,5231.04821,N,01323.51215,E,0.01,0.00,020621,,,A").replace(b"\r\n", b"\r")
+    async with replayed(data, F9P_DAY) as (reader, events):
+        st = await reader.wait_for(lambda s: s.time_good and s.position_good, WAIT)
+        assert st.latitude == pytest.approx(52.5174702, abs=1e-6)

@@ -26,8 +26,9 @@ fix quality, ranges, dates — see that module):
   dropped, none raises.
 
 States: *position good* while the port is open and some talker's last validated fix is
-younger than ``position_timeout``; *time valid* while the last accepted time and a validated
-fix are younger than ``time_timeout``; *time good* while it is valid and within
+younger than ``position_timeout``; *time valid* while the last accepted time is younger than
+``time_timeout`` and the last position sentence of some talker was a validated fix no older
+than :data:`FIX_MEMORY` (or the timeouts, when longer); *time good* while it is valid and within
 ``clock_tolerance`` of the system clock; *data good* while any valid sentence came within the
 longer timeout. A timer at the next deadline re-evaluates them, so a silent or unplugged
 receiver turns *loose* on time without polling. Each change of position or time good calls the
@@ -64,6 +65,8 @@ __all__ = ["GpsReader", "GpsStatus", "GpsEvent"]
 log = logging.getLogger(__name__)
 MAX_LINE = 120      # NMEA allows 82 characters; anything much longer is noise
 MAX_BUFFER = 4096
+FIX_MEMORY = 10.0   # s a validated fix vouches for a ZDA time (see GpsReader._fix_memory)
+LINE_END = re.compile(rb"[\r\n]")   # CR LF, and receivers that end lines with CR or LF alone
 #: One sentence anywhere in a line: binary bytes (UBX, SBF) before it on the same line are
 #: skipped. ``$``, ``!`` and ``*`` cannot occur inside, so a match never spans two sentences.
 SENTENCE = re.compile(rb"[$!][A-Z][A-Z0-9]{1,9},[\x20\x22\x23\x25-\x29\x2b-\x7e]*\*[0-9A-Fa-f]{2}")
@@ -381,7 +384,7 @@ class GpsReader:
         now = self.clock()       # the bytes' arrival: every line in them is stamped with it
         wall = self.wall()
         self._buffer += data
-        *lines, self._buffer = self._buffer.split(b"\n")
+        *lines, self._buffer = LINE_END.split(self._buffer)
         if len(self._buffer) > MAX_BUFFER:   # kilobytes of binary without a newline: keep only
             cut = self._buffer.rfind(b"$", len(self._buffer) - MAX_LINE)   # a sentence's start
             self._buffer = self._buffer[cut:] if cut >= 0 else b""
@@ -467,7 +470,7 @@ class GpsReader:
         if r.time is not None:
             t, source = r.time, f"{r.talker}{r.kind}"
         elif r.time_unconfirmed is not None:
-            if not self._fix_fresh(now, self.section.time_timeout):
+            if not self._fix_fresh(now, self._fix_memory):
                 self._time_reason = (f"{r.talker}ZDA not trusted without a valid fix"
                                      + (f" ({self._fix_reason})" if self._fix_reason else ""))
                 return
@@ -481,6 +484,14 @@ class GpsReader:
         self._time_note = r.note
         self._clock_offset = t - wall
 
+    @property
+    def _fix_memory(self) -> float:
+        """How long a validated fix vouches for the time (ZDA) when no position sentence came
+        since: receivers sending GGA/RMC every few seconds and ZDA every second exist. A
+        sentence saying *no fix* ends it at once."""
+        s = self.section
+        return max(s.time_timeout, s.position_timeout, FIX_MEMORY)
+
     def _fix_fresh(self, now: float, timeout: float) -> bool:
         return any(at is not None and now - at < timeout for at in self._talker_fix.values())
 
@@ -490,7 +501,7 @@ class GpsReader:
         port = self._serial is not None
         pos = port and self._fix_fresh(now, s.position_timeout)
         valid = (port and self._time_at is not None and now - self._time_at < s.time_timeout
-                 and self._fix_fresh(now, s.time_timeout))
+                 and self._fix_fresh(now, self._fix_memory))
         self._time_valid = valid
         tim = valid and self._clock_offset is not None and abs(self._clock_offset) <= s.clock_tolerance
         events = []
@@ -521,7 +532,7 @@ class GpsReader:
             return "no data"
         if now - self._sentence_at >= max(self.section.position_timeout, self.section.time_timeout):
             return f"silent for {now - self._sentence_at:.1f} s"
-        if not self._fix_fresh(now, self.section.time_timeout if time else self.section.position_timeout):
+        if not self._fix_fresh(now, self._fix_memory if time else self.section.position_timeout):
             return "no fix" + (f" ({self._fix_reason})" if self._fix_reason else "")
         if time:
             if self._time_valid and self._clock_offset is not None:
@@ -546,7 +557,7 @@ class GpsReader:
         if self._position_good and fixes:
             deadlines.append(max(fixes) + s.position_timeout)
         if self._time_valid and self._time_at is not None and fixes:
-            deadlines.append(min(self._time_at, max(fixes)) + s.time_timeout)
+            deadlines.append(min(self._time_at + s.time_timeout, max(fixes) + self._fix_memory))
         if self._sentence_at is not None and now - self._sentence_at < max(s.position_timeout, s.time_timeout):
             deadlines.append(self._sentence_at + max(s.position_timeout, s.time_timeout))  # data_good ends
         if deadlines:
