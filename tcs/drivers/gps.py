@@ -192,7 +192,6 @@ class GpsReader:
         self._waiters: list[asyncio.Future] = []
         self._port_error = "not started"
         self._lat = self._lon = self._height = self._hdop = None
-        self._sats: int | None = None
         self._quality = 0
         self._fix_at: float | None = None
         self._time: float | None = None
