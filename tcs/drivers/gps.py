@@ -11,9 +11,12 @@ binary bytes before the ``$`` of the next sentence. pynmea2 checks each one's ch
 splits its fields; :func:`tcs.drivers.nmea_judge.judge` judges them (status and mode fields,
 fix quality, ranges, dates — see that module):
 
-* a position and a fix state from GGA, RMC, GLL, GNS and ``$PUBX,00`` — the last such sentence
-  of a talker (constellation) decides whether that talker has a fix; a validated one sets
-  latitude and longitude (and the height above sea level from GGA/GNS);
+* a position and a fix state from GGA, RMC, GLL, GNS and ``$PUBX,00``. A talker
+  (constellation) has a fix while its validated fixes are not contradicted by another sentence
+  type of it saying *no fix* within :data:`FIX_MEMORY` (a Garmin in simulator mode: RMC ``A``
+  without a mode field, GGA quality 8); a fix that has stood so for :data:`CONFIRM` (one
+  epoch's sentences have arrived) is good, and only then becomes latitude and longitude (and
+  the height above sea level from GGA/GNS);
 * satellites used and fix quality per talker (GP, GL, GA, GB/BD, GQ, GI; GN is the combined
   solution): ``satellites`` is GN's count, else the sum of the others, so ``$GLGGA`` never
   overwrites ``$GPGGA``; satellites in view from GSV;
@@ -66,6 +69,7 @@ log = logging.getLogger(__name__)
 MAX_LINE = 120      # NMEA allows 82 characters; anything much longer is noise
 MAX_BUFFER = 4096
 FIX_MEMORY = 10.0   # s a validated fix vouches for a ZDA time (see GpsReader._fix_memory)
+CONFIRM = 1.0       # s a fix must stand uncontradicted before it is good (one epoch's sentences)
 LINE_END = re.compile(rb"[\r\n]")   # CR LF, and receivers that end lines with CR or LF alone
 #: One sentence anywhere in a line: binary bytes (UBX, SBF) before it on the same line are
 #: skipped. ``$``, ``!`` and ``*`` cannot occur inside, so a match never spans two sentences.
@@ -199,7 +203,9 @@ class GpsReader:
         self._sentence_at: float | None = None
         self.sentences = self.bad_checksums = self.garbage = self.ignored = self.mixed = 0
         self._position_good = self._time_good = self._time_valid = False
-        self._talker_fix: dict[str, float | None] = {}   # talker -> its last fix (None: it said none)
+        self._said: dict[tuple[str, str], tuple[bool, float]] = {}  # (talker, kind) -> (fix?, when)
+        self._fix_run: dict[str, float] = {}     # talker -> start of its uncontradicted run of fixes
+        self._candidate: tuple | None = None  # (talker, lat, lon, height, source, when): not yet confirmed
         self._constellations: dict[str, dict] = {}
         self._fix_reason = self._time_reason = self._time_note = ""
         self._fix_source = self._time_source = ""
@@ -453,17 +459,45 @@ class GpsReader:
         self._quality = r.quality
         if r.hdop is not None:
             self._hdop = r.hdop
-        if r.fix:
-            self._lat, self._lon = r.latitude, r.longitude
-            if r.height is not None:
-                self._height = r.height
-            self._fix_at = now
-            self._talker_fix[r.talker] = now
+        self._said[(r.talker, r.kind)] = (r.fix, now)
+        if len(self._said) > 64:   # talkers made up by noise that passed the checksum
+            self._prune(now)
+        if r.fix and not self._contradicted(r.talker, now):
+            self._fix_run.setdefault(r.talker, now)
+            height = r.height
+            if height is None and self._candidate is not None and self._candidate[0] == r.talker:
+                height = self._candidate[3]   # GGA's height stays with the RMC after it
+            self._candidate = (r.talker, r.latitude, r.longitude, height, f"{r.talker}{r.kind}", now)
             self._fix_reason = ""
-            self._fix_source = f"{r.talker}{r.kind}"
-        else:
-            self._talker_fix[r.talker] = None      # this constellation says: no fix, now
-            self._fix_reason = r.reason
+        else:    # this sentence, or another of this talker lately, says: no fix
+            self._fix_run.pop(r.talker, None)
+            if not r.fix:
+                self._fix_reason = r.reason
+
+    def _prune(self, now: float) -> None:
+        old = now - 2 * self._fix_memory
+        self._said = {key: v for key, v in self._said.items() if v[1] >= old}
+        self._constellations = {t: e for t, e in self._constellations.items() if e["at"] >= old}
+        self._fix_run = {t: since for t, since in self._fix_run.items() if any(k[0] == t for k in self._said)}
+
+    def _contradicted(self, talker: str, now: float) -> bool:
+        """Another sentence type of ``talker`` said *no fix* within the fix memory and has not
+        said otherwise since (a Garmin in simulator mode: RMC ``A`` without a mode field, GGA
+        quality 8 — the more telling one wins)."""
+        memory = self._fix_memory
+        return any(not fix and t == talker and now - at < memory for (t, _k), (fix, at) in self._said.items())
+
+    def _last_fix(self, talker: str) -> float | None:
+        return max((at for (t, _k), (fix, at) in self._said.items() if t == talker and fix), default=None)
+
+    def _confirmed(self, talker: str, now: float, timeout: float) -> bool:
+        """``talker`` has a fix that has stood uncontradicted for :data:`CONFIRM` (so a sentence
+        of the same epoch saying otherwise has had time to arrive) and is younger than ``timeout``."""
+        since = self._fix_run.get(talker)
+        if since is None or now - since < CONFIRM:
+            return False
+        last = self._last_fix(talker)
+        return last is not None and now - last < timeout
 
     def _take_time(self, r, now: float, wall: float) -> None:
         if r.time is not None:
@@ -492,13 +526,19 @@ class GpsReader:
         return max(s.time_timeout, s.position_timeout, FIX_MEMORY)
 
     def _fix_fresh(self, now: float, timeout: float) -> bool:
-        return any(at is not None and now - at < timeout for at in self._talker_fix.values())
+        return any(self._confirmed(talker, now, timeout) for talker in self._fix_run)
 
     def _evaluate(self) -> None:
         now = self.clock()
         s = self.section
         port = self._serial is not None
         pos = port and self._fix_fresh(now, s.position_timeout)
+        c = self._candidate
+        if c is not None and self._confirmed(c[0], now, s.position_timeout):
+            _talker, self._lat, self._lon, height, self._fix_source, self._fix_at = c
+            if height is not None:
+                self._height = height
+            self._candidate = (*c[:3], height, *c[4:])   # kept: the next sentence may lack a height
         valid = (port and self._time_at is not None and now - self._time_at < s.time_timeout
                  and self._fix_fresh(now, self._fix_memory))
         self._time_valid = valid
@@ -552,7 +592,8 @@ class GpsReader:
             self._timer = None
         deadlines = []
         s = self.section
-        fixes = [at for at in self._talker_fix.values() if at is not None]
+        fixes = [at for at in map(self._last_fix, self._fix_run) if at is not None]
+        deadlines += [since + CONFIRM for since in self._fix_run.values() if now - since < CONFIRM]
         if self._position_good and fixes:
             deadlines.append(max(fixes) + s.position_timeout)
         if self._time_valid and self._time_at is not None and fixes:
