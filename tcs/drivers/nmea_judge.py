@@ -53,9 +53,10 @@ __all__ = ["Reading", "judge", "judge_date", "QUALITY_NAMES", "FIX_QUALITIES", "
 
 #: GGA fix quality codes (NMEA 0183 4.x).
 QUALITY_NAMES = {0: "invalid", 1: "autonomous", 2: "differential", 3: "PPS", 4: "RTK fixed",
-                 5: "RTK float", 6: "dead reckoning", 7: "manual input", 8: "simulator"}
-#: The qualities that are fixes.
-FIX_QUALITIES = frozenset({1, 2, 3, 4, 5})
+                 5: "RTK float", 6: "dead reckoning", 7: "manual input", 8: "simulator",
+                 9: "SBAS"}
+#: The qualities that are fixes (9: NovAtel and others' SBAS-corrected fix, outside NMEA).
+FIX_QUALITIES = frozenset({1, 2, 3, 4, 5, 9})
 #: NMEA 2.3+ mode indicator -> the GGA quality it corresponds to.
 MODE_QUALITY = {"A": 1, "D": 2, "P": 3, "R": 4, "F": 5, "E": 6, "M": 7, "S": 8, "N": 0}
 #: u-blox ``$PUBX,00`` navigation status -> GGA quality (only G2/G3/D2/D3 are fixes).

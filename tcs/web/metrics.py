@@ -317,7 +317,7 @@ class SnapshotCollector:
             yield _one("tcs_gps_data", "1 while valid NMEA sentences come", 1.0 if gps.get("data") else 0.0)
             if gps["time_offset"] is not None:
                 yield _one("tcs_gps_time_offset_seconds", "GPS time minus the system's UTC", gps["time_offset"])
-            yield _one("tcs_gps_fix_quality", "GGA fix quality of the last position sentence (1-5 fixes; "
+            yield _one("tcs_gps_fix_quality", "GGA fix quality of the last position sentence (1-5 and 9 fixes; "
                        "6 dead reckoning, 7 manual, 8 simulator are not)", float(gps.get("fix_quality") or 0))
             if gps.get("satellites") is not None:
                 yield _one("tcs_gps_satellites", "satellites used in the fix", float(gps["satellites"]))

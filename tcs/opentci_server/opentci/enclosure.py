@@ -69,7 +69,7 @@ GPS = module(
         info="extension: satellites used (the combined GN count, else the sum per constellation); NULL: unknown"),
     var("FIX_QUALITY", INT, get="fix_quality",
         info="extension: GGA fix quality of the last position sentence: 0 none, 1 autonomous, 2 differential, "
-             "3 PPS, 4 RTK, 5 RTK float (fixes); 6 dead reckoning, 7 manual, 8 simulator (not fixes)"),
+             "3 PPS, 4 RTK, 5 RTK float, 9 SBAS (fixes); 6 dead reckoning, 7 manual, 8 simulator (not fixes)"),
     var("CONSTELLATIONS", STRING, get="constellations",
         info="extension: per talker 'GP GPS used/in view quality; GL …'"),
     var("SUMMARY", STRING, get="status_text",
