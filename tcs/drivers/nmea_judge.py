@@ -233,10 +233,10 @@ def _position(kind, talker, f, *, lat, quality_field=None, mode_field=None, stat
         quality, why = 0, f"{kind} status {f(status) or 'empty'} (not valid)"
     if mode_field is not None and not why:
         mode = f(mode_field)
-        if kind == "GNS":   # one character per constellation: the best one counts
+        if kind == "GNS":   # one character per constellation (GPS first): any fix counts
             known = [MODE_QUALITY[c] for c in mode if c in MODE_QUALITY]
             fixes = [q for q in known if q in FIX_QUALITIES]
-            quality = min(fixes) if fixes else (max(known) if known else 0)
+            quality = fixes[0] if fixes else (max(known) if known else 0)
             if not fixes:
                 why = f"GNS mode {mode or 'empty'} ({QUALITY_NAMES[quality] if quality else 'no fix'})"
         else:
