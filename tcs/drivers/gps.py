@@ -63,7 +63,7 @@ from tcs.drivers.nmea_judge import CONSTELLATIONS, QUALITY_NAMES, judge
 from tcs.errors import ErrorNumber
 from tcs.state_epoch import bump as bump_epoch
 
-__all__ = ["GpsReader", "GpsStatus", "GpsEvent"]
+__all__ = ["GpsReader", "GpsStatus", "GpsEvent", "CONFIRM"]
 
 log = logging.getLogger(__name__)
 MAX_LINE = 120      # NMEA allows 82 characters; anything much longer is noise

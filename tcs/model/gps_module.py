@@ -28,7 +28,7 @@ Events
     fix; else WARNING ``GPS fix without time`` while it has a fix but no valid date and time.
     Besides, ERROR ``GPS time disagrees with the clock`` while a valid GPS time is more than
     ``clock_tolerance`` from the system clock. Conditions are judged every second after a grace
-    period of the longer of the two timeouts after start (the receiver needs a burst or two),
+    period of the longer of the two timeouts and the second a fix needs to stand after start,
     and latch until ``ERROR_STATE=0`` like every module's.
 ``LOCAL.SYNCPOS`` ≠ 0
     The site follows the GPS (:meth:`~tcs.model.local.LocalTime.follow_gps`): at once when the
@@ -43,7 +43,7 @@ from __future__ import annotations
 import asyncio
 import logging
 
-from tcs.drivers.gps import GpsEvent, GpsReader
+from tcs.drivers.gps import CONFIRM, GpsEvent, GpsReader
 from tcs.errors import ErrorNumber
 from tcs.model.events import INFO, WARN
 from tcs.model.health import ERROR, WARNING, ModuleHealth
@@ -79,7 +79,7 @@ class GpsModule(ModuleHealth):
         """Follow the reader (which must be started); call on the event loop."""
         loop = asyncio.get_running_loop()
         self._remove = self.reader.add_listener(self._on_event)
-        grace = max(self.reader.section.position_timeout, self.reader.section.time_timeout)
+        grace = max(self.reader.section.position_timeout, self.reader.section.time_timeout) + CONFIRM
         self._grace = loop.call_later(grace, self._start_judging)
         self._timer = loop.call_later(CHECK_EVERY, self._tick)
 
