@@ -9,7 +9,8 @@ one JSON object with them.
 * **time delay** — a writer on a pty sends an RMC+ZDA burst every 50 ms, each naming the
   writer's time; the reader stamps each line at its arrival. The delay is the stamp minus the
   write (both on the monotonic clock): what ``GPS.TIME`` lags the receiver by, besides the
-  receiver's own output delay. p50, p95, max.
+  receiver's own output delay. p50, p95, max; and the baseline of the same run: a bare
+  ``add_reader`` callback stamping each read of the same writer's lines.
 """
 
 from __future__ import annotations
@@ -63,6 +64,40 @@ def cost(rounds: int = 3000) -> dict:
     return {"sentence_us": new * 1e6, "baseline_parse_us": base * 1e6, "ratio": new / base}
 
 
+async def bare_delay(seconds: float) -> dict:
+    """Baseline: the same writer, read by a bare ``add_reader`` callback that stamps each read."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    os.set_blocking(master, False)
+    os.set_blocking(slave, False)
+    loop = asyncio.get_running_loop()
+    delays: list[float] = []
+    pending: list[float] = []
+
+    def readable():
+        stamp = time.monotonic()
+        try:
+            os.read(slave, 4096)
+        except BlockingIOError:
+            return
+        if pending:
+            delays.append(stamp - pending.pop())
+
+    loop.add_reader(slave, readable)
+    end = loop.time() + seconds
+    try:
+        while loop.time() < end:
+            pending[:] = [time.monotonic()]
+            os.write(master, line("GPRMC,094112.00,A,5231.04821,N,01323.51215,E,0.0,0.0,020621,,,A"))
+            await asyncio.sleep(0.05)
+    finally:
+        loop.remove_reader(slave)
+        os.close(master)
+        os.close(slave)
+    ms = sorted(d * 1e3 for d in delays)
+    return {"bare_p50_ms": statistics.median(ms), "bare_p95_ms": ms[int(0.95 * (len(ms) - 1))]}
+
+
 async def delay(seconds: float) -> dict:
     master, slave = os.openpty()
     tty.setraw(slave)
@@ -110,6 +145,9 @@ def main() -> None:
     d = asyncio.run(delay(args.seconds))
     print(f"time delay write -> stamp over a pty: p50 {d['delay_p50_ms']:.2f} ms, "
           f"p95 {d['delay_p95_ms']:.2f} ms, max {d['delay_max_ms']:.2f} ms ({d['samples']} bursts)")
+    d.update(asyncio.run(bare_delay(args.seconds)))
+    print(f"baseline, a bare add_reader on the same pty: p50 {d['bare_p50_ms']:.2f} ms, "
+          f"p95 {d['bare_p95_ms']:.2f} ms")
     print(json.dumps({**c, **d}))
 
 
