@@ -353,7 +353,7 @@ FIXTURES = [
 
 @pytest.mark.parametrize("name, data, wall, position, time_ok, why", FIXTURES, ids=[f[0] for f in FIXTURES])
 async def test_recorded_receivers(name, data, wall, position, time_ok, why):
-    async with replayed(data, wall, rate=2.0, paced=True) as (reader, events):
+    async with replayed(data, wall, rate=5.0, paced=True) as (reader, events):
         if position or time_ok:
             st = await reader.wait_for(lambda s: s.position_good == position and s.time_valid == time_ok
                                        and s.sentences >= 10, WAIT)
