@@ -41,14 +41,15 @@ def section(url: str, **changes) -> GpsSection:
 
 
 @contextlib.asynccontextmanager
-async def simulated(wall=time.time, **knobs):
-    """(receiver, reader, events): the simulated receiver at 20 Hz on a pty with ``knobs`` set."""
+async def simulated(wall=time.time, timeouts: float = 0.5, **knobs):
+    """(receiver, reader, events): the simulated receiver at 20 Hz on a pty with ``knobs`` set;
+    ``timeouts``: the reader's position and time timeouts."""
     sim = SimGps(LAT, LON, HEIGHT, rate=20.0, mode="pty")
     for knob, value in knobs.items():
         assert hasattr(sim, knob), knob
         setattr(sim, knob, value)
     await sim.start()
-    reader = GpsReader(section(sim.url), wall=wall)
+    reader = GpsReader(section(sim.url, position_timeout=timeouts, time_timeout=timeouts), wall=wall)
     events = []
     reader.add_listener(events.append)
     await reader.start()
@@ -273,11 +274,11 @@ async def test_receivers_without_gga_show_a_position(kinds):
 
 
 async def test_gga_every_few_seconds_does_not_flip_the_fix():
-    """GGA only every 20th burst (1 s, twice the timeout), RMC in every one: never loose."""
-    async with simulated(gga_every=20) as (sim, reader, events):
+    """GGA only every 40th burst (2 s, beyond the 1.5 s timeout), RMC in every one: never loose."""
+    async with simulated(gga_every=40, timeouts=1.5) as (sim, reader, events):
         await reader.wait_for(lambda s: s.position_good and s.height is not None, WAIT)
         first = sim.bursts
-        await reader.wait_for(lambda s: sim.bursts >= first + 50, WAIT)   # two more GGAs, 2.5 s
+        await reader.wait_for(lambda s: sim.bursts >= first + 60, WAIT)   # a whole gap, 3 s
         assert reader.status.height == pytest.approx(HEIGHT) and reader.position_good
         assert not [e for e in events if e.number == ErrorNumber.POSITION_LOOSE]
 
@@ -414,12 +415,12 @@ def test_judge_names_what_is_wrong():
 
 
 async def test_gga_every_four_seconds_vouches_for_the_zda_between():
-    """GGA (the only position sentence) every 4th burst, ZDA in every one: the time stays
-    valid between the fixes; the position follows position_timeout."""
-    async with simulated(kinds=("GGA", "ZDA"), gga_every=20) as (sim, reader, events):
+    """GGA (the only position sentence) every 40th burst (2 s, beyond the 1.5 s timeouts), ZDA
+    in every one: the time stays valid between the fixes."""
+    async with simulated(kinds=("GGA", "ZDA"), gga_every=40, timeouts=1.5) as (sim, reader, events):
         await reader.wait_for(lambda s: s.time_good, WAIT)
         first = sim.bursts
-        await reader.wait_for(lambda s: sim.bursts >= first + 50, WAIT)   # 2.5 s, two more GGAs
+        await reader.wait_for(lambda s: sim.bursts >= first + 60, WAIT)   # a whole gap, 3 s
         assert not [e for e in events if e.number == ErrorNumber.TIME_LOOSE]
 
 
