@@ -160,11 +160,15 @@ def sentence(body: str, cs: str | None = None) -> bytes:
 
 
 def test_sentences_parsed_and_rejects_counted():
-    reader = GpsReader(section("unused"))
+    now = [100.0]
+    reader = GpsReader(section("unused"), clock=lambda: now[0], wall=lambda: 1_700_000_000.25)
     gga, rmc, zda = burst(1_700_000_000.25, LAT, LON, HEIGHT)
     reader.feed(sentence(gga) + sentence(rmc) + sentence(zda))
+    assert reader.status.latitude is None      # a fix is taken once it stood for a second
+    now[0] += 1.0
+    reader.feed(sentence(gga) + sentence(rmc) + sentence(zda))
     st = reader.status
-    assert st.sentences == 3 and st.latitude == pytest.approx(LAT, abs=1e-6)
+    assert st.sentences == 6 and st.latitude == pytest.approx(LAT, abs=1e-6)
     assert st.time == pytest.approx(1_700_000_000.25)
     lines = [
         sentence(gga, "00"),                     # bad checksum
@@ -176,10 +180,10 @@ def test_sentences_parsed_and_rejects_counted():
     ]
     reader.feed(b"".join(lines))
     st = reader.status
-    assert (st.bad_checksums, st.garbage, st.ignored, st.sentences) == (1, 4, 1, 3)
+    assert (st.bad_checksums, st.garbage, st.ignored, st.sentences) == (1, 4, 1, 6)
     reader.feed(sentence(gga)[:10])              # a partial line waits for its end
     reader.feed(sentence(gga)[10:])
-    assert reader.status.sentences == 4
+    assert reader.status.sentences == 7
 
 
 async def test_simulated_telescope_gps_from_the_hardware_file():

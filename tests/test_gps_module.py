@@ -19,9 +19,17 @@ HW = Path(__file__).with_name("hw_enclosure.toml")
 GPS_LAT, GPS_LON, GPS_HEIGHT = 28.75, -17.89, 2330.5   # [gps.sim]
 SITE_LAT, SITE_LON, SITE_HEIGHT = 28.7606, -17.8792, 2326.0
 ERROR_BIT, WARNING_BIT = 2, 4
+KNOBS = (("silent", False), ("garbage", False), ("bad_checksums", False), ("fix", True),
+         ("kinds", ("GGA", "RMC", "ZDA")), ("quality", 1), ("cold", False), ("date_offset", 0.0),
+         ("corrupt", ""), ("mixed_binary", False), ("gga_every", 1), ("talkers", ()))
 
 
 live = live_service(HW)
+
+
+def active(live) -> list[str]:
+    """The GPS module's active conditions."""
+    return [n for n, (bits, on) in live.telescope.peripherals.gps.conditions().items() if on]
 
 
 @pytest.fixture(autouse=True)
@@ -33,8 +41,9 @@ def _no_leaked_threads():  # the module's service thread is expected; LiveServic
 async def c(live):
     """A client, the receiver talking normally and GPS.ERROR_STATE acknowledged."""
     gps = live.telescope.peripherals.sims.gps
-    for knob, value in (("silent", False), ("garbage", False), ("bad_checksums", False), ("fix", True)):
+    for knob, value in KNOBS:
         await live.call(setattr, gps, knob, value)
+    await live.call(live.telescope.local.set_syncpos, 0)
     await live.call(gps.replug)
     client = await Client.connect(live.port)
     deadline = time.monotonic() + WAIT
@@ -88,16 +97,107 @@ async def test_silent_receiver_turns_loose(live, c):
     await c.event(r"EVENT INFO LOCAL:27 ")
 
 
-async def test_lost_fix_is_a_warning_with_time_still_good(live, c):
-    """No fix: POSITION_LOOSE only (the receiver's clock still comes in ZDA), WARNING."""
+async def test_lost_fix_is_a_warning_and_the_zda_clock_is_not_time(live, c):
+    """No fix: POSITION_LOOSE and TIME_LOOSE (the receiver's clock still comes in ZDA, but
+    without a validated fix it is no time), WARNING ``no fix (antenna)``, GPS.TIME NULL."""
     gps = live.telescope.peripherals.sims.gps
     await live.call(setattr, gps, "fix", False)
     await c.event(r"EVENT WARN LOCAL:24 GPS position uncertain: no fix")
+    await c.event(r"EVENT WARN LOCAL:26 GPS time uncertain: no fix")
     await c.wait("GPS.ERROR_STATE", lambda v: int(v) == WARNING_BIT)
-    float(await c.value("GPS.TIME"))
-    assert not c.seen(r"LOCAL:26 ")
+    assert await c.value("GPS.TIME") == "NULL"
+    assert "no fix (antenna)" in live.telescope.peripherals.gps.conditions_text()
     await live.call(setattr, gps, "fix", True)
     await c.event(r"EVENT INFO LOCAL:25 ")
+    await c.event(r"EVENT INFO LOCAL:27 ")
+
+
+@pytest.mark.parametrize("kinds", [("GGA", "RMC", "GSV"), ("GSV",)], ids=["gga-rmc-gsv", "gsv-only"])
+async def test_talking_without_a_fix_is_a_warning_not_no_data(live, c, kinds):
+    """A receiver that talks (GGA 0, RMC V, GSV; or GSV alone) but has no fix and sends no
+    ZDA: WARNING ``no GPS fix`` ("no fix (antenna)"), never ERROR ``no GPS data``."""
+    gps = live.telescope.peripherals.sims.gps
+    await live.call(setattr, gps, "kinds", kinds)
+    await live.call(setattr, gps, "fix", False)
+    await c.event(r"EVENT WARN LOCAL:26 ")
+    await c.wait("GPS.ERROR_STATE", lambda v: int(v) & WARNING_BIT)
+    await asyncio.sleep(1.5)   # longer than the timeouts and the module's judging period
+    assert active(live) == ["no GPS fix"]   # (a loaded machine's stall may latch an old ERROR)
+    assert "no fix (antenna)" in live.telescope.peripherals.gps.conditions_text()
+
+
+async def test_fix_without_time_is_named(live, c):
+    """A GGA-only receiver: position good, GPS.TIME NULL, WARNING ``GPS fix without time``."""
+    gps = live.telescope.peripherals.sims.gps
+    await live.call(setattr, gps, "kinds", ("GGA",))
+    await c.event(r"EVENT WARN LOCAL:26 ")
+    await c.wait("GPS.ERROR_STATE", lambda v: int(v) == WARNING_BIT)
+    assert await c.value("GPS.TIME") == "NULL"
+    assert active(live) == ["GPS fix without time"]
+    assert not c.seen(r"LOCAL:24 ")
+
+
+async def test_time_disagreeing_with_the_clock_is_shown_and_named(live, c):
+    """The receiver 30 s off: GPS.TIME shows what it says (LOCAL.UTC the system's), TIME_LOOSE,
+    ERROR ``GPS time disagrees with the clock``, GPS.TIME_OFFSET the difference."""
+    gps = live.telescope.peripherals.sims.gps
+    await live.call(setattr, gps, "date_offset", 30.0)
+    await c.event(r"EVENT WARN LOCAL:26 GPS time uncertain: differs from the system clock")
+    await c.wait("GPS.ERROR_STATE", lambda v: int(v) & ERROR_BIT)
+    gps_time, utc, offset = await c.nums("GPS.TIME", "LOCAL.UTC", "GPS.TIME_OFFSET")
+    assert gps_time - utc == pytest.approx(30.0, abs=1.5) and offset == pytest.approx(30.0, abs=1.5)
+    assert active(live) == ["GPS time disagrees with the clock"]
+    assert "system clock by +" in live.telescope.peripherals.gps.conditions_text()
+    await live.call(setattr, gps, "date_offset", 0.0)
+    await c.event(r"EVENT INFO LOCAL:27 ")
+
+
+async def test_simulator_mode_is_no_fix_and_its_quality_is_served(live, c):
+    """A Garmin in simulator mode (GGA quality 8, RMC A mode S): no fix, GPS.FIX_QUALITY 8."""
+    gps = live.telescope.peripherals.sims.gps
+    await live.call(setattr, gps, "quality", 8)
+    await c.event(r"EVENT WARN LOCAL:24 GPS position uncertain: no fix \(RMC mode S \(simulator\)\)")
+    await c.wait("GPS.FIX_QUALITY", lambda v: v == 8)
+    assert "simulator" in await c.value("GPS.SUMMARY")
+    await c.wait("GPS.ERROR_STATE", lambda v: int(v) == WARNING_BIT)
+
+
+async def test_satellites_per_constellation_are_served(live, c):
+    gps = live.telescope.peripherals.sims.gps
+    await live.call(setattr, gps, "talkers", (("GP", 11), ("GL", 5)))
+    await c.wait("GPS.SATELLITES", lambda v: v == 16)
+    assert await c.num("GPS.FIX_QUALITY") == 1
+    text = await c.value("GPS.CONSTELLATIONS")
+    assert "GP GPS 11/" in text and "GL GLONASS 5/" in text
+
+
+async def test_ubx_bytes_before_the_sentences_keep_the_time(live, c):
+    gps = live.telescope.peripherals.sims.gps
+    reader = live.telescope.peripherals.gps_reader
+    await live.call(setattr, gps, "mixed_binary", True)
+    before = reader.mixed
+    deadline = time.monotonic() + WAIT
+    while reader.mixed < before + 30:
+        assert time.monotonic() < deadline
+        float(await c.value("GPS.TIME"))
+        assert await c.value("GPS.ERROR_STATE") == "0"
+    assert not c.seen(r"LOCAL:2[46] ")
+
+
+@pytest.mark.parametrize("corrupt", ["latitude", "height"])
+async def test_syncpos_never_takes_a_field_out_of_range(live, c, corrupt):
+    """A checksummed GGA with latitude 95.5° (or height 99999 m) while LOCAL.SYNCPOS=1: the
+    site does not move, the position is no fix."""
+    gps = live.telescope.peripherals.sims.gps
+    await live.call(setattr, gps, "kinds", ("GGA", "ZDA"))
+    await live.call(setattr, gps, "corrupt", corrupt)
+    await c.event(r"EVENT WARN LOCAL:24 ")
+    assert done_ok(await c.set("LOCAL.SYNCPOS=1"), "LOCAL.SYNCPOS")
+    await asyncio.sleep(1.5)  # longer than the SYNCPOS check period; the GPS keeps talking
+    assert await c.num("LOCAL.LATITUDE") == pytest.approx(SITE_LAT, abs=1e-9)
+    assert await c.num("LOCAL.HEIGHT") == pytest.approx(SITE_HEIGHT, abs=1e-9)
+    assert await c.num("GPS.POS.LAT") == pytest.approx(GPS_LAT, abs=1e-6)
+    assert "no fix (antenna)" in live.telescope.peripherals.gps.conditions_text()
 
 
 async def test_nmea_garbage_is_ignored_bad_checksums_are_not_data(live, c):

@@ -120,9 +120,12 @@ async def test_metrics_parse_and_match_tpl2(live):
     assert m[("tcs_frontend_connections", (("front_end", "opentci"),))] >= 0
     assert ("tcs_tracking_active", ()) in m and ("tcs_tracking_on_target", ()) in m
     assert ("tcs_gps_position_fix", ()) in m
+    assert ("tcs_gps_fix_quality", ()) in m and ("tcs_gps_time_valid", ()) in m and ("tcs_gps_data", ()) in m
     assert m[("tcs_can_bus_state", (("state", "ok"),))] == 1.0  # (from the control process)
     assert m[("tcs_can_error_frames_total", ())] == 0
     assert ("tcs_weather_interlock_active", ()) in m
+    gps = (await status(live))["gps"]      # the status page's GPS: the receiver's judgement
+    assert {"satellites", "fix_quality", "quality_name", "summary", "constellations", "time_valid"} <= set(gps)
 
 
 async def test_each_metric_family_has_one_unit_named_in_it(live):

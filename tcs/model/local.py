@@ -22,6 +22,8 @@ from tcs.model.health import ModuleHealth
 from tcs.model.state_store import StateStore
 
 PERSISTED = ("ut1_utc", "tai_utc", "latitude", "longitude", "height", "syncpos")
+#: LOCAL's own ranges (its OpenTCI !MIN/!MAX): a GPS fix outside them never becomes the site.
+LATITUDE_RANGE, LONGITUDE_RANGE, HEIGHT_RANGE = (-90.0, 90.0), (-360.0, 360.0), (-500.0, 10000.0)
 
 
 class LocalTime(ModuleHealth):
@@ -104,9 +106,14 @@ class LocalTime(ModuleHealth):
         self._save(syncpos=int(value))
 
     def follow_gps(self, latitude: float, longitude: float, height: float) -> bool:
-        """Move the site to a GPS fix when ``SYNCPOS`` ≠ 0; True when it did."""
+        """Move the site to a (validated) GPS fix when ``SYNCPOS`` ≠ 0 and it lies within
+        LOCAL's own ranges; True when it did."""
         if not self._syncpos:
             return False
+        for value, (lo, hi) in ((latitude, LATITUDE_RANGE), (longitude, LONGITUDE_RANGE),
+                                (height, HEIGHT_RANGE)):
+            if not isinstance(value, (int, float)) or not lo <= value <= hi:  # NaN fails too
+                return False
         self._save(latitude=latitude, longitude=longitude, height=height)
         return True
 

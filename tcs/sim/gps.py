@@ -20,6 +20,15 @@ Fault injection (attributes, effective from the next burst): ``silent`` (nothing
 checksum wrong), ``fix`` (False: GGA quality 0 and empty position, RMC status V; ZDA still
 carries the receiver's clock). :meth:`unplug` closes the pty or drops the TCP clients and stops
 listening; in TCP mode :meth:`replug` listens again on the same port.
+
+The failure shapes of real receivers (issue 43): ``cold`` (a cold start: no fix, ZDA and RMC
+dated 1999-08-22), ``quality`` (6 dead reckoning, 7 manual, 8 a Garmin in simulator mode —
+sent with RMC status A), ``date_offset`` (−1024 weeks: week-rollover firmware; a few seconds:
+a receiver whose time disagrees with the clock), ``corrupt`` (one field out of range in a
+checksummed GGA), ``mixed_binary`` (UBX bytes before each sentence on the same line, as a
+u-blox sending UBX and NMEA on one port), ``kinds`` (which sentences: a GGA-less receiver
+sends RMC/GLL/GNS/ZDA; ``$PUBX,00``), ``gga_every`` (GGA only every n-th burst) and
+``talkers`` (one GGA per constellation, ``$GPGGA`` and ``$GLGGA`` with their own counts).
 """
 
 from __future__ import annotations
@@ -52,21 +61,82 @@ def _angle(value: float, degree_digits: int, hemispheres: str) -> tuple[str, str
     return f"{deg:0{degree_digits}d}{minutes:07.4f}", hemi
 
 
-def burst(t: float, latitude: float, longitude: float, height: float, *, fix: bool = True,
-          satellites: int = 9, talker: str = "GP") -> list[str]:
-    """The bodies (without ``$`` and checksum) of GGA, RMC and ZDA at UTC ``t``."""
-    dt = datetime.fromtimestamp(t, tz=timezone.utc)
+def _fields(dt: datetime) -> tuple[str, str, str]:
     hms = dt.strftime("%H%M%S.") + f"{dt.microsecond // 10000:02d}"
+    return hms, f"{dt:%d%m%y}", f"{dt:%d},{dt:%m},{dt:%Y}"
+
+
+#: GGA quality -> the NMEA 2.3 mode indicator a receiver sends with it in RMC, GLL and GNS.
+QUALITY_MODE = {0: "N", 1: "A", 2: "D", 3: "P", 4: "R", 5: "F", 6: "E", 7: "M", 8: "S"}
+
+
+def burst(t: float, latitude: float, longitude: float, height: float, *, fix: bool = True,
+          satellites: int = 9, talker: str = "GP", kinds: tuple[str, ...] = ("GGA", "RMC", "ZDA"),
+          quality: int = 1, cold: bool = False, date_offset: float = 0.0,
+          corrupt: str = "", talkers: tuple[tuple[str, int], ...] = ()) -> list[str]:
+    """The bodies (without ``$`` and checksum) of one burst at UTC ``t``.
+
+    ``kinds`` picks the sentences in order (GGA, RMC, GLL, GNS, ZDA, GSV, PUBX for ``$PUBX,00``).
+    ``quality`` is the GGA quality of a fix (6 dead reckoning, 8 simulator: with RMC status A
+    and mode E/S, as such receivers send). ``cold``: a cold start — no fix, the receiver's
+    clock at 1999-08-22 plus the time of day. ``date_offset`` is added to the dates and times
+    sent (−1024 weeks: week-rollover firmware). ``corrupt``: one field out of range in an
+    otherwise checksummed fix ("latitude" 95.5°, "height" 99999 m, "hemisphere" missing,
+    "minutes" ≥ 60). ``talkers``: ``(talker, satellites)`` pairs, one GGA each, instead of one.
+    """
+    sent = t + date_offset
+    if cold:
+        sent = datetime(1999, 8, 22, tzinfo=timezone.utc).timestamp() + t % 86400
+        fix = False
+    dt = datetime.fromtimestamp(sent, tz=timezone.utc)
+    hms, ddmmyy, zda_date = _fields(dt)
     lat, ns = _angle(latitude, 2, "NS")
     lon, ew = _angle(longitude, 3, "EW")
-    if fix:
-        gga = f"{talker}GGA,{hms},{lat},{ns},{lon},{ew},1,{satellites:02d},0.9,{height:.1f},M,50.0,M,,"
-        rmc = f"{talker}RMC,{hms},A,{lat},{ns},{lon},{ew},0.0,0.0,{dt:%d%m%y},,,A"
-    else:
-        gga = f"{talker}GGA,{hms},,,,,0,00,,,M,,M,,"
-        rmc = f"{talker}RMC,{hms},V,,,,,,,{dt:%d%m%y},,,N"
-    zda = f"{talker}ZDA,{hms},{dt:%d},{dt:%m},{dt:%Y},00,00"
-    return [gga, rmc, zda]
+    alt = f"{height:.1f}"
+    if corrupt == "latitude":
+        lat = "9530.0000"
+    elif corrupt == "height":
+        alt = "99999.0"
+    elif corrupt == "hemisphere":
+        ns = ""
+    elif corrupt == "minutes":
+        lat = lat[:2] + "75" + lat[4:]
+    q = quality if fix else 0
+    mode = QUALITY_MODE.get(q, "N")
+    status = "A" if fix else "V"
+    out = []
+    for kind in kinds:
+        if kind == "GGA":
+            for tk, sats in (talkers or ((talker, satellites),)):
+                if fix:
+                    out.append(f"{tk}GGA,{hms},{lat},{ns},{lon},{ew},{q},{sats:02d},0.9,{alt},M,50.0,M,,")
+                else:
+                    out.append(f"{tk}GGA,{hms},,,,,0,00,,,M,,M,,")
+        elif kind == "RMC":
+            out.append(f"{talker}RMC,{hms},{status},{lat},{ns},{lon},{ew},0.0,0.0,{ddmmyy},,,{mode}" if fix
+                       else f"{talker}RMC,{hms},V,,,,,,,{ddmmyy},,,N")
+        elif kind == "GLL":
+            out.append(f"{talker}GLL,{lat},{ns},{lon},{ew},{hms},{status},{mode}" if fix
+                       else f"{talker}GLL,,,,,{hms},V,N")
+        elif kind == "GNS":
+            out.append(f"{talker}GNS,{hms},{lat},{ns},{lon},{ew},{mode}{mode},{satellites:02d},0.9,{alt},50.0,,"
+                       if fix else f"{talker}GNS,{hms},,,,,NN,00,,,,,")
+        elif kind == "PUBX":
+            nav = "G3" if fix and q == 1 else "D3" if fix and q == 2 else "DR" if fix and q == 6 else "NF"
+            out.append(f"PUBX,00,{hms},{lat},{ns},{lon},{ew},{height + 50.0:.3f},{nav},2.1,2.0,0.007,77.52,"
+                       f"0.007,,0.92,1.19,0.77,{satellites},0,0" if fix
+                       else f"PUBX,00,{hms},0000.00000,N,00000.00000,E,0.000,NF,5303302,3750001,0.000,0.00,"
+                            "0.000,,99.99,99.99,99.99,0,0,0")
+        elif kind == "GSV":
+            out.append(f"{talker}GSV,1,1,{satellites + 3:02d}")
+        elif kind == "ZDA":
+            out.append(f"{talker}ZDA,{hms},{zda_date},00,00")
+    return out
+
+
+#: UBX NAV-PVT-like binary that a u-blox receiver sends on the same port as its NMEA: the next
+#: sentence follows it on the same "line" (no newline in between).
+UBX_BLOB = bytes([0xB5, 0x62, 0x01, 0x07, 0x5C, 0x00]) + bytes(range(0x30, 0x70)) + b"\x24\x00\xff\x2a"
 
 
 class SimGps:
@@ -102,6 +172,15 @@ class SimGps:
         self.bad_checksums = False
         self.fix = True
         self.bursts = 0
+        #: Failure shapes of real receivers (effective from the next burst): see :func:`burst`.
+        self.kinds: tuple[str, ...] = ("GGA", "RMC", "ZDA")
+        self.quality = 1            # 6 dead reckoning, 7 manual, 8 simulator mode
+        self.cold = False           # cold start: no fix, clock at 1999-08-22
+        self.date_offset = 0.0      # -1024 weeks: week-rollover firmware; seconds: a wrong clock
+        self.corrupt = ""           # "latitude", "height", "hemisphere", "minutes"
+        self.mixed_binary = False   # UBX bytes before every sentence on the same line
+        self.gga_every = 1          # GGA only every n-th burst
+        self.talkers: tuple[tuple[str, int], ...] = ()   # one GGA per (talker, satellites)
         self._rng = random.Random(seed)
         self._master: int | None = None
         self._slave: int | None = None
@@ -203,12 +282,17 @@ class SimGps:
 
     def _compose(self) -> bytes:
         lines = []
+        kinds = self.kinds
+        if self.gga_every > 1 and self.bursts % self.gga_every:
+            kinds = tuple(k for k in kinds if k != "GGA")
         for body in burst(self.clock(), self.latitude, self.longitude, self.height, fix=self.fix,
-                          satellites=self.satellites):
+                          satellites=self.satellites, kinds=kinds, quality=self.quality, cold=self.cold,
+                          date_offset=self.date_offset, corrupt=self.corrupt, talkers=self.talkers):
             cs = checksum(body)
             if self.bad_checksums:
                 cs = f"{int(cs, 16) ^ 0x5A:02X}"
-            lines.append(f"${body}*{cs}\r\n".encode("ascii"))
+            line = f"${body}*{cs}\r\n".encode("ascii")
+            lines.append(UBX_BLOB + line if self.mixed_binary else line)
         if self.garbage:
             noise = bytes(self._rng.randrange(256) for _ in range(self._rng.randrange(10, 60)))
             lines.insert(0, noise.replace(b"\n", b"") + b"\r\n")

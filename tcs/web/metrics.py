@@ -363,8 +363,21 @@ class SnapshotCollector:
             yield _one("tcs_gps_position_fix", "1 while the GPS has a good position fix",
                        1.0 if gps["position_good"] else 0.0)
             yield _one("tcs_gps_time_good", "1 while the GPS time is good", 1.0 if gps["time_good"] else 0.0)
+            yield _one("tcs_gps_time_valid", "1 while the receiver's time is valid (it may disagree with "
+                       "the system clock)", 1.0 if gps.get("time_valid") else 0.0)
+            yield _one("tcs_gps_data", "1 while valid NMEA sentences come", 1.0 if gps.get("data") else 0.0)
             if gps["time_offset"] is not None:
                 yield _one("tcs_gps_time_offset_seconds", "GPS time minus the system's UTC", gps["time_offset"])
+            yield _one("tcs_gps_fix_quality", "GGA fix quality of the last position sentence (1-5 and 9 fixes; "
+                       "6 dead reckoning, 7 manual, 8 simulator are not)", float(gps.get("fix_quality") or 0))
+            if gps.get("satellites") is not None:
+                yield _one("tcs_gps_satellites", "satellites used in the fix", float(gps["satellites"]))
+            used = _gauge("tcs_gps_constellation_satellites", "satellites used per constellation (talker)",
+                          ["talker"])
+            for c in gps.get("constellations") or ():
+                if c["used"] is not None:
+                    used.add_metric([c["talker"]], float(c["used"]))
+            yield used
 
     @staticmethod
     def _front_ends(snap):

@@ -299,11 +299,22 @@ def take(service) -> dict[str, Any]:
         reader = gps.reader
         gps_time = _safe(lambda: gps.time)
         utc = snap["time"]["utc"]
+        st = _safe(lambda: reader.status)
         snap["gps"] = {"position_good": bool(_safe(lambda: reader.position_good, False)),
                        "time_good": bool(_safe(lambda: reader.time_good, False)),
+                       "time_valid": bool(_safe(lambda: reader.time_valid, False)),
                        "time_offset": None if gps_time is None else gps_time - utc,
                        "latitude": _num(_safe(lambda: gps.latitude)),
-                       "longitude": _num(_safe(lambda: gps.longitude))}
+                       "longitude": _num(_safe(lambda: gps.longitude)),
+                       "height": _num(_safe(lambda: gps.height)),
+                       "data": bool(st.data_good) if st else False,
+                       "satellites": st.satellites if st else None,
+                       "fix_quality": st.fix_quality if st and st.data_good else 0,
+                       "quality_name": st.quality_name if st and st.data_good else "no data",
+                       "summary": _safe(lambda: st.summary(), ""),
+                       "constellations": [
+                           {"talker": t, "used": used, "in_view": view, "quality": q, "fix": bool(fix)}
+                           for t, used, view, q, fix in (st.constellations if st else ())]}
     snap["clients"] = (_sessions(service.server, "opentci")
                        + _sessions(getattr(service, "opentsi_server", None), "opentsi"))
     snap["front_ends"] = _front_ends(service)

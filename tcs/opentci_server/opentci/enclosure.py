@@ -60,7 +60,20 @@ SWITCH = module_array(
 
 GPS = module(
     "GPS", *common(),
-    var("TIME", FLOAT, get="time", info="receiver UTC, s since 1970; NULL while the GPS time is loose"),
+    var("TIME", FLOAT, get="time", info="receiver UTC, s since 1970, while the receiver's time is valid "
+                                        "(also while it disagrees with the system clock); NULL otherwise"),
+    # extensions (docs/gps.md): what the receiver's fix is worth
+    var("TIME_OFFSET", FLOAT, get="time_offset",
+        info="extension: GPS time minus the system clock, s; NULL without a valid GPS time"),
+    var("SATELLITES", INT, get="satellites",
+        info="extension: satellites used (the combined GN count, else the sum per constellation); NULL: unknown"),
+    var("FIX_QUALITY", INT, get="fix_quality",
+        info="extension: GGA fix quality of the last position sentence: 0 none, 1 autonomous, 2 differential, "
+             "3 PPS, 4 RTK, 5 RTK float, 9 SBAS (fixes); 6 dead reckoning, 7 manual, 8 simulator (not fixes)"),
+    var("CONSTELLATIONS", STRING, get="constellations",
+        info="extension: per talker 'GP GPS used/in view quality; GL …'"),
+    var("SUMMARY", STRING, get="status_text",
+        info="extension: the receiver's state in words (fix, satellites, time and why not)"),
     module("POS",
            var("LAT", FLOAT, get="latitude", info="latitude of the last fix, degrees north (NULL: none yet)"),
            var("LON", FLOAT, get="longitude", info="longitude of the last fix, degrees east (NULL: none yet)"),

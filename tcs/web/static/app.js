@@ -232,8 +232,15 @@ function links(snap) {
   if (snap.gps) {
     keys.add("gps");
     const g = snap.gps;
-    row(tbody, "gps", ["GPS", { text: g.position_good ? "fix" : "no fix", cls: g.position_good ? "ok" : "warn" },
-      { text: g.time_offset === null ? "time loose" : (g.time_offset * 1000).toFixed(1) + " ms", cls: "num" }]);
+    const sats = g.satellites === null || g.satellites === undefined ? "" : `, ${g.satellites} sat.`;
+    row(tbody, "gps", ["GPS", { text: !g.data ? "no data" : g.position_good ? `fix ${g.fix_quality} ${g.quality_name}${sats}`
+                                      : `no fix (${g.quality_name})${sats}`,
+                                cls: !g.data ? "bad" : g.position_good ? "ok" : "warn" },
+      { text: g.time_offset === null ? "time loose" : (g.time_offset * 1000).toFixed(1) + " ms",
+        cls: "num " + (g.time_offset !== null && !g.time_good ? "bad" : "") }]);
+    keys.add("gps detail");
+    row(tbody, "gps detail", ["", { text: g.summary || "", cls: "muted" },
+      { text: (g.constellations || []).map((k) => `${k.talker} ${k.used ?? "-"}/${k.in_view ?? "-"}`).join(" "), cls: "muted" }]);
   }
   prune(tbody, keys);
 }
