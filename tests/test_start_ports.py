@@ -65,8 +65,14 @@ def test_the_suite_runs_as_beside_a_running_default_server(_default_ports_held):
     discovery port is shared by design, SO_REUSEPORT: it is checked where the suite holds it.)"""
     from conftest import DEFAULT_TCP_PORTS
 
+    # Each xdist worker is a session of its own: the ports are held by whichever worker took
+    # them first, and released when that worker ends — so each worker checks the ports it holds
+    # itself (the first worker holds them all; a port no worker of this run could take is held
+    # by a running server, which is the case this guards against anyway).
+    held_tcp = [s.getsockname()[1] for s in _default_ports_held if s.type == socket.SOCK_STREAM]
     held_udp = [s.getsockname()[1] for s in _default_ports_held if s.type == socket.SOCK_DGRAM]
-    for kind, ports, host in ((socket.SOCK_STREAM, DEFAULT_TCP_PORTS, "127.0.0.1"),
+    assert set(held_tcp) <= set(DEFAULT_TCP_PORTS)
+    for kind, ports, host in ((socket.SOCK_STREAM, held_tcp, "127.0.0.1"),
                               (socket.SOCK_DGRAM, held_udp, "0.0.0.0")):
         for port in ports:
             with socket.socket(socket.AF_INET, kind) as s:
