@@ -482,6 +482,18 @@ class Axis(ModuleHealth):
             self.envelope(self, "moving", (float(goal), speed, 1 if direction > 0 else -1), sky=sky)
         return future
 
+    def _brakes_before(self, sp, value: float, direction: int) -> bool:
+        """Whether the setpoint ``sp`` moving in ``direction`` can come to rest before
+        ``value`` with the normal deceleration: v²/2a plus what the jerk-limited ramps of the
+        acceleration add (≤ |v|·a/j, and more while it still accelerates) — conservative."""
+        d = self.dynamics
+        if (value - sp.position) * direction <= 0:
+            return False
+        v, a, j = abs(sp.velocity), d.max_acceleration, d.max_jerk
+        ramp = (v * a + abs(sp.acceleration) * (v + sp.acceleration ** 2 / j)) / j if j else 0.0
+        rest = sp.position + direction * (v * v / (2.0 * a) + ramp)
+        return (value - rest) * direction > 0
+
     def limit_move(self, goal: float) -> None:
         """The safety envelope brings the end of a running :meth:`move_toward` nearer (the
         other axis's motion changed): the move ends at rest at ``goal`` (drive frame) at its
@@ -809,7 +821,14 @@ class Axis(ModuleHealth):
                 self.planner.take_over(self._sp)
             elif not self.planner.moving:
                 self.planner.take_over(self._sp)
-            self.planner.move_to(goal, speed)
+            sp = self.planner.setpoint
+            if sp.velocity * direction > 0 and not self._brakes_before(sp, goal, direction):
+                # already running this way faster than it can brake before the goal (a border
+                # the other axis's motion brought near): stop now — a move_to would overshoot
+                # the goal and come back
+                self.planner.stop(quick=True)
+            else:
+                self.planner.move_to(goal, speed)
             self._jog = (speed, direction, future)
             self.emit(INFO, ErrorNumber.MOTIONCHANGE, f"moving towards {goal:g} at {speed:g}/s", cause)
         elif kind == "bound":   # the envelope brings a running move_toward's end nearer
@@ -821,10 +840,8 @@ class Axis(ModuleHealth):
             speed, direction, _future = jog
             if (self.planner.demanded_target - value) * direction <= 1e-12:
                 return   # (ends there or nearer already)
-            d = self.dynamics
             sp = self.planner.setpoint
-            rest = sp.position + sp.velocity * abs(sp.velocity) / (2.0 * d.max_acceleration)
-            if (value - sp.position) * direction <= 0 or (rest - value) * direction >= 0:
+            if not self._brakes_before(sp, value, direction):
                 self.planner.stop(quick=True)
             else:
                 self.planner.move_to(value, speed)
