@@ -45,6 +45,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="HTTP port of the ASCOM Alpaca devices (overrides [alpaca] port; -1: off)")
     p.add_argument("--web-port", type=int,
                    help="HTTP port of the status page and /metrics (overrides [web] port; -1: off)")
+    p.add_argument("--indi-port", type=int,
+                   help="TCP port of the INDI devices (overrides [indi] port; -1: off)")
     p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     p.add_argument("--check-config", metavar="FILE",
                    help="validate FILE as a service's hardware file and exit (0 valid, 2 not); "
@@ -115,7 +117,7 @@ def main(argv=None) -> int:
 
     return run_until_signalled("tcs-server", lambda stop: serve_until_signalled(
         Service(config, args.host, args.port, args.opentsi_port,
-                args.alpaca_port, args.web_port), stop))
+                args.alpaca_port, args.web_port, args.indi_port), stop))
 
 
 def run_until_signalled(prog: str, main_coro) -> int:
