@@ -300,3 +300,44 @@ def test_through_indiserver_chaining(live, tmp_path):
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+# ------------------------------------------------------------------------------ the equipment
+def refused(port: int, new_xml: str, device: str, prop: str) -> str:
+    """Send ``new_xml`` on a raw connection; the property's Alert message (the reason)."""
+    raw = RawClient(port)
+    try:
+        raw.send(f"<getProperties version='1.7' device='{device}' name='{prop}'/>")
+        raw.until(lambda e: e.tag.startswith("def") and e.get("name") == prop, prop)
+        raw.send(new_xml)
+        alert = raw.until(lambda e: e.tag.startswith("set") and e.get("name") == prop
+                          and e.get("state") == "Alert", f"an Alert of {prop}")
+        return alert.get("message") or ""
+    finally:
+        raw.close()
+
+
+def test_the_focuser_moves_in_microns_and_refuses_outside_its_limits(live):
+    """CONNECT powers the focus axis; ABS_FOCUS_POSITION 12345 moves it to 12.345 mm (through
+    its referencing on the first move), Busy then Ok; a position beyond FOCUS_MAX is Alert
+    with the reason and nothing moves."""
+    need_indi_bin()
+    port, dev = live.service.indi_port, "TCS Focuser"
+    values = getprop(port, f"{dev}.*.*")
+    for key in ("CONNECTION.CONNECT", "ABS_FOCUS_POSITION.FOCUS_ABSOLUTE_POSITION",
+                "FOCUS_MAX.FOCUS_MAX_VALUE", "FOCUS_ABORT_MOTION.ABORT", "DRIVER_INFO.DRIVER_INTERFACE"):
+        assert f"{dev}.{key}" in values, (key, sorted(values))
+    assert int(values[f"{dev}.DRIVER_INFO.DRIVER_INTERFACE"]) & 8
+    hi = float(values[f"{dev}.FOCUS_MAX.FOCUS_MAX_VALUE"])
+    assert hi == pytest.approx(live.telescope.axis("FOCUS").section.max * 1000.0)
+    setprop(port, f"{dev}.CONNECTION.CONNECT=On")
+    wait_expr(port, f'"{dev}.CONNECTION._STATE"==1')
+    setprop(port, f"{dev}.ABS_FOCUS_POSITION.FOCUS_ABSOLUTE_POSITION=12345")
+    wait_expr(port, f'"{dev}.ABS_FOCUS_POSITION._STATE"==1 && '
+                    f'"{dev}.ABS_FOCUS_POSITION.FOCUS_ABSOLUTE_POSITION"==12345')
+    assert abs(live.telescope.axis("FOCUS").real_position - 12.345) < 0.002
+    message = refused(port, f"<newNumberVector device='{dev}' name='ABS_FOCUS_POSITION'>"
+                            f"<oneNumber name='FOCUS_ABSOLUTE_POSITION'>{hi + 10:.0f}</oneNumber></newNumberVector>",
+                      dev, "ABS_FOCUS_POSITION")
+    assert "FOCUS_ABSOLUTE_POSITION" in message, message
+    assert abs(live.telescope.axis("FOCUS").real_position - 12.345) < 0.002
