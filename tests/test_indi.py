@@ -33,7 +33,10 @@ WAIT = 90.0
 
 def _hw(base: Path) -> Path:
     path = base / "hw.toml"
-    path.write_text(DEFAULT_CONFIG.read_text(encoding="utf-8") + "\n[indi]\nport = 0\n", encoding="utf-8")
+    text = DEFAULT_CONFIG.read_text(encoding="utf-8")
+    assert "release_after = 600.0" in text
+    text = text.replace("release_after = 600.0", "release_after = 1.0")   # (the rain test's end)
+    path.write_text(text + "\n[indi]\nport = 0\n", encoding="utf-8")
     return path
 
 
@@ -341,3 +344,97 @@ def test_the_focuser_moves_in_microns_and_refuses_outside_its_limits(live):
                       dev, "ABS_FOCUS_POSITION")
     assert "FOCUS_ABSOLUTE_POSITION" in message, message
     assert abs(live.telescope.axis("FOCUS").real_position - 12.345) < 0.002
+
+
+def test_the_filter_wheel_changes_slot_and_names_its_filters(live):
+    """FILTER_SLOT counts from 1 (INDI) over the hardware file's positions; FILTER_NAME has its
+    names; a change to slot 4 puts the wheel at its 4th position; slot 0 is Alert."""
+    need_indi_bin()
+    port, dev = live.service.indi_port, "TCS Filter"
+    wheel = next(w for w in live.telescope.axis_array("FILTER") if w is not None)
+    keys = sorted(wheel.positions)
+    values = getprop(port, f"{dev}.*.*")
+    assert int(values[f"{dev}.DRIVER_INFO.DRIVER_INTERFACE"]) & 16
+    assert [values[f"{dev}.FILTER_NAME.FILTER_SLOT_NAME_{i + 1}"] for i in range(len(keys))] == \
+        [wheel.section.names.get(str(k), str(k)) for k in keys]
+    setprop(port, f"{dev}.CONNECTION.CONNECT=On")   # powers the wheel (main power first), references it
+    wait_expr(port, f'"{dev}.CONNECTION._STATE"==1')
+    setprop(port, f"{dev}.FILTER_SLOT.FILTER_SLOT_VALUE=4")
+    wait_expr(port, f'"{dev}.FILTER_SLOT._STATE"==1 && "{dev}.FILTER_SLOT.FILTER_SLOT_VALUE"==4')
+    assert abs(wheel.real_position - float(keys[3])) < 1e-6
+    message = refused(port, f"<newNumberVector device='{dev}' name='FILTER_SLOT'>"
+                            "<oneNumber name='FILTER_SLOT_VALUE'>0</oneNumber></newNumberVector>", dev, "FILTER_SLOT")
+    assert "slot" in message, message
+
+
+def test_the_rotator_moves_to_a_sky_angle_and_syncs(live):
+    """ABS_ROTATOR_ANGLE 30 moves the derotator there (sky = mechanical with no sync offset);
+    SYNC_ROTATOR_ANGLE makes the angle read 100 without moving; ABORT stops a move."""
+    need_indi_bin()
+    port, dev = live.service.indi_port, "TCS Rotator"
+    rot = next(d for d in live.telescope.axis_array("DEROTATOR") if d is not None)
+    values = getprop(port, f"{dev}.*.*")
+    assert int(values[f"{dev}.DRIVER_INFO.DRIVER_INTERFACE"]) & 4096
+    assert f"{dev}.ROTATOR_ABORT_MOTION.ABORT" in values
+    setprop(port, f"{dev}.CONNECTION.CONNECT=On")
+    wait_expr(port, f'"{dev}.CONNECTION._STATE"==1')
+    setprop(port, f"{dev}.ABS_ROTATOR_ANGLE.ANGLE=30")
+    wait_expr(port, f'"{dev}.ABS_ROTATOR_ANGLE._STATE"==1 && abs("{dev}.ABS_ROTATOR_ANGLE.ANGLE"-30)<0.01')
+    assert abs(rot.real_position % 360.0 - 30.0) < 0.01
+    try:
+        setprop(port, f"{dev}.SYNC_ROTATOR_ANGLE.ANGLE=100")
+        wait_expr(port, f'abs("{dev}.ABS_ROTATOR_ANGLE.ANGLE"-100)<0.01')
+        assert abs(rot.real_position % 360.0 - 30.0) < 0.01          # nothing moved
+        setprop(port, f"{dev}.ABS_ROTATOR_ANGLE.ANGLE=160")         # mechanical 90°
+        wait_expr(port, f'"{dev}.ABS_ROTATOR_ANGLE._STATE"==2 && "{dev}.ABS_ROTATOR_ANGLE.ANGLE">103')
+        setprop(port, f"{dev}.ROTATOR_ABORT_MOTION.ABORT=On")
+        wait_expr(port, f'"{dev}.ABS_ROTATOR_ANGLE._STATE"!=2')
+        assert not rot.motion_state & 1 and 30.0 < rot.real_position % 360.0 < 89.0
+    finally:
+        setprop(port, f"{dev}.SYNC_ROTATOR_ANGLE.ANGLE={rot.real_position % 360.0!r}")   # sky = mechanical again
+
+
+async def test_the_dome_shutter_opens_and_rain_refuses_it_with_the_reason(live):
+    """DOME_SHUTTER OPEN moves every opening part (Busy, the parts open); CLOSE closes them
+    (Ok); in the rain the weather device's lights say so and OPEN is Alert with the
+    interlock's reason; ABS_DOME_POSITION turns the dome; WEATHER_PARAMETERS reads the sensors."""
+    need_indi_bin()
+    port, dev, weather = live.service.indi_port, "TCS Dome", "TCS Weather"
+    dome = live.telescope.peripherals.dome
+    shutters = [m for m in dome[1:3]]   # slit and flap (the sim's classic dome)
+    values = await asyncio.to_thread(getprop, port, f"{dev}.*.*", f"{weather}.*.*")
+    assert int(values[f"{dev}.DRIVER_INFO.DRIVER_INTERFACE"]) & 32
+    assert int(values[f"{weather}.DRIVER_INFO.DRIVER_INTERFACE"]) & 128
+    assert -50.0 < float(values[f"{weather}.WEATHER_PARAMETERS.WEATHER_TEMPERATURE"]) < 60.0
+    assert f"{weather}.WEATHER_PARAMETERS.WEATHER_WIND_SPEED" in values
+    assert values[f"{dev}.DOME_SHUTTER.SHUTTER_CLOSE"] == "On"
+    c = await Client.connect(live.port)
+    try:
+        await c.set("CABINET.POWER=1")
+        await asyncio.to_thread(wait_expr, port, f'"{weather}.WEATHER_STATUS.WEATHER_INTERLOCK"==1')
+        await asyncio.to_thread(setprop, port, f"{dev}.DOME_SHUTTER.SHUTTER_OPEN=On")
+        await asyncio.to_thread(wait_expr, port, f'"{dev}.DOME_SHUTTER._STATE"==2')
+        for part in shutters:
+            await c.wait(f"{part.module_name}.REALPOS", lambda v: v > 0.5, WAIT)
+        await asyncio.to_thread(setprop, port, f"{dev}.DOME_SHUTTER.SHUTTER_CLOSE=On")
+        await asyncio.to_thread(wait_expr, port, f'"{dev}.DOME_SHUTTER._STATE"==1 && '
+                                                 f'"{dev}.DOME_SHUTTER.SHUTTER_CLOSE"==1')
+        assert all(p.real_position <= p.section.min + 0.01 for p in shutters)
+        await asyncio.to_thread(setprop, port, f"{dev}.ABS_DOME_POSITION.DOME_ABSOLUTE_POSITION=190")
+        await asyncio.to_thread(wait_expr, port, f'"{dev}.ABS_DOME_POSITION._STATE"==1 && '
+                                                 f'abs("{dev}.ABS_DOME_POSITION.DOME_ABSOLUTE_POSITION"-190)<0.5')
+        plc = live.telescope.peripherals.sims.plcs["dome"]
+        await live.call(plc.force, "rain", True)
+        try:
+            await asyncio.to_thread(wait_expr, port, f'"{weather}.WEATHER_STATUS.WEATHER_INTERLOCK"==3 && '
+                                                     f'"{weather}.WEATHER_STATUS.WEATHER_RAIN"==3')
+            message = await asyncio.to_thread(
+                refused, port, f"<newSwitchVector device='{dev}' name='DOME_SHUTTER'>"
+                               "<oneSwitch name='SHUTTER_OPEN'>On</oneSwitch></newSwitchVector>", dev, "DOME_SHUTTER")
+            assert "rain" in message, message
+            assert all(p.real_position <= p.section.min + 0.01 for p in shutters)
+        finally:
+            await live.call(plc.release, "rain")
+        await asyncio.to_thread(wait_expr, port, f'"{weather}.WEATHER_STATUS.WEATHER_INTERLOCK"==1')
+    finally:
+        await c.close()
