@@ -438,3 +438,56 @@ async def test_the_dome_shutter_opens_and_rain_refuses_it_with_the_reason(live):
         await asyncio.to_thread(wait_expr, port, f'"{weather}.WEATHER_STATUS.WEATHER_INTERLOCK"==1')
     finally:
         await c.close()
+
+
+async def test_manual_motion_track_modes_and_the_park_position(live):
+    """TELESCOPE_MOTION_NS South (with TELESCOPE_SLEW_RATE Find) moves the altitude axis down
+    until Off stops it; TELESCOPE_TRACK_MODE Lunar sets the Moon's rate (TRACK_RATE_RA below
+    sidereal, POINTING.TARGET.RA_V the Moon's eastward motion), Custom the given rates,
+    Sidereal none; TELESCOPE_PARK_POSITION reads the park positions."""
+    need_indi_bin()
+    port = live.service.indi_port
+    p = live.telescope.pointing
+    c = await Client.connect(live.port)
+    try:
+        await asyncio.to_thread(setprop, port, f"{DEVICE}.TELESCOPE_PARK.UNPARK=On")
+        for axis in ("AZ", "ZD"):
+            await c.wait(f"{axis}.REFERENCED", lambda v: v == 1.0, WAIT)
+        await asyncio.to_thread(wait_expr, port, f'"{DEVICE}.TELESCOPE_PARK.UNPARK"==1')
+        values = await asyncio.to_thread(getprop, port, f"{DEVICE}.TELESCOPE_PARK_POSITION.*")
+        zd_park = dict((a.module_name, park) for a, park in live.telescope.operations.park_positions())["ZD"]
+        assert float(values[f"{DEVICE}.TELESCOPE_PARK_POSITION.PARK_ALT"]) == pytest.approx(
+            90.0 - abs(zd_park - p.axis2.offset), abs=1e-6)
+        # manual motion: down (South on an alt-az mount) at the Find rate, then Off stops it
+        await asyncio.to_thread(setprop, port, f"{DEVICE}.TELESCOPE_ABORT_MOTION.ABORT=On")
+        zd0 = await c.num("ZD.REALPOS")
+        await asyncio.to_thread(setprop, port, f"{DEVICE}.TELESCOPE_SLEW_RATE.SLEW_FIND=On")
+        await asyncio.to_thread(setprop, port, f"{DEVICE}.TELESCOPE_MOTION_NS.MOTION_SOUTH=On")
+        await asyncio.to_thread(wait_expr, port, f'"{DEVICE}.TELESCOPE_MOTION_NS._STATE"==2')
+        await c.wait("ZD.REALPOS", lambda v: abs(v) > abs(zd0) + 10.0, WAIT)
+        await asyncio.to_thread(setprop, port, f"{DEVICE}.TELESCOPE_MOTION_NS.MOTION_NORTH;MOTION_SOUTH=Off;Off")
+        await c.wait("ZD.MOTION_STATE", lambda v: not int(v) & 1, WAIT)
+        await asyncio.to_thread(wait_expr, port, f'"{DEVICE}.TELESCOPE_MOTION_NS._STATE"==0')
+        zd1 = await c.num("ZD.REALPOS")
+        assert abs(zd0) + 10.0 < abs(zd1) < p.zd_limit - 5.0, (zd0, zd1)
+        # track modes: lunar, custom, sidereal
+        await asyncio.to_thread(setprop, port, f"{DEVICE}.TELESCOPE_TRACK_STATE.TRACK_ON=On")
+        await c.wait("POINTING.TRACK", lambda v: v != 0, WAIT)
+        await asyncio.to_thread(setprop, port, f"{DEVICE}.TELESCOPE_TRACK_MODE.TRACK_LUNAR=On")
+        await asyncio.to_thread(wait_expr, port, f'abs("{DEVICE}.TELESCOPE_TRACK_RATE.TRACK_RATE_RA"-15.041067)>0.01')
+        # east among the stars: 0.15…1.1″ of RA/s (see the Alpaca test of lunar tracking)
+        assert 0.15 < p.target.ra_v < 1.1, p.target.ra_v
+        rate = float((await asyncio.to_thread(getprop, port, f"{DEVICE}.TELESCOPE_TRACK_RATE.TRACK_RATE_RA"))[
+            f"{DEVICE}.TELESCOPE_TRACK_RATE.TRACK_RATE_RA"])
+        assert rate == pytest.approx(15.041067 - p.target.ra_v, abs=1e-3)
+        assert p.track != 0
+        await asyncio.to_thread(setprop, port, f"{DEVICE}.TELESCOPE_TRACK_RATE.TRACK_RATE_RA;TRACK_RATE_DE=15.0;0.5")
+        await asyncio.to_thread(setprop, port, f"{DEVICE}.TELESCOPE_TRACK_MODE.TRACK_CUSTOM=On")
+        await asyncio.to_thread(wait_expr, port, f'abs("{DEVICE}.TELESCOPE_TRACK_RATE.TRACK_RATE_DE"-0.5)<1e-6')
+        assert p.target.ra_v == pytest.approx(15.041067 - 15.0, abs=1e-4) and p.target.dec_v == pytest.approx(0.5)
+        await asyncio.to_thread(setprop, port, f"{DEVICE}.TELESCOPE_TRACK_MODE.TRACK_SIDEREAL=On")
+        await asyncio.to_thread(wait_expr, port, f'abs("{DEVICE}.TELESCOPE_TRACK_RATE.TRACK_RATE_RA"-15.041067)<1e-3')
+        assert p.target.ra_v == 0.0 and p.target.dec_v == 0.0
+    finally:
+        await asyncio.to_thread(setprop, port, f"{DEVICE}.TELESCOPE_ABORT_MOTION.ABORT=On")
+        await c.close()

@@ -17,7 +17,21 @@ What maps to what
 * ``TELESCOPE_PARK`` PARK/UNPARK: the operations' park (the hardware file's park positions) and
   make-ready (``unpark``: powers and references, the TCS's make-ready policy applies).
 * ``TELESCOPE_TRACK_STATE``: TRACK_ON tracks the place the telescope points at, TRACK_OFF ends
-  tracking. ``TELESCOPE_TRACK_MODE``: sidereal only in this version (others refused).
+  tracking. ``TELESCOPE_TRACK_MODE``: TRACK_SIDEREAL, TRACK_SOLAR and TRACK_LUNAR (POINTING.TARGET
+  RA_V/DEC_V = the real Sun's / Moon's topocentric motion against the stars, DE421, as Alpaca's
+  TrackingRate), TRACK_CUSTOM (``TELESCOPE_TRACK_RATE``: TRACK_RATE_RA is the RA tracking rate,
+  15.041…″/s sidereal, so RA_V = sidereal − TRACK_RATE_RA; TRACK_RATE_DE = DEC_V, ″/s). The rate
+  applies at once while tracking (re-planned from the place tracked, no jump), else from the
+  next slew or tracking start; ``TELESCOPE_TRACK_RATE`` reads the rates in use.
+* ``TELESCOPE_MOTION_NS``/``_WE`` with ``TELESCOPE_SLEW_RATE`` (Guide 2× sidereal, Centering
+  0.1°/s, Find 1°/s, Max = the axis's maximum): as Alpaca's MoveAxis — tracking ends, the axis
+  moves (``Axis.move_toward``, bounded by the limits and the safety envelope: horizon, Sun,
+  keep-outs) until Off or abort. North/South is the Dec axis (reversed in the reverse
+  orientation) or, alt-az, up to the zenith / down to the horizon limit; West/East is the hour
+  angle growing / shrinking, or azimuth growing / shrinking.
+* ``TELESCOPE_PARK_POSITION`` (read-only): the park positions (hardware file or SetPark) as
+  PARK_AZ/PARK_ALT (alt-az) or PARK_RA (the hour angle, h)/PARK_DEC (equatorial);
+  ``TELESCOPE_PARK_OPTION`` PARK_CURRENT makes the present positions the park positions.
 * ``TELESCOPE_TIMED_GUIDE_NS``/``_WE`` (ms) with ``GUIDE_RATE`` (fraction of sidereal, 0.5):
   pulses that move the tracked target by rate × time (:meth:`Operations.pulse_guide`).
 * ``TELESCOPE_PIER_SIDE`` (equatorial mounts): PIER_EAST in the normal orientation, PIER_WEST
@@ -42,14 +56,20 @@ import time
 
 import erfa
 
-from tcs.errors import TcsError
+from tcs.errors import ErrorNumber, RangeRefused, TcsError
 from tcs.indi.protocol import Element, Vector
 from tcs.indi.server import Device, Refused
 from tcs.pointing.orientation import to_normal
+from tcs.pointing.targets import body_rates
 
 log = logging.getLogger(__name__)
 
 SIDEREAL_DEG_S = 360.0 / 86164.0905
+SIDEREAL_ARCSEC = SIDEREAL_DEG_S * 3600.0   # INDI's TRACK_RATE_RA of sidereal tracking (15.041…)
+RATE_BODIES = {"TRACK_SIDEREAL": None, "TRACK_SOLAR": "sun", "TRACK_LUNAR": "moon", "TRACK_CUSTOM": None}
+#: TELESCOPE_SLEW_RATE: element, label, deg/s of TELESCOPE_MOTION_NS/_WE (None: the axis's maximum)
+SLEW_RATES = (("SLEW_GUIDE", "Guide", 2.0 * 360.0 / 86164.0905), ("SLEW_CENTERING", "Centering", 0.1),
+              ("SLEW_FIND", "Find", 1.0), ("SLEW_MAX", "Max", None))
 GUIDE_RATE = 0.5                       # of the sidereal rate
 TRACK_INSIDE_LIMITS = 2                # POINTING.TRACK: the orientation that stays inside
 ON_TARGET = 8
@@ -123,8 +143,38 @@ class TelescopeDevice(Device):
             _switch("PARK", "Park(ed)"), _switch("UNPARK", "UnPark(ed)")], label="Parking", group="Site Management"))
         self.track_state = add(Vector(d, "TELESCOPE_TRACK_STATE", "Switch", [
             _switch("TRACK_ON", "On"), _switch("TRACK_OFF", "Off", True)], label="Tracking"))
+        self._rate = "TRACK_SIDEREAL"
+        self._custom = (SIDEREAL_ARCSEC, 0.0)   # TELESCOPE_TRACK_RATE for TRACK_CUSTOM
         self.track_mode = add(Vector(d, "TELESCOPE_TRACK_MODE", "Switch", [
-            _switch("TRACK_SIDEREAL", "Sidereal", True)], label="Track Mode", state="Ok"))
+            _switch("TRACK_SIDEREAL", "Sidereal", True), _switch("TRACK_SOLAR", "Solar"),
+            _switch("TRACK_LUNAR", "Lunar"), _switch("TRACK_CUSTOM", "Custom")], label="Track Mode", state="Ok"))
+        self.track_rate = add(Vector(d, "TELESCOPE_TRACK_RATE", "Number", [
+            _num("TRACK_RATE_RA", "RA (arcsecs/s)", SIDEREAL_ARCSEC, "%.6f", -16384.0, 16384.0, 0.000001),
+            _num("TRACK_RATE_DE", "DE (arcsecs/s)", 0.0, "%.6f", -16384.0, 16384.0, 0.000001)],
+            label="Track Rates", state="Idle"))
+        self._moving: dict[str, tuple] = {}     # "NS"/"WE" -> (axis, future) of a manual motion
+        self._motion_failed: dict[str, str] = {}
+        self.motion_ns = add(Vector(d, "TELESCOPE_MOTION_NS", "Switch", [
+            _switch("MOTION_NORTH", "North"), _switch("MOTION_SOUTH", "South")],
+            label="Motion N/S", group="Motion Control", rule="AtMostOne"))
+        self.motion_we = add(Vector(d, "TELESCOPE_MOTION_WE", "Switch", [
+            _switch("MOTION_WEST", "West"), _switch("MOTION_EAST", "East")],
+            label="Motion W/E", group="Motion Control", rule="AtMostOne"))
+        top = min(float(p.axis1.section.max_velocity), float(p.axis2.section.max_velocity))
+        self.slew_rate = add(Vector(d, "TELESCOPE_SLEW_RATE", "Switch", [
+            _switch(name, f"{label} ({min(speed, top) if speed else top:g}°/s)", name == "SLEW_CENTERING")
+            for name, label, speed in SLEW_RATES], label="Slew Rate", group="Motion Control", state="Ok"))
+        if equatorial:
+            park_elements = [_num("PARK_RA", "HA (hh:mm:ss)", 0.0, "%010.6m", -12.0, 24.0),
+                             _num("PARK_DEC", "DEC (dd:mm:ss)", 0.0, "%010.6m", -90.0, 90.0)]
+        else:
+            park_elements = [_num("PARK_AZ", "AZ D:M:S", 0.0, "%010.6m", 0.0, 360.0),
+                             _num("PARK_ALT", "Alt  D:M:S", 0.0, "%010.6m", -90.0, 90.0)]
+        self.park_position = add(Vector(d, "TELESCOPE_PARK_POSITION", "Number", park_elements,
+                                        label="Park Position", group="Site Management", perm="ro"))
+        self.park_option = add(Vector(d, "TELESCOPE_PARK_OPTION", "Switch", [
+            _switch("PARK_CURRENT", "Current")], label="Park Options", group="Site Management",
+            rule="AtMostOne"))
         self.guide_ns = add(Vector(d, "TELESCOPE_TIMED_GUIDE_NS", "Number", [
             _num("TIMED_GUIDE_N", "North (ms)", 0.0, "%.f", 0.0, 60000.0, 100.0),
             _num("TIMED_GUIDE_S", "South (ms)", 0.0, "%.f", 0.0, 60000.0, 100.0)],
@@ -250,6 +300,9 @@ class TelescopeDevice(Device):
             reverse = bool(p.orientation_in_use())
             self.pier.element("PIER_WEST").value, self.pier.element("PIER_EAST").value = reverse, not reverse
             self.pier.state = "Ok"
+        self._refresh_rates()
+        self._refresh_motion()
+        self._refresh_park_position()
         local = self.telescope.local
         self.geo.element("LAT").value = float(local.latitude)
         self.geo.element("LONG").value = float(local.longitude) % 360.0
@@ -313,6 +366,8 @@ class TelescopeDevice(Device):
         old = (target.ra, target.dec) if target.complete else None
         target.set_ra(ra_c)
         target.set_dec(dec_c)
+        self._end_motion()
+        self._apply_rate()
         try:
             result = p.set_track(TRACK_INSIDE_LIMITS)
         except Exception:
@@ -348,6 +403,7 @@ class TelescopeDevice(Device):
         for task in list(self.tasks):
             task.cancel()
         self._slew_mode = None
+        self._end_motion()
         if self.telescope.pointing is not None and self.p.track:
             ops.stop_tracking()
         ops.halt()
@@ -378,13 +434,183 @@ class TelescopeDevice(Device):
         place = p.place()
         p.target.set_ra(place.ra)
         p.target.set_dec(place.dec)
+        self._end_motion()
+        self._apply_rate()
         self._slew_failed = None
         self._slew_mode = "TRACK"
         self._run(p.set_track(3 if place.reverse else 1), "tracking")
 
+    # -- tracking rates ---------------------------------------------------------------------------
     def new_telescope_track_mode(self, values: dict) -> None:
-        if not values.get("TRACK_SIDEREAL", False) or any(v for k, v in values.items() if k != "TRACK_SIDEREAL"):
-            raise Refused("only sidereal tracking is served over INDI in this version")
+        on = [k for k, v in values.items() if v]
+        if len(on) != 1:
+            raise Refused("TELESCOPE_TRACK_MODE: exactly one of " + ", ".join(RATE_BODIES))
+        self._rate = on[0]
+        for e in self.track_mode.elements:
+            e.value = e.name == self._rate
+        self._replan()
+        self.track_mode.state = "Ok"
+
+    def new_telescope_track_rate(self, values: dict) -> None:
+        ra = values.get("TRACK_RATE_RA", self._custom[0])
+        de = values.get("TRACK_RATE_DE", self._custom[1])
+        if abs(ra - SIDEREAL_ARCSEC) > 15000.0 or abs(de) > 15000.0:
+            raise Refused(f"TRACK_RATE_RA {ra:g} / TRACK_RATE_DE {de:g}: more than 15000″/s from sidereal")
+        self._custom = (float(ra), float(de))
+        if self._rate == "TRACK_CUSTOM":
+            self._replan()
+        self.track_rate.state = "Ok"
+
+    def _apply_rate(self) -> None:
+        """POINTING.TARGET.RA_V/DEC_V (arcsec/s against the stars) of the track mode: 0 sidereal,
+        the Sun's / Moon's motion now (DE421, as Alpaca's TrackingRate), or the custom rate
+        (INDI's TRACK_RATE_RA is the rate of RA tracking: sidereal minus the motion in RA)."""
+        p = self.p
+        body = RATE_BODIES.get(self._rate)
+        if body is not None:
+            ra_v, dec_v = body_rates(body, p.astrometry(), p.utc())
+        elif self._rate == "TRACK_CUSTOM":
+            ra_v, dec_v = SIDEREAL_ARCSEC - self._custom[0], self._custom[1]
+        else:
+            ra_v, dec_v = 0.0, 0.0
+        p.target.set_ra_v(ra_v)
+        p.target.set_dec_v(dec_v)
+
+    def _replan(self) -> None:
+        """A new rate while tracking: re-planned from the place tracked now (no jump), as
+        Alpaca's TrackingRate; otherwise from the next slew or tracking start on."""
+        p = self.p
+        session = p._tracking()
+        here = session.plan.request.place(p.ut1()) if session is not None else None
+        if here is None or session.plan.request.target is not None:
+            self._apply_rate()
+            return
+        ra, dec = (float(x) for x in here)
+        p.target.set_ra(ra % 24.0)
+        p.target.set_dec(dec)
+        self._apply_rate()
+        p.set_track(p.track)
+
+    def _refresh_rates(self) -> None:
+        t = self.p.target
+        self.track_rate.element("TRACK_RATE_RA").value = SIDEREAL_ARCSEC - float(t.ra_v)
+        self.track_rate.element("TRACK_RATE_DE").value = float(t.dec_v)
+        if self.track_rate.state != "Alert":
+            self.track_rate.state = "Busy" if self.p.track else "Idle"
+
+    # -- manual motion (INDI's direction keys; Alpaca's MoveAxis) --------------------------------
+    def _motion_speed(self, axis) -> float:
+        top = float(axis.section.max_velocity)
+        for e in self.slew_rate.elements:
+            if e.value:
+                speed = dict((n, v) for n, _l, v in SLEW_RATES)[e.name]
+                return top if speed is None else min(speed, top)
+        return min(0.1, top)
+
+    def _motion(self, key: str, vec, values: dict, plus: str, minus: str) -> None:
+        a, b = values.get(plus), values.get(minus)
+        if a and b:
+            raise Refused(f"{vec.name}: one direction at a time")
+        old = self._moving.pop(key, None)
+        self._motion_failed.pop(key, None)
+        if not a and not b:             # both Off: stop
+            if old is not None:
+                old[0].stop()
+            for e in vec.elements:
+                e.value = False
+            vec.state = "Idle"
+            return
+        self._not_parked(vec.name)
+        p, ops = self.p, self.ops
+        north_south = key == "NS"
+        axis = p.axis2 if north_south else p.axis1
+        if axis.power_state != 1.0 or axis.referenced < 1.0:
+            raise Refused(f"{vec.name}: {axis.module_name} is not powered and referenced (UNPARK)")
+        if p.track:
+            ops.stop_tracking()
+        positive = bool(a)               # North / West
+        lo = hi = None
+        if north_south and p.mount == "AZ-ZD":
+            # altitude: North raises the tube to the zenith, South lowers it to the horizon limit
+            zd = axis.real_position - axis.offset
+            side = 1.0 if zd >= 0.0 else -1.0
+            if positive:
+                direction, lo, hi = (-1, axis.offset, None) if side > 0 else (1, None, axis.offset)
+            else:
+                limit = p.zd_limit
+                direction, lo, hi = (1, None, axis.offset + limit) if side > 0 else (-1, axis.offset - limit, None)
+        elif north_south:
+            reverse = bool(p.orientation_in_use())     # the Dec axis turns the other way
+            direction = (1 if positive else -1) * (-1 if reverse else 1)
+        else:
+            direction = 1 if positive else -1          # West: the hour angle / azimuth grows
+        try:
+            fut = axis.move_toward(direction, self._motion_speed(axis), lo=lo, hi=hi, sky=True)   # + the envelope
+        except RangeRefused as exc:
+            raise Refused(f"{vec.name}: {exc.message}") from None
+        fut.add_done_callback(lambda f: f.cancelled() or f.exception())
+        self._moving[key] = (axis, fut)
+        vec.element(plus).value, vec.element(minus).value = positive, not positive
+        vec.state = "Busy"
+
+    def _refresh_motion(self) -> None:
+        for key, vec in (("NS", self.motion_ns), ("WE", self.motion_we)):
+            moving = self._moving.get(key)
+            if moving is not None and moving[1].done():
+                self._moving.pop(key)
+                exc = None if moving[1].cancelled() else moving[1].exception()
+                if isinstance(exc, TcsError) and exc.number not in (ErrorNumber.TARGETCHANGE, ErrorNumber.MOTIONCHANGE):
+                    self._motion_failed[key] = exc.message
+                moving = None
+            if moving is None:
+                for e in vec.elements:
+                    e.value = False
+                if key in self._motion_failed:
+                    vec.state, vec.message = "Alert", self._motion_failed[key]
+                elif vec.state != "Alert":
+                    vec.state, vec.message = "Idle", None
+
+    def _end_motion(self) -> None:
+        for axis, _fut in self._moving.values():
+            axis.stop()
+        self._moving.clear()
+
+    def new_telescope_motion_ns(self, values: dict) -> None:
+        self._motion("NS", self.motion_ns, values, "MOTION_NORTH", "MOTION_SOUTH")
+
+    def new_telescope_motion_we(self, values: dict) -> None:
+        self._motion("WE", self.motion_we, values, "MOTION_WEST", "MOTION_EAST")
+
+    def new_telescope_slew_rate(self, values: dict) -> None:
+        on = [k for k, v in values.items() if v]
+        if len(on) != 1:
+            raise Refused("TELESCOPE_SLEW_RATE: exactly one rate")
+        for e in self.slew_rate.elements:
+            e.value = e.name == on[0]
+        self.slew_rate.state = "Ok"
+
+    # -- park position --------------------------------------------------------------------------------
+    def _refresh_park_position(self) -> None:
+        p = self.p
+        parks = {id(a): park for a, park in self.ops.park_positions()}
+        if id(p.axis1) not in parks or id(p.axis2) not in parks:
+            self.park_position.state = "Idle"
+            return
+        a1 = parks[id(p.axis1)] - p.axis1.offset
+        a2 = parks[id(p.axis2)] - p.axis2.offset
+        if p.mount == "AZ-ZD":
+            self.park_position.element("PARK_AZ").value = (a1 + 180.0 if a2 < 0.0 else a1) % 360.0
+            self.park_position.element("PARK_ALT").value = 90.0 - abs(a2)
+        else:
+            n1, n2, _rev = to_normal(a1, a2, p.mount)
+            self.park_position.element("PARK_RA").value = float(n1) / 15.0
+            self.park_position.element("PARK_DEC").value = float(n2)
+        self.park_position.state = "Ok"
+
+    def new_telescope_park_option(self, values: dict) -> None:
+        if values.get("PARK_CURRENT"):
+            self.ops.set_park_here()    # the main axes' positions become the park positions
+        self.park_option.state = "Ok"
 
     def _guide(self, vec, values: dict, key: str, plus: str, minus: str, d_plus: int, d_minus: int) -> None:
         ops = self.ops
