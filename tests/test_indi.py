@@ -1,5 +1,5 @@
-"""The INDI front end (issue 42, first part): the protocol core, JNow against skyfield, and the
-Telescope device driven by INDI's own command-line clients (Debian's ``indi-bin``:
+"""The INDI front end (issue 42): the protocol core, JNow against skyfield, the Telescope
+device and the equipment (focuser, filter wheel, rotator, dome, dust cap, weather) driven by INDI's own command-line clients (Debian's ``indi-bin``:
 ``indi_getprop``, ``indi_setprop``, ``indi_eval``, and ``indiserver`` chaining the TCS as a
 remote driver), plus a raw-socket client for what those tools do not show (messages, many
 clients, a client that vanishes mid-slew).
@@ -291,7 +291,10 @@ def test_through_indiserver_chaining(live, tmp_path):
         deadline = time.monotonic() + WAIT
         while True:
             try:
-                values = getprop(port, f"{DEVICE}.GEOGRAPHIC_COORD.*", f"{DEVICE}.EQUATORIAL_EOD_COORD.*")
+                values = getprop(port, f"{DEVICE}.GEOGRAPHIC_COORD.*", f"{DEVICE}.EQUATORIAL_EOD_COORD.*",
+                                 "TCS Focuser.ABS_FOCUS_POSITION.*", "TCS Filter.FILTER_NAME.*",
+                                 "TCS Rotator.ABS_ROTATOR_ANGLE.*", "TCS Dome.DOME_SHUTTER.*",
+                                 "TCS Weather.WEATHER_STATUS.*", "TCS Dust Cap.CAP_PARK.*")
                 if f"{DEVICE}.EQUATORIAL_EOD_COORD.RA" in values:
                     break
             except AssertionError:
@@ -402,7 +405,9 @@ async def test_the_dome_shutter_opens_and_rain_refuses_it_with_the_reason(live):
     port, dev, weather = live.service.indi_port, "TCS Dome", "TCS Weather"
     dome = live.telescope.peripherals.dome
     shutters = [m for m in dome[1:3]]   # slit and flap (the sim's classic dome)
-    values = await asyncio.to_thread(getprop, port, f"{dev}.*.*", f"{weather}.*.*")
+    values = await asyncio.to_thread(getprop, port, f"{dev}.*.*", f"{weather}.*.*", "TCS Dust Cap.*.*")
+    assert int(values["TCS Dust Cap.DRIVER_INFO.DRIVER_INTERFACE"]) & 512
+    assert values["TCS Dust Cap.CAP_PARK.PARK"] == "On"
     assert int(values[f"{dev}.DRIVER_INFO.DRIVER_INTERFACE"]) & 32
     assert int(values[f"{weather}.DRIVER_INFO.DRIVER_INTERFACE"]) & 128
     assert -50.0 < float(values[f"{weather}.WEATHER_PARAMETERS.WEATHER_TEMPERATURE"]) < 60.0
@@ -420,6 +425,14 @@ async def test_the_dome_shutter_opens_and_rain_refuses_it_with_the_reason(live):
         await asyncio.to_thread(wait_expr, port, f'"{dev}.DOME_SHUTTER._STATE"==1 && '
                                                  f'"{dev}.DOME_SHUTTER.SHUTTER_CLOSE"==1')
         assert all(p.real_position <= p.section.min + 0.01 for p in shutters)
+        # the mirror cover as INDI's dust cap: UNPARK opens it, PARK closes it
+        cover = live.telescope.peripherals.covers[0]
+        await asyncio.to_thread(setprop, port, "TCS Dust Cap.CAP_PARK.UNPARK=On")
+        await asyncio.to_thread(wait_expr, port, '"TCS Dust Cap.CAP_PARK._STATE"==2')
+        await c.wait(f"{cover.module_name}.REALPOS", lambda v: v > 2.0, WAIT)
+        await asyncio.to_thread(setprop, port, "TCS Dust Cap.CAP_PARK.PARK=On")
+        await asyncio.to_thread(wait_expr, port, '"TCS Dust Cap.CAP_PARK._STATE"==1 && "TCS Dust Cap.CAP_PARK.PARK"==1')
+        assert cover.real_position <= cover.section.min + 0.01
         await asyncio.to_thread(setprop, port, f"{dev}.ABS_DOME_POSITION.DOME_ABSOLUTE_POSITION=190")
         await asyncio.to_thread(wait_expr, port, f'"{dev}.ABS_DOME_POSITION._STATE"==1 && '
                                                  f'abs("{dev}.ABS_DOME_POSITION.DOME_ABSOLUTE_POSITION"-190)<0.5')
@@ -431,6 +444,10 @@ async def test_the_dome_shutter_opens_and_rain_refuses_it_with_the_reason(live):
             message = await asyncio.to_thread(
                 refused, port, f"<newSwitchVector device='{dev}' name='DOME_SHUTTER'>"
                                "<oneSwitch name='SHUTTER_OPEN'>On</oneSwitch></newSwitchVector>", dev, "DOME_SHUTTER")
+            assert "rain" in message, message
+            message = await asyncio.to_thread(
+                refused, port, "<newSwitchVector device='TCS Dust Cap' name='CAP_PARK'>"
+                               "<oneSwitch name='UNPARK'>On</oneSwitch></newSwitchVector>", "TCS Dust Cap", "CAP_PARK")
             assert "rain" in message, message
             assert all(p.real_position <= p.section.min + 0.01 for p in shutters)
         finally:

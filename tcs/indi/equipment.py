@@ -28,6 +28,9 @@ Alpaca devices use (:mod:`tcs.alpaca.equipment`), never through them:
   ``DOME_ABORT_MOTION`` stops every part. No ``DOME_PARK``: the hardware file has no park
   position for a dome (Alpaca's CanPark is False too). The dome follows the telescope through
   the TCS's tracking (POINTING.TRACK +128), not through INDI's slaving.
+* **TCS Dust Cap** (one per ``COVER``; ``TCS Dust Cap 2`` …): ``CAP_PARK`` PARK closes the
+  cover, UNPARK opens it (refused by the weather interlock with its reason), ``CAP_ABORT``
+  stops it. No light box: no calibrator is configured (Alpaca's CalibratorState NotPresent).
 * **TCS Weather** (sensors or the weather interlock): ``WEATHER_STATUS`` lights —
   ``WEATHER_INTERLOCK`` Ok while the interlock lets the dome and covers open, Alert while it
   refuses (its reason is the property's message), and one light per cause (rain, wind, weather
@@ -37,7 +40,7 @@ Alpaca devices use (:mod:`tcs.alpaca.equipment`), never through them:
 Each has ``CONNECTION`` (CONNECT powers the focuser, wheel or rotator axis — main power first
 when off — as connecting the Alpaca device does; a wheel then references; DISCONNECT changes
 nothing) and ``DRIVER_INFO`` with its interface bit (focuser 8, filter 16, rotator 4096, dome
-32, weather 128). Status without a fresh readback (a drive offline, a PLC unreachable) is
+32, weather 128, dust cap 512). Status without a fresh readback (a drive offline, a PLC unreachable) is
 Alert with that reason, never the last value.
 
 What may touch it
@@ -61,6 +64,7 @@ log = logging.getLogger(__name__)
 MOVING = 1
 INTERFACE_FOCUSER, INTERFACE_DOME, INTERFACE_WEATHER, INTERFACE_FILTER = 8, 32, 128, 16
 INTERFACE_ROTATOR = 4096
+INTERFACE_DUSTCAP = 512
 STEP = 1000.0   # focuser steps per mm (1 step = 1 µm)
 ROTATOR_STORE = "alpaca_rotators"   # the Alpaca rotator's sync model: one sky angle for both
 
@@ -590,6 +594,68 @@ class DomeDevice(EquipmentDevice):
         self.abort.state = "Ok"
 
 
+# ---------------------------------------------------------------------------------- Dust cap
+
+class DustCapDevice(EquipmentDevice):
+    """A mirror cover (``COVER``) as INDI's dust cap: CAP_PARK PARK closes it, UNPARK opens it."""
+
+    INTERFACE = INTERFACE_DUSTCAP
+
+    def __init__(self, telescope, cover, name: str = "TCS Dust Cap"):
+        super().__init__(telescope, name)
+        self.cover = cover
+        self._goal: bool | None = None     # True: closing (PARK)
+        self.cap = self.add(Vector(self.name, "CAP_PARK", "Switch", [
+            _switch("PARK", "Park"), _switch("UNPARK", "Unpark")], label="Dust Cover", group="Main Control"))
+        self.abort = self.add(Vector(self.name, "CAP_ABORT", "Switch", [_switch("ABORT", "Abort")],
+                                     label="Abort", group="Main Control", rule="AtMostOne"))
+
+    def refresh(self) -> None:
+        super().refresh()
+        cover, vec = self.cover, self.cap
+        stale = _stale(cover)
+        if stale is None and cover.motion_state & 4:
+            stale = TcsError(f"{cover.module_name} has a fault", ErrorNumber.INVMODE)
+        if stale is not None:
+            vec.state, vec.message = "Alert", getattr(stale, "message", str(stale))
+            return
+        closed, is_open = _at(cover, cover.section.min), _at(cover, cover.section.max)
+        moving = self.running("move") or bool(cover.motion_state & MOVING)
+        if not (moving and self._goal is not None):
+            vec.element("PARK").value, vec.element("UNPARK").value = closed, is_open
+        if "move" in self._failures:
+            vec.state, vec.message = "Alert", self._failures["move"]
+        elif moving:
+            vec.state, vec.message = "Busy", None
+        elif closed or is_open:
+            vec.state, vec.message = "Ok", None
+        else:
+            vec.state, vec.message = "Alert", "the cover stands half-way: neither open nor closed"
+
+    def new_cap_park(self, values: dict) -> None:
+        if values.get("PARK") and values.get("UNPARK"):
+            raise Refused("CAP_PARK: PARK or UNPARK, not both")
+        if values.get("PARK"):
+            close = True
+        elif values.get("UNPARK"):
+            close = False
+        else:
+            return
+        cover = self.cover
+        if cover.power_state != 1.0:
+            cover.power(True)
+        move = cover.set_target(cover.section.min if close else cover.section.max)   # (the interlock)
+        self._goal = close
+        self.run("move", move, "closing the cover" if close else "opening the cover")
+        self.cap.element("PARK").value, self.cap.element("UNPARK").value = close, not close
+        self.cap.state = "Busy"
+
+    def new_cap_abort(self, values: dict) -> None:
+        self.halt("move")
+        self.cover.stop()
+        self.abort.state = "Ok"
+
+
 # ------------------------------------------------------------------------------------ Weather
 
 #: INDI's weather parameter ← the sensor point names it is read from (as Alpaca's ObservingConditions)
@@ -687,6 +753,9 @@ def equipment_devices(telescope) -> list[Device]:
         if rotation is not None or shutters:
             out.append(DomeDevice(telescope, rotation, shutters))
     per = telescope.peripherals
+    covers = list(per.covers)
+    for cover, name in zip(covers, names("TCS Dust Cap", len(covers))):
+        out.append(DustCapDevice(telescope, cover, name))
     sensors = weather_sensors(per.sensors)
     if sensors or per.interlock is not None:
         out.append(WeatherDevice(telescope, sensors, per.interlock))
