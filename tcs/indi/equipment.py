@@ -51,8 +51,8 @@ The service's event loop, through :class:`~tcs.indi.server.IndiServer`.
 from __future__ import annotations
 
 import asyncio
+import inspect
 import logging
-import math
 
 from tcs.errors import ErrorNumber, TcsError
 from tcs.indi.protocol import Element, Vector
@@ -155,7 +155,11 @@ class EquipmentDevice(Device):
             except Exception as exc:  # a bug, not a refusal: logged
                 log.exception("INDI %s: %s", self.name, what)
                 self._failures[key] = f"{what}: {exc}"
-        self._tasks[key] = asyncio.ensure_future(watch())
+        task = asyncio.ensure_future(watch())
+        if asyncio.iscoroutine(inner):   # cancelled before it ran: closed, not "never awaited"
+            task.add_done_callback(lambda t: t.cancelled() and inspect.getcoroutinestate(inner)
+                                   == inspect.CORO_CREATED and inner.close())
+        self._tasks[key] = task
 
     def running(self, key: str) -> bool:
         task = self._tasks.get(key)
