@@ -420,7 +420,7 @@ async def test_the_dome_shutter_opens_and_rain_refuses_it_with_the_reason(live):
         await asyncio.to_thread(setprop, port, f"{dev}.DOME_SHUTTER.SHUTTER_OPEN=On")
         await asyncio.to_thread(wait_expr, port, f'"{dev}.DOME_SHUTTER._STATE"==2')
         for part in shutters:
-            await c.wait(f"{part.module_name}.REALPOS", lambda v: v > 0.5, WAIT)
+            await c.wait(f"{part.module_name}.REALPOS", lambda v: isinstance(v, float) and v > 0.5, WAIT)
         await asyncio.to_thread(setprop, port, f"{dev}.DOME_SHUTTER.SHUTTER_CLOSE=On")
         await asyncio.to_thread(wait_expr, port, f'"{dev}.DOME_SHUTTER._STATE"==1 && '
                                                  f'"{dev}.DOME_SHUTTER.SHUTTER_CLOSE"==1')
@@ -429,13 +429,19 @@ async def test_the_dome_shutter_opens_and_rain_refuses_it_with_the_reason(live):
         cover = live.telescope.peripherals.covers[0]
         await asyncio.to_thread(setprop, port, "TCS Dust Cap.CAP_PARK.UNPARK=On")
         await asyncio.to_thread(wait_expr, port, '"TCS Dust Cap.CAP_PARK._STATE"==2')
-        await c.wait(f"{cover.module_name}.REALPOS", lambda v: v > 2.0, WAIT)
+        await c.wait(f"{cover.module_name}.REALPOS", lambda v: isinstance(v, float) and v > 2.0, WAIT)
         await asyncio.to_thread(setprop, port, "TCS Dust Cap.CAP_PARK.PARK=On")
         await asyncio.to_thread(wait_expr, port, '"TCS Dust Cap.CAP_PARK._STATE"==1 && "TCS Dust Cap.CAP_PARK.PARK"==1')
         assert cover.real_position <= cover.section.min + 0.01
         await asyncio.to_thread(setprop, port, f"{dev}.ABS_DOME_POSITION.DOME_ABSOLUTE_POSITION=190")
         await asyncio.to_thread(wait_expr, port, f'"{dev}.ABS_DOME_POSITION._STATE"==1 && '
                                                  f'abs("{dev}.ABS_DOME_POSITION.DOME_ABSOLUTE_POSITION"-190)<0.5')
+        # DOME_MOTION CW: azimuth grows until Off
+        await asyncio.to_thread(setprop, port, f"{dev}.DOME_MOTION.DOME_CW=On")
+        await c.wait("DOME[0].REALPOS", lambda v: isinstance(v, float) and 193.0 < v < 260.0, WAIT)
+        await asyncio.to_thread(setprop, port, f"{dev}.DOME_MOTION.DOME_CW;DOME_CCW=Off;Off")
+        await asyncio.to_thread(wait_expr, port, f'"{dev}.DOME_MOTION._STATE"==0 && "{dev}.ABS_DOME_POSITION._STATE"!=2')
+        assert not dome[0].motion_state & 1
         plc = live.telescope.peripherals.sims.plcs["dome"]
         await live.call(plc.force, "rain", True)
         try:
@@ -481,9 +487,9 @@ async def test_manual_motion_track_modes_and_the_park_position(live):
         await asyncio.to_thread(setprop, port, f"{DEVICE}.TELESCOPE_SLEW_RATE.SLEW_FIND=On")
         await asyncio.to_thread(setprop, port, f"{DEVICE}.TELESCOPE_MOTION_NS.MOTION_SOUTH=On")
         await asyncio.to_thread(wait_expr, port, f'"{DEVICE}.TELESCOPE_MOTION_NS._STATE"==2')
-        await c.wait("ZD.REALPOS", lambda v: abs(v) > abs(zd0) + 10.0, WAIT)
+        await c.wait("ZD.REALPOS", lambda v: isinstance(v, float) and abs(v) > abs(zd0) + 10.0, WAIT)
         await asyncio.to_thread(setprop, port, f"{DEVICE}.TELESCOPE_MOTION_NS.MOTION_NORTH;MOTION_SOUTH=Off;Off")
-        await c.wait("ZD.MOTION_STATE", lambda v: not int(v) & 1, WAIT)
+        await c.wait("ZD.MOTION_STATE", lambda v: isinstance(v, float) and not int(v) & 1, WAIT)
         await asyncio.to_thread(wait_expr, port, f'"{DEVICE}.TELESCOPE_MOTION_NS._STATE"==0')
         zd1 = await c.num("ZD.REALPOS")
         assert abs(zd0) + 10.0 < abs(zd1) < p.zd_limit - 5.0, (zd0, zd1)
