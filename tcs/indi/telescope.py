@@ -496,7 +496,7 @@ class TelescopeDevice(Device):
         self.track_rate.element("TRACK_RATE_RA").value = SIDEREAL_ARCSEC - float(t.ra_v)
         self.track_rate.element("TRACK_RATE_DE").value = float(t.dec_v)
         if self.track_rate.state != "Alert":
-            self.track_rate.state = "Busy" if self.p.track else "Idle"
+            self.track_rate.state = "Ok" if self.p.track else "Idle"
 
     # -- manual motion (INDI's direction keys; Alpaca's MoveAxis) --------------------------------
     def _motion_speed(self, axis) -> float:
