@@ -27,7 +27,8 @@ class Service:
 
     def __init__(self, config: HwConfig, host: str | None = None, port: int | None = None,
                  opentsi_port: int | None = None, alpaca_port: int | None = None,
-                 web_port: int | None = None, alpaca_discovery_port: int | None = None):
+                 web_port: int | None = None, alpaca_discovery_port: int | None = None,
+                 indi_port: int | None = None):
         self.config = config
         self.host = host
         self.port = port
@@ -45,6 +46,9 @@ class Service:
         #: The read-only status page and /metrics (``[web] port`` ≥ 0; :mod:`tcs.web`).
         self.web_server = None
         self.web_port = config.web.port if web_port is None else web_port
+        #: The INDI devices (``[indi] port`` ≥ 0; :mod:`tcs.indi`), same model.
+        self.indi_server = None
+        self.indi_port = config.indi.port if indi_port is None else indi_port
 
     async def start(self) -> int:
         """Start everything; returns the TPL2 port.
@@ -95,6 +99,11 @@ class Service:
                 reserved.release("web port")
                 self.web_server = await self._listen(wanted, "web port", start_web(self))
                 self.web_port = self.web_server.port
+            if self.indi_port >= 0:
+                from tcs.indi import start_indi
+                reserved.release("INDI port")
+                self.indi_server = await self._listen(wanted, "INDI port", start_indi(self))
+                self.indi_port = self.indi_server.port
             return port
         except BaseException:
             reserved.release_all()
@@ -119,6 +128,8 @@ class Service:
             raise
 
     async def stop(self) -> None:
+        if self.indi_server is not None:
+            await self.indi_server.stop()
         if self.web_server is not None:
             await self.web_server.stop()
         if self.alpaca_server is not None:

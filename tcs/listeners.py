@@ -4,7 +4,7 @@ How it works
 ------------
 :func:`listeners` lists the service's listening ports — the TPL2 (OpenTCI) port and its
 TLS-only twin, the OpenTSI port, the Alpaca HTTP port and its UDP discovery port, the status
-page's web port — each with its role and the command-line flag and hardware-file key that move
+page's web port, the INDI port — each with its role and the command-line flag and hardware-file key that move
 it (:class:`Listener`). :class:`Reservation` binds each of them (the way the front ends will,
 ``SO_REUSEADDR``; discovery with ``SO_REUSEPORT`` as Alpaca servers share it) and holds them
 while the drives boot and the PLCs connect; :meth:`Reservation.release` lets one go just before
@@ -74,12 +74,13 @@ def port_error(listener: Listener, exc: OSError) -> PortInUse:
 def listeners(service) -> list[Listener]:
     """The listening ports a :class:`tcs.app.Service` will open (those with a port ≥ 0)."""
     return planned(service.config, service.host, service.port, service.opentsi_port,
-                   service.alpaca_port, service.web_port, service.alpaca_discovery_port)
+                   service.alpaca_port, service.web_port, service.alpaca_discovery_port,
+                   getattr(service, "indi_port", None))
 
 
 def planned(config, host: str | None = None, port: int | None = None, opentsi_port: int | None = None,
             alpaca_port: int | None = None, web_port: int | None = None,
-            alpaca_discovery_port: int | None = None) -> list[Listener]:
+            alpaca_discovery_port: int | None = None, indi_port: int | None = None) -> list[Listener]:
     """The listening ports of a service of ``config`` with these overrides (``None``: the
     file's; the options of ``tcs-server``)."""
     def pick(value, default):
@@ -103,6 +104,9 @@ def planned(config, host: str | None = None, port: int | None = None, opentsi_po
     if pick(web_port, config.web.port) >= 0:
         out.append(Listener("web port", config.web.host or "127.0.0.1", pick(web_port, config.web.port),
                             "--web-port", "[web] port"))
+    if pick(indi_port, config.indi.port) >= 0:
+        out.append(Listener("INDI port", host or config.indi.host, pick(indi_port, config.indi.port),
+                            "--indi-port", "[indi] port"))
     return out
 
 

@@ -49,6 +49,7 @@ from typing import Any
 from tcs import __version__ as TCS_VERSION
 from tcs.alpaca.protocol import AlpacaRequest, AscomError, BadRequest, Code, from_tcs_error, not_implemented
 from tcs.errors import ErrorNumber, TcsError
+from tcs.model.equipment_power import power_axis, shielded  # noqa: F401  (the equipment's)
 from tcs.state_epoch import EPOCH
 
 log = logging.getLogger(__name__)
@@ -431,28 +432,6 @@ def axis_ready(axis, what: str) -> None:
         raise AscomError(Code.INVALID_OPERATION, f"{what}: {axis.module_name} is not powered and referenced")
 
 
-async def power_axis(telescope, axis, main: bool = True, timeout: float = 60.0) -> None:
-    """Power on ``axis`` alone (what connecting a focuser, filter wheel or rotator does): main
-    power first when it is off and ``main`` allows it (``CABINET.POWER=1``: every component is
-    switched on, nothing moves or is referenced), then the axis's power. A READY or POWER
-    sequence already running is waited for, not superseded. Nothing happens to a powered axis."""
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    cab = telescope.cabinet
-    while telescope.operations.running == "ready" or cab.job_running("POWER"):
-        if loop.time() > deadline:
-            raise TcsError("the READY sequence did not end", ErrorNumber.TIMEOUT)
-        await asyncio.sleep(0.05)
-    if axis.power_state == 1.0:
-        return
-    if not cab.main_power:
-        if not main:
-            raise TcsError(f"{axis.module_name}: main power (CABINET.POWER) is off", ErrorNumber.INVMODE)
-        await shielded(cab.set_power(1))
-    if axis.power_state != 1.0:
-        await shielded(axis.power(True))
-
-
 def make_ready_then(device, axis, move):
     """The awaitable of a move of an equipment axis: ``move()`` (the axis's long SET) at once
     when the axis is powered and referenced — so that its refusals are the request's — else a
@@ -471,11 +450,3 @@ def make_ready_then(device, axis, move):
             await shielded(device.referencing)
         await shielded(move())
     return run()
-
-
-def shielded(awaitable):
-    """``asyncio.shield`` of the model's long SET, whose outcome is retrieved even when the one
-    awaiting it was cancelled (a Halt): no "exception never retrieved" noise."""
-    fut = asyncio.ensure_future(awaitable)
-    fut.add_done_callback(lambda f: f.cancelled() or f.exception())
-    return asyncio.shield(fut)

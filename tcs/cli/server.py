@@ -50,6 +50,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="UDP port answering Alpaca discovery (overrides [alpaca] discovery_port; -1: none)")
     p.add_argument("--web-port", type=int,
                    help="HTTP port of the status page and /metrics (overrides [web] port; -1: off)")
+    p.add_argument("--indi-port", type=int,
+                   help="TCP port of the INDI devices (overrides [indi] port; -1: off)")
     p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     p.add_argument("--check-config", metavar="FILE",
                    help="validate FILE as a service's hardware file and exit (0 valid, 2 not); "
@@ -119,7 +121,7 @@ def main(argv=None) -> int:
     from tcs.listeners import PortInUse, check_free, planned
     try:  # every listening port, before the service (and the hardware) is even loaded
         check_free(planned(config, args.host, args.port, args.opentsi_port, args.alpaca_port,
-                           args.web_port, args.alpaca_discovery_port))
+                           args.web_port, args.alpaca_discovery_port, args.indi_port))
     except PortInUse as exc:
         print(f"tcs-server: cannot start: {exc.message}", file=sys.stderr)
         return 1
@@ -127,7 +129,8 @@ def main(argv=None) -> int:
 
     return run_until_signalled("tcs-server", lambda stop: serve_until_signalled(
         Service(config, args.host, args.port, args.opentsi_port,
-                args.alpaca_port, args.web_port, args.alpaca_discovery_port), stop))
+                args.alpaca_port, args.web_port, alpaca_discovery_port=args.alpaca_discovery_port,
+                indi_port=args.indi_port), stop))
 
 
 def run_until_signalled(prog: str, main_coro) -> int:

@@ -31,6 +31,7 @@ from tcs.config.sections import (CabinetSection, MountSection, ServerSection, Si
                                  StateSection, TimeSection, UserSection)
 from tcs.config.axes import AxisSection, SimulationSection, check_axes
 from tcs.config.web import WebSection
+from tcs.config.indi import IndiSection
 from tcs.errors import ConfigError, ConfigErrors
 from tcs.resources import hwconfig_file
 
@@ -67,6 +68,7 @@ class HwConfig:
     opentsi: OpenTsiSection = setting(factory=OpenTsiSection, doc="names used by the OpenTSI tree (tcs.config.opentsi)")
     alpaca: AlpacaSection = setting(factory=AlpacaSection, doc="the ASCOM Alpaca front end (tcs.config.alpaca)")
     web: WebSection = setting(factory=WebSection, doc="the read-only status page and Prometheus metrics (tcs.config.web)")
+    indi: IndiSection = setting(factory=IndiSection, doc="the INDI devices (tcs.config.indi)")
     # Set by load_config, not by the file.
     source: Path = field(default=Path("<memory>"), init=False, compare=False)
     #: The top-level tables and keys the file itself wrote (a section left to its defaults is
