@@ -40,8 +40,7 @@ SLOW_FIRST = (
 
 
 #: The ports of ``tcs-server`` with no arguments (hwconfig/sim.toml): TCP, and UDP.
-DEFAULT_TCP_PORTS = (65432, 65433, 11111, 8088)
-DEFAULT_UDP_PORTS = (32227,)
+from support.default_ports import DEFAULT_TCP_PORTS, DEFAULT_UDP_PORTS  # noqa: E402
 
 
 @pytest.fixture(scope="session", autouse=True)

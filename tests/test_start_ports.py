@@ -63,7 +63,7 @@ def test_the_suite_runs_as_beside_a_running_default_server(_default_ports_held):
     """Issue 41, item 2: tests/conftest.py holds the default server's TCP ports while the suite
     runs (or a running server does): none of them can be bound by a test's server. (The UDP
     discovery port is shared by design, SO_REUSEPORT: it is checked where the suite holds it.)"""
-    from conftest import DEFAULT_TCP_PORTS
+    from support.default_ports import DEFAULT_TCP_PORTS
 
     # Each xdist worker is a session of its own: the ports are held by whichever worker took
     # them first, and released when that worker ends — so each worker checks the ports it holds
