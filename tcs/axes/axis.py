@@ -25,7 +25,19 @@ fault was acknowledged (ERROR_STATE=0); an unreferenced axis refuses TARGETPOS, 
 trajectories (5 invmode) and moves only to reference. A TPL2 ABORT of the command that started a
 motion (``abort_request``, matched by the command's cause) stops it with the normal deceleration;
 ``move_toward`` (Alpaca MoveAxis) runs to a drive-frame end at its own speed, never the other
-way; every sent setpoint step is cut to the speed and acceleration limits (``_limit_step``).
+way; every sent setpoint step is cut to the speed and acceleration limits (``_limit_step``), the
+speed also over the real time between the SYNCs that latch the targets (windows of 50–100 ms:
+a late SYNC shortens the interval to the next, on-time one).
+
+After a gap (the control loop says ``cycle_resumed``: the setpoints of the cycle before did not
+reach the drive on time — this process stalled or was starved) the drive has bridged the gap by
+itself, holding or extrapolating its demand (docs/motion.md, "Stall recovery"). The axis then
+*re-anchors* (:meth:`_resume`) before its next setpoint: on the drive's demand of this cycle's
+readback (position actual + following error 0x60F4; in CSV the actual position) moving at the
+speed the demand moved at over the gap; the planner moves on by the SYNC periods that passed,
+the trajectory follower re-intercepts its path, and the steps from the re-anchored demand to
+them stay within the axis's limits — never from the setpoint last *sent*, which would pull the
+drive back.
 
 Discrete axes (FILTER, MIRROR) move between configured positions with profile-position moves
 of the drive; their positions are the integer keys of ``[axes.<name>].positions``.
@@ -68,6 +80,12 @@ HOMING_START_TIMEOUT = 5.0  # s for the drive to show the requested homing run i
 ACK_TIMEOUT = 3.0  # s for the drive's fault reset after ERROR_STATE=0
 
 REFERENCE_ORDER = {"ZD": 0, "DEC": 0, "AZ": 1, "HA": 1}
+
+#: The speed limit holds over real time between the SYNCs that latch the targets, judged over
+#: windows of this many s and longer (issue 39 item 10 measured it over 100 ms windows) ...
+LATCH_WINDOW = 0.1
+#: ... kept for at most this many cycles
+LATCH_WINDOW_CYCLES = 12
 
 #: Project event (numbers from 1000): trajectory points already in the past were dropped.
 POINTS_DROPPED = 1000
@@ -219,6 +237,10 @@ class Axis(ModuleHealth):
                                      quick_stop_jerk=section.max_jerk * max(stop, section.max_acceleration)
                                      / section.max_acceleration)
         self.planner = MotionPlanner(self.dynamics, self.limits, dt)
+        limit_motion = getattr(drive, "limit_motion", None)
+        if limit_motion is not None:  # (a CSV drive's own position loop: the axis's limits)
+            limit_motion(section.max_velocity, section.max_acceleration,
+                         self.dynamics.quick_stop_acceleration)
         # a drive at rest reports a velocity of a few increments/s (encoder noise): below the
         # tolerance per second it counts as standing still (MOTION_STATE bit 0)
         self._standstill = max(section.tolerance, 1e-9)
@@ -262,6 +284,20 @@ class Axis(ModuleHealth):
         self._settle_started = False
         self._reference_cause = None  # the REINIT that started homing (events 19/20 name it)
         self._sp = Setpoint(0.0)
+        #: set by the control loop before each cycle: the setpoints of the cycle before did not
+        #: reach the drive on time (Cycle.resumed)
+        self.cycle_resumed = False
+        self.cycle_fresh = True   # every synchronous TPDO of this cycle came (the readback is new)
+        self.cycle_periods = 1    # SYNC periods since the previous cycle (more after a gap)
+        self._fresh_before = True  # and of the cycle before
+        #: the monotonic times of this cycle's SYNC and of the next one (set by the loop)
+        self.cycle_times: tuple[float, float] | None = None
+        #: (monotonic time of the SYNC that latched it, target) of the last targets the drive
+        #: latched, for the speed over real time (:meth:`_limit_step`)
+        self._latched: collections.deque = collections.deque(maxlen=2 * LATCH_WINDOW_CYCLES)
+        self._sent_reach = 0.0  # UT1 at which the drive reaches _sent (the cycle's t)
+        self.resumes = 0  # re-anchorings after gaps (_resume)
+        self._last_demand: tuple[float, float] | None = None  # (SYNC UT1, drive demand) last cycle
         self._sent: float | None = None  # the last setpoint sent (for _limit_step)
         self._sent_velocity = 0.0        # and its step / T
         self.clamped_steps = 0  # setpoint steps cut to the velocity limit
@@ -593,17 +629,113 @@ class Axis(ModuleHealth):
             except TcsError as exc:
                 self._complete(future, exc)
         self._watch_drive(st, now)
+        sync = t if measured is None else measured
+        demand = self._demand(st)
+        if self.cycle_resumed:
+            self._resume(st, t, sync, demand)
+            self._latched.clear()
+        elif self._sent is not None and self.cycle_times is not None:
+            self._latched.append((self.cycle_times[0], self._sent))
         setpoint = self._motion(st, t)
         if setpoint is not None:
             setpoint = self._limit_step(setpoint, st.position, st.velocity)
             self.drive.set_setpoint(setpoint.position, setpoint.velocity)
+            self._sent_reach = t
         else:
             self._sent = None
+            self._latched.clear()
+        if self.cycle_fresh and self._fresh_before:  # (else it may be an older SYNC's)
+            self._last_demand = (sync, demand)
+        self._fresh_before = self.cycle_fresh
         self.drive.step()
-        sync = t if measured is None else measured
         self.sample = (sync, st.position, t, None if setpoint is None else setpoint.position)
         self._publish(st, sync)
         self._flush()
+
+    def _demand(self, st: DriveStatus) -> float:
+        """Where the drive's demand is by this cycle's readback: position actual + following
+        error (0x60F4 = demand − actual) in CSP/IP; the actual position in CSV (the drive has
+        no position demand there; the following error is the TCS's own)."""
+        if st.mode == Mode.CSV or not math.isfinite(st.following_error):
+            return st.position
+        return st.position + st.following_error
+
+    def _resume(self, st: DriveStatus, t: float, sync: float, demand: float) -> None:
+        """The cycle after a gap: re-anchor the base of :meth:`_limit_step` on where the
+        drive's demand really is.
+
+        The drive bridged the gap by itself (held its last setpoint, extrapolated it at the
+        stream's speed, or in CSV kept its last velocity), and the setpoint made before the
+        gap never reached it (the cycle source dropped it). The base becomes this readback's
+        demand carried on to the next SYNC (which latches this cycle's setpoint) at the
+        speed the demand moved at since the last trusted readback before the gap — or the
+        actual position carried on at the motor's speed, when that is further (a drive that
+        held: the motor ran on while it braked; joining it there is no step back for the
+        motor), and in CSV. A readback is trusted when this cycle's and the
+        previous cycle's synchronous TPDOs all came in time (else one of an older SYNC may
+        stand for this one's on a busy host), and when it does not put the demand behind the
+        last target the drive surely latched; without a trusted one the base is the last
+        setpoint sent, extrapolated at its speed — exact for a drive that extrapolates,
+        ahead of one that held (a step forwards, never back). From that base the step to
+        the planner's or follower's setpoint is cut to the axis's speed, acceleration and
+        stop deceleration (:meth:`_limit_step`); the planner advanced by the SYNC periods
+        that really passed, the follower re-intercepts its path from there. Nothing to do
+        while no setpoint streams."""
+        if self._sent is None or not st.enabled or self._homing or self.discrete:
+            return
+        last = self._last_demand
+        vmax = self.dynamics.max_velocity
+        trusted = self.cycle_fresh and self._fresh_before
+        # (the drive latched this target at the SYNC before the gap: held or extrapolated, its
+        # demand is not behind it now — a readback that says so mixes TPDOs of two SYNCs)
+        floor = self._latched[-1][1] if self._latched else None
+        way = 1.0 if self._sent_velocity >= 0 else -1.0
+        behind = floor is not None and way * (demand - floor) < -1e-6
+        interval = self.dt if self.cycle_times is None else self.cycle_times[1] - self.cycle_times[0]
+        interval = max(0.0, interval)
+
+        def ahead(p: float, v: float) -> tuple[float, float, float]:
+            v = max(-vmax, min(vmax, v))
+            return way * (p + v * interval), p, v
+        if trusted and st.mode == Mode.CSV:
+            position, velocity, how = st.position, st.velocity, "actual position"
+        elif trusted and not behind and last is not None and sync - last[0] > 0:
+            # the demand carried on at the speed it moved at — or, where that is behind it, the
+            # motor at its own speed: a drive that held its last setpoint while the motor ran on
+            # (braking at its own limit) is joined where the motor is, not pulled back
+            _, position, velocity = max(ahead(demand, (demand - last[1]) / (sync - last[0])),
+                                        ahead(st.position, st.velocity))
+            how = "demand" if position == demand else "actual position"
+        else:
+            velocity, how = self._sent_velocity, "extrapolated setpoint"
+            position = self._sent + velocity * (sync - self._sent_reach)
+        velocity = max(-vmax, min(vmax, velocity))
+        anchor = Setpoint(position + velocity * interval, velocity)
+        log.info("%s: a gap of %.3f s in the setpoint stream; re-anchored on the drive's %s "
+                 "%.5f at %.4f/s (the stream had sent %.5f)", self.module_name,
+                 sync - last[0] if last else float("nan"), how, position, velocity, self._sent)
+        self._sent, self._sent_velocity = anchor.position, velocity
+        self.resumes += 1
+        if self._running and self.follower is not None:
+            self._sp = anchor
+            self.follower.resume(t - self.dt)
+
+    def _real_time_cap(self, p0: float, direction: float) -> float:
+        """The largest step from ``p0`` in ``direction`` (sign) that keeps the speed limit over
+        real time: from every target latched at least half of :data:`LATCH_WINDOW` before the
+        next SYNC, the new target is at most ``max_velocity`` × the time between that SYNC
+        and the next one (taken as on time: the worst case). inf without such a target."""
+        times = self.cycle_times
+        if times is None or not self._latched:
+            return math.inf
+        nxt = times[1]
+        vmax = self.dynamics.max_velocity
+        cap = math.inf
+        for when, target in self._latched:
+            span = nxt - when
+            if span >= 0.5 * LATCH_WINDOW:
+                cap = min(cap, vmax * span - direction * (p0 - target))
+        return cap
 
     def _limit_step(self, sp: Setpoint, measured: float, measured_velocity: float = 0.0) -> Setpoint:
         """The last line of the speed and acceleration limits: the drive interpolates from one
@@ -627,17 +759,25 @@ class Axis(ModuleHealth):
             p0, v0 = self._sent, self._sent_velocity
         v_want = (sp.position - p0) / T
         vmax = dyn.max_velocity
+        # the speed over real time: after a late SYNC the next interval is shorter, and a full
+        # step in it ran the drive above the limit (5.73°/s over 100 ms against 5 was measured)
+        cap = self._real_time_cap(p0, 1.0 if v_want >= 0 else -1.0) / T
         acc = dyn.max_acceleration
         dec = max(acc, dyn.quick_stop_acceleration or acc)
         hi = v0 + (acc if v0 >= 0 else dec) * T
         lo = v0 - (dec if v0 > 0 else acc) * T
         slack = 1e-6 * max(vmax, abs(v0)) + 1e-9 / T
-        if lo - slack <= v_want <= hi + slack and abs(v_want) <= vmax * (1 + 1e-6):
+        if lo - slack <= v_want <= hi + slack and abs(v_want) <= min(vmax, cap) * (1 + 1e-6):
             self._sent, self._sent_velocity = sp.position, v_want
             return sp
         lag = sp.position - (p0 + sp.velocity * T)   # where the path will be, moving at its speed
         v = sp.velocity + math.copysign(min(abs(lag) / T, math.sqrt(acc * abs(lag))), lag)
-        v = max(-vmax, min(vmax, max(lo, min(hi, v))))
+        v = max(lo, min(hi, v))
+        if v > 0 and v_want > 0:  # the speed over real time, but never a harder deceleration
+            v = min(v, max(cap, lo))  # than the limits allow (lo, hi)
+        elif v < 0 and v_want < 0:
+            v = max(v, min(-cap, hi))
+        v = max(-vmax, min(vmax, v))
         self.clamped_steps += 1
         clamped = Setpoint(p0 + v * T, v, 0.0, 0.0)
         self._sp = clamped
@@ -997,7 +1137,10 @@ class Axis(ModuleHealth):
                     self._resolve("run")
                 self.planner.take_over(self._sp)
         else:
-            self._sp = self.planner.step()
+            # (after a gap the planner moves on by the SYNC periods that passed: the drive
+            # bridged them, so its path goes on from where the drive is, not one step after
+            # the last setpoint sent)
+            self._sp = self.planner.step(self.cycle_periods if self.cycle_resumed else 1)
             if self.planner.softlimit is not None and ("target" in self._pending or "offset" in self._pending):
                 self._fail_motion(TcsError(f"{self.module_name}: software limit {self.planner.softlimit}",
                                            ErrorNumber.SOFTLIMIT))

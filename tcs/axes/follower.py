@@ -161,6 +161,8 @@ class TrajectoryFollower:
         self._plan = None            # ruckig Trajectory of the intercept / stop
         self._plan_t0 = 0.0
         self._plan_kind = ""  # "relative" | "preposition" | "wait" | "chase" | "match" | "stop"
+        self._stop_quick = False  # the running stop is a quick one
+        self._restop = False      # plan the running stop again from the current setpoint (resume)
         self._match_limits = (0.0, 0.0, 0.0)  # the error channel's limits a "match" aims inside
         self._t_last: float | None = None
         self._replan = False
@@ -287,6 +289,19 @@ class TrajectoryFollower:
             self._plan = None
             self._plan_kind = "stop-quick" if quick else "stop"
 
+    def resume(self, t_last: float) -> None:
+        """After a gap in the setpoint stream: the next :meth:`step`'s ``current`` is where the
+        drive's demand really is at ``t_last`` (re-anchored by the axis), not the setpoint
+        sent before the gap. A running path is intercepted again from there (within the
+        limits; trivially when the drive bridged along the path); a stop is planned again."""
+        self._t_last = t_last
+        if self._state in (FollowerState.INTERCEPTING, FollowerState.FOLLOWING):
+            self._replan = True
+            self._plan, self._plan_kind = None, ""
+        elif self._state is FollowerState.STOPPING and self._plan is not None \
+                and self._guard.tripped is None:
+            self._restop = True
+
     # -- the cycle ---------------------------------------------------------------------------
 
     def step(self, t: float, current: Setpoint) -> FollowStep:
@@ -295,7 +310,9 @@ class TrajectoryFollower:
         state = self._state
         t_last = self._t_last
         self._t_last = t
-        dt = t - t_last if t_last is not None and 0.0 < t - t_last < 10 * self.dt else self.dt
+        # (the time since the last step: longer after a gap in the cycle, up to the longest
+        # a drive bridges before it stops by itself)
+        dt = t - t_last if t_last is not None and 0.0 < t - t_last < 100 * self.dt else self.dt
         if state is FollowerState.IDLE or state is FollowerState.ENDED:
             return FollowStep(Setpoint(current.position), _NO_EVENTS)
         events: list = []
@@ -515,6 +532,7 @@ class TrajectoryFollower:
                                  max_acceleration=acc, max_jerk=jerk, discrete=False)
         self._state = FollowerState.STOPPING
         self._plan, self._plan_t0, self._plan_kind = traj, t0, "stop"
+        self._stop_quick, self._restop = quick, False
 
     def _stop_step(self, t: float, cur: Setpoint, dt: float, events: list) -> Setpoint:
         guard = self._guard
@@ -525,6 +543,8 @@ class TrajectoryFollower:
             return sp
         if self._plan is None:                    # abort(): plan from the first state we see
             self._begin_stop(t - dt, cur, quick=self._plan_kind == "stop-quick")
+        elif self._restop:                        # after a gap: from where the drive is
+            self._begin_stop(t - dt, cur, quick=self._stop_quick)
         traj = self._plan
         tau = t - self._plan_t0
         if tau >= traj.duration:

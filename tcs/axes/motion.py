@@ -287,8 +287,9 @@ class MotionPlanner:
 
     # -- the cycle ---------------------------------------------------------------------------
 
-    def step(self) -> Setpoint:
-        """Advance one control cycle and return the setpoint to send."""
+    def step(self, periods: int = 1) -> Setpoint:
+        """Advance one control cycle — ``periods`` cycles' time after a gap in the cycle (the
+        drive bridged them) — and return the setpoint to send."""
         state = self._state
         prev = self._sp
         if state is PlannerState.IDLE:
@@ -302,7 +303,7 @@ class MotionPlanner:
                 return sp
             self._sp = sp
             return sp
-        self._k += 1
+        self._k += max(1, int(periods))
         finished = self._k >= self._n
         if finished:
             proposed = Setpoint(self._end, 0.0, 0.0, -prev.acceleration / self.dt)
