@@ -224,6 +224,7 @@ def test_csv_is_clamped_to_the_axis_limits(can_channel):
         with Sampler(stand.sim) as rec:
             drive.set_setpoint = lambda p, v=None: sent(p + 0.5, v)  # the stream jumps ahead
             try:
+                rig.wait(lambda: drive.status().following_error > 0.2, 30, "behind the stream")
                 rig.wait(lambda: drive.status().following_error < 0.01, 30, "caught up")
             finally:
                 drive.set_setpoint = sent
@@ -249,12 +250,12 @@ class LateEvent(threading.Event):
 
 
 def test_speed_over_real_time_stays_within_the_limit_with_late_syncs(can_channel):
-    """Every 10th SYNC 8 ms late (the one after on time): the targets the drive latches never
+    """Every 5th SYNC 6 ms late (the one after on time): the targets the drive latches never
     run faster than the axis's 5°/s over the real time between the SYNCs that latch them
-    (windows of 10 SYNCs; before, a full step after each late SYNC made 5.3–5.5°/s). The
-    times are the simulated drive's, when it handled each SYNC: 4 % for its own lateness."""
+    (windows of 10 SYNCs; before, a full step after each late SYNC made up to 6°/s). The
+    times are the simulated drive's, when it handled each SYNC: 3 % for its own lateness."""
     with rig_for(can_channel, Mode.CSP) as rig:
-        rig.system.cycle._stop = LateEvent(10, 0.008 * SLOWDOWN)
+        rig.system.cycle._stop = LateEvent(5, 0.006 * SLOWDOWN)
         stand = Stand(rig, Mode.CSP)
         stand.start()
         stand.slew(150.0)
@@ -269,4 +270,4 @@ def test_speed_over_real_time_stays_within_the_limit_with_late_syncs(can_channel
                 (t0, p0, _), (t1, p1, _) = run[-11], run[-1]
                 worst, windows = max(worst, (p1 - p0) / (t1 - t0)), windows + 1
         assert windows > 100
-        assert worst <= 5.0 * 1.04, worst
+        assert worst <= 5.0 * 1.03, worst
