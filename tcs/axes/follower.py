@@ -161,8 +161,6 @@ class TrajectoryFollower:
         self._plan = None            # ruckig Trajectory of the intercept / stop
         self._plan_t0 = 0.0
         self._plan_kind = ""  # "relative" | "preposition" | "wait" | "chase" | "match" | "stop"
-        self._stop_quick = False  # the running stop is a quick one
-        self._restop = False      # plan the running stop again from the current setpoint (resume)
         self._match_limits = (0.0, 0.0, 0.0)  # the error channel's limits a "match" aims inside
         self._t_last: float | None = None
         self._replan = False
@@ -288,19 +286,6 @@ class TrajectoryFollower:
             self._state = FollowerState.STOPPING
             self._plan = None
             self._plan_kind = "stop-quick" if quick else "stop"
-
-    def resume(self, t_last: float) -> None:
-        """After a gap in the setpoint stream: the next :meth:`step`'s ``current`` is where the
-        drive's demand really is at ``t_last`` (re-anchored by the axis), not the setpoint
-        sent before the gap. A running path is intercepted again from there (within the
-        limits; trivially when the drive bridged along the path); a stop is planned again."""
-        self._t_last = t_last
-        if self._state in (FollowerState.INTERCEPTING, FollowerState.FOLLOWING):
-            self._replan = True
-            self._plan, self._plan_kind = None, ""
-        elif self._state is FollowerState.STOPPING and self._plan is not None \
-                and self._guard.tripped is None:
-            self._restop = True
 
     # -- the cycle ---------------------------------------------------------------------------
 
@@ -532,7 +517,6 @@ class TrajectoryFollower:
                                  max_acceleration=acc, max_jerk=jerk, discrete=False)
         self._state = FollowerState.STOPPING
         self._plan, self._plan_t0, self._plan_kind = traj, t0, "stop"
-        self._stop_quick, self._restop = quick, False
 
     def _stop_step(self, t: float, cur: Setpoint, dt: float, events: list) -> Setpoint:
         guard = self._guard
@@ -543,8 +527,6 @@ class TrajectoryFollower:
             return sp
         if self._plan is None:                    # abort(): plan from the first state we see
             self._begin_stop(t - dt, cur, quick=self._plan_kind == "stop-quick")
-        elif self._restop:                        # after a gap: from where the drive is
-            self._begin_stop(t - dt, cur, quick=self._stop_quick)
         traj = self._plan
         tau = t - self._plan_t0
         if tau >= traj.duration:
