@@ -25,9 +25,7 @@ fault was acknowledged (ERROR_STATE=0); an unreferenced axis refuses TARGETPOS, 
 trajectories (5 invmode) and moves only to reference. A TPL2 ABORT of the command that started a
 motion (``abort_request``, matched by the command's cause) stops it with the normal deceleration;
 ``move_toward`` (Alpaca MoveAxis) runs to a drive-frame end at its own speed, never the other
-way; every sent setpoint step is cut to the speed and acceleration limits (``_limit_step``), the
-speed also over the real time between the SYNCs that latch the targets (windows of 50–100 ms:
-a late SYNC shortens the interval to the next, on-time one).
+way; every sent setpoint step is cut to the speed and acceleration limits (``_limit_step``).
 
 After a gap (the control loop says ``cycle_resumed``: the setpoints of the cycle before did not
 reach the drive on time — this process stalled or was starved) the drive has bridged the gap by
@@ -80,12 +78,6 @@ HOMING_START_TIMEOUT = 5.0  # s for the drive to show the requested homing run i
 ACK_TIMEOUT = 3.0  # s for the drive's fault reset after ERROR_STATE=0
 
 REFERENCE_ORDER = {"ZD": 0, "DEC": 0, "AZ": 1, "HA": 1}
-
-#: The speed limit holds over real time between the SYNCs that latch the targets, judged over
-#: windows of this many s and longer (issue 39 item 10 measured it over 100 ms windows) ...
-LATCH_WINDOW = 0.1
-#: ... kept for at most this many cycles
-LATCH_WINDOW_CYCLES = 12
 
 #: Project event (numbers from 1000): trajectory points already in the past were dropped.
 POINTS_DROPPED = 1000
@@ -292,9 +284,9 @@ class Axis(ModuleHealth):
         self._fresh_before = True  # and of the cycle before
         #: the monotonic times of this cycle's SYNC and of the next one (set by the loop)
         self.cycle_times: tuple[float, float] | None = None
-        #: (monotonic time of the SYNC that latched it, target) of the last targets the drive
-        #: latched, for the speed over real time (:meth:`_limit_step`)
-        self._latched: collections.deque = collections.deque(maxlen=2 * LATCH_WINDOW_CYCLES)
+        #: (monotonic time of the SYNC that latched it, target): the last target the drive
+        #: surely latched (a re-anchor never puts its demand behind it, :meth:`_resume`)
+        self._latched: tuple[float, float] | None = None
         self._sent_reach = 0.0  # UT1 at which the drive reaches _sent (the cycle's t)
         self.resumes = 0  # re-anchorings after gaps (_resume)
         self._last_demand: tuple[float, float] | None = None  # (SYNC UT1, drive demand) last cycle
@@ -633,17 +625,16 @@ class Axis(ModuleHealth):
         demand = self._demand(st)
         if self.cycle_resumed:
             self._resume(st, t, sync, demand)
-            self._latched.clear()
+            self._latched = None
         elif self._sent is not None and self.cycle_times is not None:
-            self._latched.append((self.cycle_times[0], self._sent))
+            self._latched = (self.cycle_times[0], self._sent)
         setpoint = self._motion(st, t)
         if setpoint is not None:
             setpoint = self._limit_step(setpoint, st.position, st.velocity)
             self.drive.set_setpoint(setpoint.position, setpoint.velocity)
             self._sent_reach = t
         else:
-            self._sent = None
-            self._latched.clear()
+            self._sent, self._latched = None, None
         if self.cycle_fresh and self._fresh_before:  # (else it may be an older SYNC's)
             self._last_demand = (sync, demand)
         self._fresh_before = self.cycle_fresh
@@ -688,7 +679,7 @@ class Axis(ModuleHealth):
         trusted = self.cycle_fresh and self._fresh_before
         # (the drive latched this target at the SYNC before the gap: held or extrapolated, its
         # demand is not behind it now — a readback that says so mixes TPDOs of two SYNCs)
-        floor = self._latched[-1][1] if self._latched else None
+        floor = self._latched[1] if self._latched else None
         way = 1.0 if self._sent_velocity >= 0 else -1.0
         behind = floor is not None and way * (demand - floor) < -1e-6
         interval = self.dt if self.cycle_times is None else self.cycle_times[1] - self.cycle_times[0]
@@ -717,23 +708,6 @@ class Axis(ModuleHealth):
         self._sent, self._sent_velocity = anchor.position, velocity
         self.resumes += 1
 
-    def _real_time_cap(self, p0: float, direction: float) -> float:
-        """The largest step from ``p0`` in ``direction`` (sign) that keeps the speed limit over
-        real time: from every target latched at least half of :data:`LATCH_WINDOW` before the
-        next SYNC, the new target is at most ``max_velocity`` × the time between that SYNC
-        and the next one (taken as on time: the worst case). inf without such a target."""
-        times = self.cycle_times
-        if times is None or not self._latched:
-            return math.inf
-        nxt = times[1]
-        vmax = self.dynamics.max_velocity
-        cap = math.inf
-        for when, target in self._latched:
-            span = nxt - when
-            if span >= 0.5 * LATCH_WINDOW:
-                cap = min(cap, vmax * span - direction * (p0 - target))
-        return cap
-
     def _limit_step(self, sp: Setpoint, measured: float, measured_velocity: float = 0.0) -> Setpoint:
         """The last line of the speed and acceleration limits: the drive interpolates from one
         setpoint to the next over one SYNC period whenever they arrive, so the step between
@@ -756,25 +730,17 @@ class Axis(ModuleHealth):
             p0, v0 = self._sent, self._sent_velocity
         v_want = (sp.position - p0) / T
         vmax = dyn.max_velocity
-        # the speed over real time: after a late SYNC the next interval is shorter, and a full
-        # step in it ran the drive above the limit (5.73°/s over 100 ms against 5 was measured)
-        cap = self._real_time_cap(p0, 1.0 if v_want >= 0 else -1.0) / T
         acc = dyn.max_acceleration
         dec = max(acc, dyn.quick_stop_acceleration or acc)
         hi = v0 + (acc if v0 >= 0 else dec) * T
         lo = v0 - (dec if v0 > 0 else acc) * T
         slack = 1e-6 * max(vmax, abs(v0)) + 1e-9 / T
-        if lo - slack <= v_want <= hi + slack and abs(v_want) <= min(vmax, cap) * (1 + 1e-6):
+        if lo - slack <= v_want <= hi + slack and abs(v_want) <= vmax * (1 + 1e-6):
             self._sent, self._sent_velocity = sp.position, v_want
             return sp
         lag = sp.position - (p0 + sp.velocity * T)   # where the path will be, moving at its speed
         v = sp.velocity + math.copysign(min(abs(lag) / T, math.sqrt(acc * abs(lag))), lag)
-        v = max(lo, min(hi, v))
-        if v > 0 and v_want > 0:  # the speed over real time, but never a harder deceleration
-            v = min(v, max(cap, lo))  # than the limits allow (lo, hi)
-        elif v < 0 and v_want < 0:
-            v = max(v, min(-cap, hi))
-        v = max(-vmax, min(vmax, v))
+        v = max(-vmax, min(vmax, max(lo, min(hi, v))))
         self.clamped_steps += 1
         clamped = Setpoint(p0 + v * T, v, 0.0, 0.0)
         self._sp = clamped

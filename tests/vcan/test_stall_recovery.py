@@ -1,4 +1,4 @@
-"""Stall recovery (issue 39 items 6, 8, 10): a master that stalls mid-slew never makes the drive
+"""Stall recovery (issue 39 items 6 and 8): a master that stalls mid-slew never makes the drive
 jump back or brake harder than the axis's configured stop deceleration.
 
 The TCS's real control stack — :class:`~tcs.axes.axis.Axis` (planner, ``_limit_step``),
@@ -231,43 +231,3 @@ def test_csv_is_clamped_to_the_axis_limits(can_channel):
         assert stand.axis.fault is None and drive.status().fault is None
         speeds = [v for _, _, v, *_ in rec.samples]
         assert 4.9 < max(speeds) <= 5.0 * (1 + 1e-6), max(speeds)
-
-
-class LateEvent(threading.Event):
-    """The cycle runner's sleep, every ``every``-th one ``late`` s longer: SYNC comes late
-    by that much now and then (jitter), the next one on time."""
-
-    def __init__(self, every: int, late: float):
-        super().__init__()
-        self.every, self.late, self.count = every, late, 0
-
-    def wait(self, timeout=None):
-        if timeout is None:
-            return super().wait()
-        self.count += 1
-        extra = self.late if self.count % self.every == 0 else 0.0
-        return super().wait(timeout + extra)
-
-
-def test_speed_over_real_time_stays_within_the_limit_with_late_syncs(can_channel):
-    """Every 5th SYNC 6 ms late (the one after on time): the targets the drive latches never
-    run faster than the axis's 5°/s over the real time between the SYNCs that latch them
-    (windows of 10 SYNCs; before, a full step after each late SYNC made up to 6°/s). The
-    times are the simulated drive's, when it handled each SYNC: 3 % for its own lateness."""
-    with rig_for(can_channel, Mode.CSP) as rig:
-        rig.system.cycle._stop = LateEvent(5, 0.006 * SLOWDOWN)
-        stand = Stand(rig, Mode.CSP)
-        stand.start()
-        stand.slew(150.0)
-        stand.sim.csp_targets.clear()
-        rig.wait(lambda: len(stand.sim.csp_targets) > 400, 60, "4 s of cruise")
-        recs = list(stand.sim.csp_targets)
-        worst, windows = 0.0, 0
-        run: list = []
-        for rec in recs:
-            run = run + [rec] if rec[2] else [rec]
-            if len(run) > 10:
-                (t0, p0, _), (t1, p1, _) = run[-11], run[-1]
-                worst, windows = max(worst, (p1 - p0) / (t1 - t0)), windows + 1
-        assert windows > 100
-        assert worst <= 5.0 * 1.03, worst

@@ -68,7 +68,13 @@ STOPPED = ("QUICK STOP ACTIVE", "SWITCH ON DISABLED", "FAULT REACTION ACTIVE", "
 def sections(mode: str, can_kwargs: dict):
     """(can, drive, axis) sections of the simulated telescope's AZ, the drive in ``mode``."""
     config = load_config(DEFAULT_CONFIG)
+    axis = config.axes["az"]
     drive = dataclasses.replace(config.drives["az"], mode=mode, absolute=True)
+    try:  # 0x6085 at most the axis's stop deceleration, as the service has it
+        from tcs.drivers.can_system import stop_decelerations
+        drive = stop_decelerations({"az": drive}, {"az": axis})["az"]
+    except (ImportError, TypeError, AttributeError):
+        drive = dataclasses.replace(drive, quick_stop_deceleration=axis.stop_deceleration)
     can = dataclasses.replace(config.can, idle_sync_period=0.0, **can_kwargs)
     return config, can, drive, config.axes["az"]
 
