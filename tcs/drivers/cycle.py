@@ -34,8 +34,9 @@ for — so a stall of this process (SIGSTOP, a starved host) never leaves a setp
 it waiting in the drives for the first SYNC after it (the drives bridge the gap; that old
 setpoint would pull their demand back). A runner that wakes a whole period or more late sends
 the SYNC of the latest slot due (the ones before are ``missed``); held frames made for a slot
-that was skipped are dropped (``dropped``; never twice in a row, or the
-drives would count the RPDOs missing towards their time-out): that SYNC goes without them,
+:data:`DROP_SLOTS` or more slots back are dropped (``dropped``; never twice in a row, or the
+drives would count the RPDOs missing towards their time-out — a setpoint one slot late still
+goes, as before): that SYNC goes without them,
 and the cycle after says :attr:`Cycle.resumed` — the setpoints of the cycle before did not
 reach the drives on time, so the callbacks re-anchor on where the drives really are (the
 TPDOs of this SYNC) before their next setpoint. With kernel SYNC the RPDOs go at once (the
@@ -77,6 +78,12 @@ from tcs.drivers.canbus import SYNC_COB_ID, CanBus
 from tcs.errors import TcsError
 
 log = logging.getLogger(__name__)
+
+#: Held frames made for a SYNC slot this many slots or more before the one due are dropped (a
+#: stall); frames one slot late still go: a drive's RPDO deadline (by default 3 periods,
+#: ``master_loss_timeout``) must keep seeing RPDOs through the late cycles of a busy host (a
+#: setpoint one period late pulls an extrapolating drive back by at most one period's travel).
+DROP_SLOTS = 2
 
 
 @dataclass(frozen=True)
@@ -380,7 +387,7 @@ class CycleSource:
             if held:
                 # (never two drops in a row: a drive faults after a few SYNCs without an RPDO,
                 # and the frames after a drop come from a cycle that re-anchored)
-                if held_for == index or dropped_last:
+                if index - held_for < DROP_SLOTS or dropped_last:
                     for cob_id, data in held:
                         try:
                             self.bus.send(cob_id, data)
