@@ -289,6 +289,7 @@ class Axis(ModuleHealth):
         self._latched: tuple[float, float] | None = None
         self._sent_reach = 0.0  # UT1 at which the drive reaches _sent (the cycle's t)
         self.resumes = 0  # re-anchorings after gaps (_resume)
+        self._resumed_planner = False  # the planner was re-planned from the anchor this cycle
         self._last_demand: tuple[float, float] | None = None  # (SYNC UT1, drive demand) last cycle
         self._sent: float | None = None  # the last setpoint sent (for _limit_step)
         self._sent_velocity = 0.0        # and its step / T
@@ -707,6 +708,9 @@ class Axis(ModuleHealth):
                  sync - last[0] if last else float("nan"), how, position, velocity, self._sent)
         self._sent, self._sent_velocity = anchor.position, velocity
         self.resumes += 1
+        if not self._running:  # (a move goes on from the drive, not back to the old profile)
+            self.planner.resume(anchor)
+            self._resumed_planner = True
 
     def _limit_step(self, sp: Setpoint, measured: float, measured_velocity: float = 0.0) -> Setpoint:
         """The last line of the speed and acceleration limits: the drive interpolates from one
@@ -1103,7 +1107,9 @@ class Axis(ModuleHealth):
             # (after a gap the planner moves on by the SYNC periods that passed: the drive
             # bridged them, so its path goes on from where the drive is, not one step after
             # the last setpoint sent)
-            self._sp = self.planner.step(self.cycle_periods if self.cycle_resumed else 1)
+            periods = self.cycle_periods if self.cycle_resumed and not self._resumed_planner else 1
+            self._resumed_planner = False
+            self._sp = self.planner.step(periods)
             if self.planner.softlimit is not None and ("target" in self._pending or "offset" in self._pending):
                 self._fail_motion(TcsError(f"{self.module_name}: software limit {self.planner.softlimit}",
                                            ErrorNumber.SOFTLIMIT))

@@ -35,8 +35,8 @@ it waiting in the drives for the first SYNC after it (the drives bridge the gap;
 setpoint would pull their demand back). A runner that wakes a whole period or more late sends
 the SYNC of the latest slot due (the ones before are ``missed``); held frames made for a slot
 :data:`DROP_SLOTS` or more slots back are dropped (``dropped``; never twice in a row, or the
-drives would count the RPDOs missing towards their time-out — a setpoint one slot late still
-goes, as before): that SYNC goes without them,
+drives would count the RPDOs missing towards their time-out — a setpoint one or two slots
+late still goes, as before): that SYNC goes without them,
 and the cycle after says :attr:`Cycle.resumed` — the setpoints of the cycle before did not
 reach the drives on time, so the callbacks re-anchor on where the drives really are (the
 TPDOs of this SYNC) before their next setpoint. With kernel SYNC the RPDOs go at once (the
@@ -80,10 +80,12 @@ from tcs.errors import TcsError
 log = logging.getLogger(__name__)
 
 #: Held frames made for a SYNC slot this many slots or more before the one due are dropped (a
-#: stall); frames one slot late still go: a drive's RPDO deadline (by default 3 periods,
-#: ``master_loss_timeout``) must keep seeing RPDOs through the late cycles of a busy host (a
-#: setpoint one period late pulls an extrapolating drive back by at most one period's travel).
-DROP_SLOTS = 2
+#: stall); frames one or two slots late still go: a drive's RPDO deadline (by default 3
+#: periods, ``master_loss_timeout``) must keep seeing RPDOs through the late cycles of a busy
+#: host, and each dropped setpoint lets an extrapolating drive run on at the stream's speed
+#: for a period more (past a path that brakes); a setpoint one or two periods late pulls such
+#: a drive back by at most that many periods' travel.
+DROP_SLOTS = 3
 
 
 @dataclass(frozen=True)

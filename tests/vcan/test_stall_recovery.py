@@ -184,9 +184,9 @@ def test_a_short_master_gap_mid_slew_never_pulls_the_drive_back(can_channel, mod
         assert stand.axis.fault is None and stand.drive.status().fault is None
         assert stand.sim.state == "OPERATION ENABLED" and stand.sim.error_code == 0
         assert stand.axis.resumes >= 1
-        # (before: 0.19° for 0.05 s, 0.9° for 0.2 s. A cycle merely one period late on a busy
-        # host still sends its setpoint, late: at most one period's travel back, 0.05°)
-        assert rec.reversal() < 0.06, rec.reversal()
+        # (before: 0.19° for 0.05 s, 0.9° for 0.2 s. A cycle merely one or two periods late on
+        # a busy host still sends its setpoint, late: at most two periods' travel back, 0.1°)
+        assert rec.reversal() < 0.11, rec.reversal()
         if mode is not Mode.CSV:
             # (+ 2 increments: the drive receives whole increments)
             slack = 2.0 / stand.sim.params.increments_per_unit / rig.can.sync_period ** 2
