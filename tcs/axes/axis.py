@@ -32,9 +32,9 @@ reach the drive on time — this process stalled or was starved) the drive has b
 itself, holding or extrapolating its demand (docs/motion.md, "Stall recovery"). The axis then
 *re-anchors* (:meth:`_resume`) before its next setpoint: on the drive's demand of this cycle's
 readback (position actual + following error 0x60F4; in CSV the actual position) moving at the
-speed the demand moved at over the gap; the planner moves on by the SYNC periods that passed
-(the follower samples its path by time anyway), and the steps from the re-anchored demand to
-their setpoints stay within the axis's limits — never from the setpoint last *sent*, which would pull the
+speed the demand moved at over the gap; the planner is planned again from there to its goal
+(the follower samples its path by time anyway), and the steps from the re-anchored demand on
+stay within the axis's limits — never from the setpoint last *sent*, which would pull the
 drive back.
 
 Discrete axes (FILTER, MIRROR) move between configured positions with profile-position moves
@@ -670,9 +670,9 @@ class Axis(ModuleHealth):
         setpoint sent, extrapolated at its speed — exact for a drive that extrapolates,
         ahead of one that held (a step forwards, never back). From that base the step to
         the planner's or follower's setpoint is cut to the axis's speed, acceleration and
-        stop deceleration (:meth:`_limit_step`, whose catch-up meets the planner, which
-        advanced by the SYNC periods that really passed, or the follower's path, sampled by
-        time, within them). Nothing to do while no setpoint streams."""
+        stop deceleration (:meth:`_limit_step`); the planner is planned again from the anchor
+        (:meth:`MotionPlanner.resume`), the follower's path is sampled by time and met by
+        the step limit's catch-up. Nothing to do while no setpoint streams."""
         if self._sent is None or not st.enabled or self._homing or self.discrete:
             return
         last = self._last_demand
