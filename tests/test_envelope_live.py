@@ -23,6 +23,7 @@ import erfa
 import numpy as np
 import pytest
 
+from support.sun import sep_from_sun, sun_now
 from support.live import LiveService
 from support.waits import until as wait_until
 from support.opentci_client import Client as SharedClient, upload
@@ -79,24 +80,6 @@ class Client(SharedClient):
 
 def ok(lines, obj):
     return any(line.endswith(f"DATA OK {obj}") for line in lines) and lines[-1].endswith("COMMAND COMPLETE")
-
-
-def sun_now(live) -> tuple[float, float]:
-    """The Sun's observed (az, zd) now, for the service's site and time."""
-    p = live.telescope.pointing
-    utc = p.utc()
-    ra, dec = sun_icrs(utc)
-    obs = p.astrometry().observed(ra[0], dec[0], utc)
-    return float(obs.az), float(obs.zd)
-
-
-def sep_from_sun(live, az, zd) -> float:
-    saz, szd = sun_now(live)
-    a1, b1, a2, b2 = (math.radians(x) for x in (az, 90.0 - abs(zd), saz, 90.0 - szd))
-    if zd < 0:
-        a1 += math.pi
-    c = math.sin(b1) * math.sin(b2) + math.cos(b1) * math.cos(b2) * math.cos(a1 - a2)
-    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
 
 
 FAULTS = ("FAILED 2", "FAILED 4")   # a simulated drive's fault under a loaded machine (a stall)
