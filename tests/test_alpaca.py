@@ -686,7 +686,7 @@ def test_tcs_server_alpaca_port_option_and_the_hardware_file_switch(tmp_path):
     env = dict(os.environ, XDG_STATE_HOME=str(tmp_path / "state"))
     proc = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--port", str(port), "--opentsi-port",
                              "-1", "--alpaca-port", str(alpaca_port), "--alpaca-discovery-port", "-1",
-                             "--web-port", "-1"], env=env,
+                             "--web-port", "-1", "--indi-port", "-1"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 60

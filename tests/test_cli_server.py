@@ -40,7 +40,7 @@ def connect(port: int, timeout: float = 30.0) -> socket.socket:
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_serves_the_simulated_telescope_and_stops_cleanly(tmp_path, sig):
     port = free_port()
-    proc = start(tmp_path, "--port", str(port), "--opentsi-port", "0", "--alpaca-port", "-1", "--web-port", "-1")
+    proc = start(tmp_path, "--port", str(port), "--opentsi-port", "0", "--alpaca-port", "-1", "--web-port", "-1", "--indi-port", "-1")
     try:
         s = connect(port)
         f = s.makefile("rb")
@@ -68,10 +68,10 @@ def test_a_second_server_on_the_same_state_directory_is_refused(tmp_path):
     ~/.local/state/tcs/sim (state, status list, pointing model, accounts): the second one is
     refused, naming the directory and the holder; once the first ends, the directory is free."""
     port = free_port()
-    first = start(tmp_path, "--port", str(port), "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1")
+    first = start(tmp_path, "--port", str(port), "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1", "--indi-port", "-1")
     try:
         connect(port).close()
-        second = start(tmp_path, "--port", str(free_port()), "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1")
+        second = start(tmp_path, "--port", str(free_port()), "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1", "--indi-port", "-1")
         _, err = second.communicate(timeout=120)
         assert second.returncode == 1, err
         assert "Traceback" not in err
@@ -79,7 +79,7 @@ def test_a_second_server_on_the_same_state_directory_is_refused(tmp_path):
                f"tcs-server (pid {first.pid})" in err, err
         first.send_signal(signal.SIGTERM)
         assert first.wait(60) == 0
-        third = start(tmp_path, "--port", str(port), "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1")
+        third = start(tmp_path, "--port", str(port), "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1", "--indi-port", "-1")
         try:
             connect(port, timeout=120).close()
         finally:
@@ -99,7 +99,7 @@ def test_a_folder_named_tcs_in_the_working_directory_shadows_nothing(tmp_path):
     port = free_port()
     env = dict(os.environ, XDG_STATE_HOME=str(tmp_path / "state"), PYTHONUNBUFFERED="1")
     proc = subprocess.Popen([str(Path(sys.executable).parent / "tcs-server"), "--port", str(port),
-                             "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1"], cwd=tmp_path, env=env,
+                             "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1", "--indi-port", "-1"], cwd=tmp_path, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         s = connect(port, timeout=120)
@@ -145,7 +145,7 @@ def test_port_in_use_is_a_clear_error(tmp_path):
         blocker.bind(("127.0.0.1", 0))
         blocker.listen()
         port = blocker.getsockname()[1]
-        proc = start(tmp_path, "--port", str(port), "--opentsi-port", "0", "--alpaca-port", "-1", "--web-port", "-1")
+        proc = start(tmp_path, "--port", str(port), "--opentsi-port", "0", "--alpaca-port", "-1", "--web-port", "-1", "--indi-port", "-1")
         out, err = proc.communicate(timeout=60)
     assert proc.returncode == 1
     assert "Traceback" not in err and "address already in use" in err.lower()
@@ -162,7 +162,7 @@ def test_a_log_started_by_hand_has_timestamps_and_quiet_logins(tmp_path):
     import re
 
     port = free_port()
-    proc = start(tmp_path, "--port", str(port), "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1")
+    proc = start(tmp_path, "--port", str(port), "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1", "--indi-port", "-1")
     try:
         for password, answer in (("admin", b"AUTH OK 0 0\n"), ("wrong", b"AUTH FAILED\n")):
             s = connect(port)

@@ -210,7 +210,7 @@ def test_a_killed_service_leaves_no_control_process(tmp_path):
     env = dict(os.environ, XDG_STATE_HOME=str(tmp_path / "state"))
     port = free_port()
     server = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--port", str(port),
-                               "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1"], env=env,
+                               "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1", "--indi-port", "-1"], env=env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     children = []
     try:

@@ -724,7 +724,7 @@ def test_tcs_server_opentsi_port_option(tmp_path):
     env = dict(os.environ, XDG_STATE_HOME=str(tmp_path / "state"))
     proc = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--port", str(port),
                              "--opentsi-port", str(tsi_port), "--alpaca-port", "0", "--alpaca-discovery-port", "-1",
-                             "--web-port", "0"], env=env,
+                             "--web-port", "0", "--indi-port", "0"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         for p, query, answer in ((tsi_port, b"TELESCOPE.READY_STATE", b"0.0"),

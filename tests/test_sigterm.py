@@ -47,7 +47,7 @@ class Client:
 
 def start(port: int, env: dict) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--port", str(port),
-                             "--opentsi-port", "0", "--alpaca-port", "-1", "--web-port", "-1"], env=env,
+                             "--opentsi-port", "0", "--alpaca-port", "-1", "--web-port", "-1", "--indi-port", "-1"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
 
 
@@ -125,7 +125,7 @@ def test_clean_stop_leaves_no_drive_faults(tmp_path):
 
     def server() -> subprocess.Popen:
         return subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--config", str(hwfile),
-                                 "--port", str(port), "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1"],
+                                 "--port", str(port), "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1", "--indi-port", "-1"],
                                 env=env, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.PIPE, text=True)
 

@@ -19,7 +19,7 @@ REMOTE = hwconfig_file("sim-remote.toml")
 #: every listening port on a free one (sim-remote.toml names the default server's: 65432,
 #: 65433, 11111, 8088), so these pass beside a running ``tcs-server``
 OWN_PORTS = ["--port", "0", "--opentsi-port", "0", "--alpaca-port", "0", "--alpaca-discovery-port", "-1",
-             "--web-port", "0"]
+             "--web-port", "0", "--indi-port", "0"]
 
 
 def _write(tmp_path, doc) -> str:

@@ -29,6 +29,7 @@ ROLES = {  # option → (role, key)
     "--alpaca-port": ("Alpaca port", "[alpaca] port"),
     "--alpaca-discovery-port": ("Alpaca discovery port (UDP)", "[alpaca] discovery_port"),
     "--web-port": ("web port", "[web] port"),
+    "--indi-port": ("INDI port", "[indi] port"),
 }
 
 

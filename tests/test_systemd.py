@@ -54,7 +54,7 @@ def test_notify_sequence_and_watchdog(tmp_path):
     config.write_text(re.sub(r"(?m)^discovery_port = \d+", "discovery_port = -1",
                              (REPO / "hwconfig" / "sim.toml").read_text()))
     proc = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--config", str(config),
-                             "--port", str(port), "--opentsi-port", "0", "--alpaca-port", "0", "--web-port", "0"], env=env,
+                             "--port", str(port), "--opentsi-port", "0", "--alpaca-port", "0", "--web-port", "0", "--indi-port", "0"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         before_ready = receive_all(sock, "READY=1")
@@ -189,7 +189,7 @@ def test_watchdog_fed_while_the_loop_is_late_withheld_when_it_is_dead(tmp_path):
                XDG_STATE_HOME=str(tmp_path / "state"))
     env.pop("WATCHDOG_PID", None)
     proc = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--port", str(port),
-                             "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1"], env=env,
+                             "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1", "--indi-port", "-1"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     child = None
     try:

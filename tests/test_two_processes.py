@@ -94,7 +94,7 @@ def test_two_servers_started_at_once_one_master(tmp_path):
         for i in range(2):  # each with its own state directory (a shared one is refused first)
             servers.append(subprocess.Popen(
                 [sys.executable, "-m", "tcs.cli.server", "--config", str(hwfile), "--port",
-                 str(free_port()), "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1"],
+                 str(free_port()), "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1", "--indi-port", "-1"],
                 env=dict(env, XDG_STATE_HOME=str(tmp_path / f"state-{i}")),
                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
         deadline = time.monotonic() + 60
@@ -122,7 +122,7 @@ def test_server_drives_the_simulator_in_another_process(tmp_path):
         _wait_ready(sim)
         server = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--config", str(hwfile),
                                    "--port", str(tpl2_port), "--opentsi-port", "0",
-                                   "--alpaca-port", "-1", "--web-port", "-1"], env=env,
+                                   "--alpaca-port", "-1", "--web-port", "-1", "--indi-port", "-1"], env=env,
                                   stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         s = connect(tpl2_port, timeout=60)
         f = s.makefile("rb")
@@ -156,7 +156,7 @@ def test_server_drives_the_simulator_in_another_process(tmp_path):
         for port in (free_port(), tpl2_port):
             others.append(subprocess.Popen(
                 [sys.executable, "-m", "tcs.cli.server", "--config", str(hwfile), "--port",
-                 str(port), "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1"],
+                 str(port), "--opentsi-port", "-1", "--alpaca-port", "-1", "--web-port", "-1", "--indi-port", "-1"],
                 env=dict(env, XDG_STATE_HOME=str(tmp_path / f"state-{port}")), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
         fastest, replies, n = 0.0, [], 10
         deadline = time.monotonic() + 120
@@ -267,7 +267,7 @@ def test_killed_control_process_drives_stop_at_the_stop_deceleration(tmp_path):
         tpl2_port = free_port()
         server = subprocess.Popen([sys.executable, "-m", "tcs.cli.server", "--config", str(hwfile),
                                    "--port", str(tpl2_port), "--opentsi-port", "-1",
-                                   "--alpaca-port", "-1", "--web-port", "-1"], env=env,
+                                   "--alpaca-port", "-1", "--web-port", "-1", "--indi-port", "-1"], env=env,
                                   stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         s = connect(tpl2_port, timeout=60)
         f = s.makefile("rb")

@@ -81,7 +81,7 @@ def test_the_installed_package_is_the_wheel(installed, tmp_path):
 def test_tcs_server_runs_the_simulated_telescope_from_the_wheel(installed, tmp_path):
     port, web = free_port(), free_port()
     proc = subprocess.Popen([str(installed / "tcs-server"), "--port", str(port), "--opentsi-port", "0",
-                             "--alpaca-port", "-1", "--web-port", str(web)], cwd=tmp_path,
+                             "--alpaca-port", "-1", "--web-port", str(web), "--indi-port", "-1"], cwd=tmp_path,
                             env=run_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     try:

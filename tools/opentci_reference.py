@@ -88,7 +88,7 @@ async def reference_service(config_path: Path):
         cfg = dataclasses.replace(config, server=dataclasses.replace(config.server, port=0, opentsi_port=0),
                                   state=StateSection(path=state))
         object.__setattr__(cfg, "source", config.source)
-        service = Service(cfg, host="127.0.0.1", port=0, alpaca_port=-1, web_port=-1)
+        service = Service(cfg, host="127.0.0.1", port=0, alpaca_port=-1, web_port=-1, indi_port=-1)
         await service.start()
         try:
             yield service

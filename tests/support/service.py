@@ -34,6 +34,8 @@ def make_config(state_dir: Path, path: Path = DEFAULT_CONFIG, *, envelope: dict 
         changes["alpaca"] = dataclasses.replace(config.alpaca, port=0, discovery_port=free_udp_port())
     if config.web.port >= 0:      # the status page and /metrics too: a free port
         changes["web"] = dataclasses.replace(config.web, port=0)
+    if config.indi.port >= 0:     # the INDI devices too: a free port
+        changes["indi"] = dataclasses.replace(config.indi, port=0)
     if config.can is not None and config.can.interface == "virtual":
         # a bus of its own: services of different tests must not hear each other
         changes["can"] = dataclasses.replace(config.can, channel=f"tcs-test-{uuid.uuid4().hex[:12]}")

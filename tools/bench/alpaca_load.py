@@ -171,7 +171,7 @@ async def main(clients: int, seconds: float) -> dict:
     new = dataclasses.replace(
         config, server=dataclasses.replace(config.server, port=0, opentsi_port=-1),
         alpaca=dataclasses.replace(config.alpaca, port=0, discovery_port=-1),
-        web=dataclasses.replace(config.web, port=-1),
+        web=dataclasses.replace(config.web, port=-1), indi=dataclasses.replace(config.indi, port=-1),
         can=dataclasses.replace(config.can, channel=f"tcs-bench-{uuid.uuid4().hex[:12]}"),
         state=StateSection(path=state.name))
     object.__setattr__(new, "source", config.source)

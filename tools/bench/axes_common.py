@@ -37,7 +37,7 @@ async def start_service(path: Path = DEFAULT_CONFIG, *, can: dict | None = None,
     ``[server]`` settings, ``can`` ``[can]`` settings); returns (service, port, state dir)."""
     config = load_config(path)
     state = tempfile.TemporaryDirectory(prefix="tcs-bench-")
-    changes = dict(web=dataclasses.replace(config.web, port=-1), server=dataclasses.replace(config.server, **{"port": 0, "opentsi_port": -1, **server}),
+    changes = dict(web=dataclasses.replace(config.web, port=-1), indi=dataclasses.replace(config.indi, port=-1), server=dataclasses.replace(config.server, **{"port": 0, "opentsi_port": -1, **server}),
                    state=StateSection(path=state.name))
     if config.can is not None:
         bus = dict(can or {})

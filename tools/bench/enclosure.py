@@ -47,7 +47,7 @@ def pct(values, q: float) -> float:
 async def main(moves: int, gets: int) -> dict:
     config = load_config()
     with tempfile.TemporaryDirectory() as state:
-        cfg = dataclasses.replace(config, server=dataclasses.replace(config.server, port=0, opentsi_port=-1), web=dataclasses.replace(config.web, port=-1),
+        cfg = dataclasses.replace(config, server=dataclasses.replace(config.server, port=0, opentsi_port=-1), web=dataclasses.replace(config.web, port=-1), indi=dataclasses.replace(config.indi, port=-1),
                                   alpaca=dataclasses.replace(config.alpaca, port=-1),
                                   state=StateSection(path=state))
         object.__setattr__(cfg, "source", config.source)

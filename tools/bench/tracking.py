@@ -56,7 +56,7 @@ ARCSEC = 3600.0
 def make_config(path: Path, state: Path, modes: tuple[str, str] | None = None):
     config = load_config(path)
     changes = dict(server=dataclasses.replace(config.server, port=0, opentsi_port=-1),
-                   web=dataclasses.replace(config.web, port=-1),
+                   web=dataclasses.replace(config.web, port=-1), indi=dataclasses.replace(config.indi, port=-1),
                    alpaca=dataclasses.replace(config.alpaca, port=-1),
                    state=StateSection(path=str(state)))
     if config.can is not None and config.can.interface == "virtual":

@@ -64,7 +64,7 @@ def make_config(path: Path, state: Path, web_port: int = 0):
     config = load_config(path)
     changes = dict(server=dataclasses.replace(config.server, port=0, opentsi_port=-1),
                    alpaca=dataclasses.replace(config.alpaca, port=-1),
-                   web=dataclasses.replace(config.web, port=web_port),
+                   web=dataclasses.replace(config.web, port=web_port), indi=dataclasses.replace(config.indi, port=-1),
                    state=StateSection(path=str(state)))
     if config.can is not None and config.can.interface == "virtual":
         changes["can"] = dataclasses.replace(config.can, channel=f"bench-{uuid.uuid4().hex[:8]}")
