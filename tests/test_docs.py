@@ -54,7 +54,8 @@ def test_every_page_of_the_nav_is_built(site):
     for page in ("index", "quickstart", "configuration", "running", "opentci", "motion", "enclosure",
                  "pointing", "envelope", "opentsi", "alpaca", "metrics", "security", "commissioning",
                  "deployment", "troubleshooting", "development", "reference/hwconfig", "reference/opentci",
-                 "reference/opentsi", "reference/alpaca", "reference/codes"):
+                 "reference/opentsi", "reference/alpaca", "reference/indi", "reference/codes",
+                 "indi", "gps", "satellites", "status-page", "safety-envelope", "homing-and-make-ready"):
         assert (site / f"{page}.html").is_file(), page
 
 
@@ -94,6 +95,10 @@ def test_front_end_references_are_generated_from_the_declarations(site):
     alpaca = _text(site / "reference/alpaca.html")
     for member in ("slewtocoordinatesasync", "ITelescopeV4", "IFocuserV4", "IDomeV3"):
         assert member in alpaca, member
+    indi = _text(site / "reference/indi.html")
+    for name in ("TCS Telescope", "EQUATORIAL_EOD_COORD", "TELESCOPE_TIMED_GUIDE_NS", "TCS Focuser",
+                 "ABS_FOCUS_POSITION", "TCS Dome", "DOME_SHUTTER", "TCS Weather"):
+        assert name in indi, name
 
 
 def test_codes_reference_lists_every_number_and_drive_code(site):

@@ -4,7 +4,7 @@ At every ``mkdocs build`` / ``mkdocs serve``, :func:`on_files` adds pages that e
 memory (nothing is written into ``docs/``, so nothing generated is ever committed or stale):
 
 * ``reference/hwconfig.md`` — every key of the hardware file (``gen_hwconfig_reference.py``);
-* ``reference/opentci.md``, ``reference/opentsi.md``, ``reference/alpaca.md`` — the front ends'
+* ``reference/opentci.md``, ``reference/opentsi.md``, ``reference/alpaca.md``, ``reference/indi.md`` — the front ends'
   variables and devices, read from a service of ``hwconfig/sim.toml`` started on free loopback
   ports (``gen_frontend_reference.py``; a few seconds);
 * ``reference/codes.md`` — event/error numbers, drive EMCY codes, SDO aborts, ASCOM errors
