@@ -400,7 +400,14 @@ class Axis(ModuleHealth):
                                f"[{self.section.min}, {self.section.max}]")
         else:
             if not checked and self.section.cyclic:
-                value = self.planner.resolve_target(value, self.offset, self._sp.position) - self.offset
+                # from where the axis is: its fresh readback (this runs on the event loop; the
+                # loop's own setpoint is not kept here when the loop runs in the control
+                # process, and resolving from its initial 0 took the far turn: 262 from 200 went
+                # to -98). The planner is handed the result unchanged, so the turn judged is the
+                # turn driven whichever base is used.
+                here = float(self.real_position)
+                base = here if math.isfinite(here) else self._sp.position
+                value = self.planner.resolve_target(value, self.offset, base) - self.offset
             if self.envelope is not None and not checked:
                 self.envelope(self, "target", value)
         future = self._future()
