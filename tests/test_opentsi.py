@@ -628,22 +628,33 @@ async def test_every_opentsi_variable_reads_on_the_default_telescope(service):
 
 async def test_position_angle_on_the_sky(live):
     """SETUP.DEROTATOR.OFFSET is a position angle: the derotator follows the field rotation
-    turned by it (the same target tracked with 0 and then 30 degrees)."""
+    turned by it (the same target tracked with 0, 30, then 0 degrees again: the field turns
+    meanwhile, so the 30-degree reading is compared with the 0-degree readings interpolated to
+    its moment)."""
     c = await tsi(live)
     try:
         await ready(c)
         ra, dec = star_near(live, 160.0, 55.0, ahead=5.0)
         await pyobs_set(c, "POINTING.SETUP.DEROTATOR.SYNCMODE", 3)
         readings = []
-        for pa in (0.0, 30.0):
+        for pa in (0.0, 30.0, 0.0):
+            # each tracking starts from rest: a new TRACK while tracking leaves MOTION_STATE 11
+            # and the derotator's bit 3 (on its path) set while it still turns to the new angle
+            await pyobs_set(c, "POINTING.TRACK", 0)
+            await c.wait("TELESCOPE.MOTION_STATE", lambda v: v == 0)
+            await c.wait("POSITION.INSTRUMENTAL.DEROTATOR[2].MOTION_STATE", lambda v: not int(v) & 3)
             await pyobs_set(c, "POINTING.SETUP.DEROTATOR.OFFSET", pa)
             await c.set(f"OBJECT.EQUATORIAL.RA={ra!r};OBJECT.EQUATORIAL.DEC={dec!r}")
             assert complete(await pyobs_set(c, "POINTING.TRACK", 1))
             await c.wait("TELESCOPE.MOTION_STATE", lambda v: v == 11)
-            await c.wait("POSITION.INSTRUMENTAL.DEROTATOR[2].MOTION_STATE", lambda v: int(v) & 8)
+            # following its trajectory (bit 1) and on it (bit 3)
+            await c.wait("POSITION.INSTRUMENTAL.DEROTATOR[2].MOTION_STATE", lambda v: int(v) & 10 == 10)
             assert await c.num("CURRENT.DEROTATOR_OFFSET") == pa
-            readings.append(await c.num("POSITION.INSTRUMENTAL.DEROTATOR[2].REALPOS"))
-        turned = math.remainder(readings[1] - readings[0], 360.0)
+            readings.append((time.monotonic(), await c.num("POSITION.INSTRUMENTAL.DEROTATOR[2].REALPOS")))
+        (t0, r0), (t1, r1), (t2, r2) = readings
+        drift = math.remainder(r2 - r0, 360.0)
+        at_t1 = r0 + drift * (t1 - t0) / (t2 - t0)
+        turned = math.remainder(r1 - at_t1, 360.0)
         assert abs(turned - 30.0) < 1.0, readings
         await pyobs_set(c, "POINTING.SETUP.DEROTATOR.OFFSET", 0.0)
         await pyobs_set(c, "POINTING.SETUP.DEROTATOR.SYNCMODE", 0)
