@@ -201,6 +201,40 @@ async def test_moveaxis_moves_a_wrapping_axis_the_way_asked(live):
         await c.close()
 
 
+async def test_a_slower_moveaxis_slows_the_axis_down_without_stepping_back(live):
+    """MoveAxis at 20°/s, then MoveAxis at 1°/s the same way (AZ both ways, the altitude
+    up): the axis slows down to the new rate and runs on at it — never a CSP target back.
+    The planner gave ruckig the new speed as the velocity limit of a move from 20°/s: it
+    braked down to it and unwound its deceleration below zero, 10 mdeg back (the randomized
+    test saw 1–3 mdeg: ``AZ: MoveAxis(0.8) stepped back``)."""
+    c = await connect(live)
+    try:
+        await ready(live, c, "AZ", "ZD")
+        period = live.telescope.control_loop.source.period
+        for ax, n, fast, slow, sign, at in (("AZ", 0, 20.0, 1.0, 1, 0.0), ("AZ", 0, -20.0, -1.0, -1, 0.0),
+                                             ("ZD", 1, 20.0, 1.0, -1, 60.0)):
+            await goto(c, ax, at)
+            s = sim(live, ax)
+            start = s.position
+            assert (await aput(live, "moveaxis", Axis=n, Rate=fast))["ErrorNumber"] == 0
+            await moves_until(live, ax, lambda p: sign * (p - start) > 5.0, f"MoveAxis({n}, {fast}) moving")
+            s.csp_targets.clear()
+            assert (await aput(live, "moveaxis", Axis=n, Rate=slow))["ErrorNumber"] == 0
+            deadline = time.monotonic() + WAIT
+            while True:   # until it runs at the slow rate (the last 20 steps)
+                steps = [b - a for a, b in zip(targets(live, ax)[-21:], targets(live, ax)[-20:])]
+                if len(steps) == 20 and all(abs(x / period - abs(slow) * sign) < 0.01 for x in steps):
+                    break
+                assert time.monotonic() < deadline, f"{ax}: never ran at {slow}°/s ({steps[-3:]})"
+                await asyncio.sleep(0.05)
+            assert (await aput(live, "moveaxis", Axis=n, Rate=0))["ErrorNumber"] == 0
+            await at_rest(c, ax)
+            commanded = targets(live, ax)
+            assert against(commanded, sign) == [], (ax, fast, slow, against(commanded, sign)[:5])
+    finally:
+        await c.close()
+
+
 async def test_moveaxis_altitude_raises_and_stops_at_the_horizon(live):
     """Axis 1 of the alt-az mount is altitude: a positive rate decreases ZD (raises the tube)
     up to the zenith; a negative rate lowers it and stops at the altitude limit SlewToAltAz
