@@ -604,9 +604,12 @@ async def test_random_commands_from_every_front_end_never_move_unasked(live):
                 top = axes[moveaxis[n]].section.max_velocity
                 rate = rng.choice([0.0, round(rng.uniform(-top, top), 2)])
                 note([moveaxis[n]], "moveaxis-sent")
+                moved = axes[moveaxis[n]]
+                before = moved.real_position - moved.offset
                 reply = await aput(live, "moveaxis", Axis=n, Rate=rate)
                 if reply["ErrorNumber"] == 0 and rate != 0.0:
-                    note([], "moveaxis", (moveaxis[n], rate, axes[moveaxis[n]].real_position))
+                    note([], "moveaxis", (moveaxis[n], rate, moved.real_position,
+                                          (before, moved.real_position - moved.offset)))
             elif r < 0.70:
                 note(every, "abortslew")
                 await aput(live, "abortslew")
@@ -658,14 +661,19 @@ async def test_random_commands_from_every_front_end_never_move_unasked(live):
             for k, (t0, _, kind, detail) in enumerate(log):
                 if kind != "moveaxis" or detail[0] != ax:
                     continue
-                _, rate, z0 = detail
+                _, rate, z0, (zd0, zd1) = detail
                 t_end = next((tt for tt, touched, _, _ in log[k + 1:] if ax in touched), end)
                 sign = 1 if rate > 0 else -1
                 if ax == "ZD" and t.pointing.mount == "AZ-ZD":
-                    sign = -1 if (z0 >= 0) == (rate > 0) else 1   # altitude: up is towards ZD 0
+                    # altitude: up is towards CURRPOS 0 (REALPOS − OFFSET, the ZD the front end
+                    # judges the side of the zenith by); which side is unknown when the axis
+                    # crossed it while the request was under way
+                    sign = -1 if (zd0 >= 0) == (rate > 0) else 1
+                    if (zd0 >= 0) != (zd1 >= 0):
+                        sign = 0   # (no direction judged; the horizon still is)
                 window = [(tt, p, cont) for tt, p, cont in records if t0 <= tt < t_end]
                 went = False
-                for (ta, pa, _), (tb, pb, cont) in zip(window, window[1:]):
+                for (ta, pa, _), (tb, pb, cont) in (zip(window, window[1:]) if sign else ()):
                     if not cont:
                         went = False
                         continue
