@@ -354,6 +354,68 @@ def test_a_new_goal_ahead_never_reverses_a_braking_axis(way):
     check_dynamics(stream, AZ, start=sp, unwind_at={0})
 
 
+#: the simulated telescope's AZ (tests/hw_alpaca.toml): a²/2j = 7.2°/s, more than a slow
+#: MoveAxis rate
+MOUNT_AZ = AxisDynamics(60.0, 120.0, 1000.0, quick_stop_acceleration=240.0)
+
+
+@pytest.mark.parametrize("way", [1.0, -1.0])
+@pytest.mark.parametrize("v, a, speed", [
+    (20.0, 0.0, 1.0),    # cruising, then a MoveAxis at a twentieth of it
+    (1.6, 0.0, 0.7),     # slower than half the speed it has
+    (2.0, -20.0, 0.8),   # already slowing down (AZ MoveAxis(0.8) stepped back in the fuzz test)
+    (1.0, 100.0, 1.2),   # below the speed, but its acceleration carries it above
+])
+def test_a_slower_move_the_same_way_never_steps_back(way, v, a, speed):
+    """A move (MoveAxis) slower than the motion it replaces, the same way: ruckig given the
+    lower velocity limit brakes down to it pushing the deceleration further, then unwinds it
+    at the jerk limit below zero — the axis went back (up to 10 mdeg from 20°/s on AZ). The
+    planner slows down to the speed first (SLOWING), then moves at it, and no setpoint goes
+    back; the move ends on its goal, at the asked speed, within the dynamics."""
+    planner = MotionPlanner(MOUNT_AZ, SoftLimits(-100.0, 100.0), DT)
+    start = Setpoint(0.0, way * v, way * a)
+    planner.take_over(start)
+    planner.move_to(way * 50.0, speed)
+    state = planner.state
+    stream = run(planner)
+    assert stream[-1].position == way * 50.0
+    steps = [b.position - x.position for x, b in zip([start] + stream, stream)]
+    assert min(s * way for s in steps) >= -1e-12, min(s * way for s in steps)
+    assert state is PlannerState.SLOWING
+    # it reaches the speed (whole-cycle durations shave a little off it) and stays at or below it
+    at = next(i for i, sp in enumerate(stream) if abs(sp.velocity * way - speed) <= 1e-3 * speed)
+    assert all(abs(sp.velocity) <= speed * (1 + 1e-9) for sp in stream[at:])
+    check_dynamics(stream, MOUNT_AZ, vmax=v + a * a / (2 * MOUNT_AZ.max_jerk), start=start, unwind_at={0})
+
+
+@settings(max_examples=200, deadline=None)
+@given(v=st.floats(0.0, 30.0), a=st.floats(-120.0, 120.0), speed=st.floats(0.3, 30.0),
+       beyond=st.floats(0.0, 40.0), way=st.sampled_from([1.0, -1.0]), dyn=st.sampled_from([AZ, MOUNT_AZ]))
+def test_property_a_move_ahead_never_steps_back(v, a, speed, beyond, way, dyn):
+    """From any state moving towards (or resting before) a goal the axis can brake before,
+    a move to it at any speed never steps back: faster or slower than the axis moves."""
+    v, a, speed = min(v, dyn.max_velocity), max(-dyn.max_acceleration, min(a, dyn.max_acceleration)), \
+        min(speed, dyn.max_velocity)
+    assume(abs(v + max(a, 0.0) ** 2 / (2 * dyn.max_jerk)) <= dyn.max_velocity)
+    planner = MotionPlanner(dyn, SoftLimits(-100.0, 100.0), DT)
+    start = Setpoint(0.0, way * v, way * a)
+    unwound = planner._unwound(start, way * 1e6)   # (the acceleration the planner starts from)
+    solver = ProfileSolver(DT)
+    stop = solver.stop(unwound, max_velocity=dyn.max_velocity, max_acceleration=dyn.max_acceleration,
+                       max_jerk=dyn.max_jerk)
+    rest = stop.at_time(stop.duration)[0][0]
+    # (a goal just beyond the stop — within ~0.1° — the whole-cycle profile may overshoot by
+    # 0.1 mdeg and come back: ruckig's rounding; the axis's callers keep a margin, _brakes_before)
+    goal = rest + way * (0.5 + beyond)
+    assume(abs(goal) < 100.0)
+    planner.take_over(start)
+    planner.move_to(goal, speed)
+    stream = run(planner)
+    assert stream[-1].position == pytest.approx(goal, abs=1e-12)
+    steps = [b.position - x.position for x, b in zip([start] + stream, stream)]
+    assert min(s * way for s in steps) >= -1e-12, min(s * way for s in steps)
+
+
 def test_a_goal_from_the_last_phase_of_a_stop_is_planned():
     """The last phase of a jerk-limited stop (v = a²/2j exactly) is a start ruckig cannot
     synchronise to whole cycles ("error in step 2 … t sync"): a repeated OFFSET written there

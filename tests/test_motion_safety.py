@@ -201,6 +201,40 @@ async def test_moveaxis_moves_a_wrapping_axis_the_way_asked(live):
         await c.close()
 
 
+async def test_a_slower_moveaxis_slows_the_axis_down_without_stepping_back(live):
+    """MoveAxis at 20°/s, then MoveAxis at 1°/s the same way (AZ both ways, the altitude
+    up): the axis slows down to the new rate and runs on at it — never a CSP target back.
+    The planner gave ruckig the new speed as the velocity limit of a move from 20°/s: it
+    braked down to it and unwound its deceleration below zero, 10 mdeg back (the randomized
+    test saw 1–3 mdeg: ``AZ: MoveAxis(0.8) stepped back``)."""
+    c = await connect(live)
+    try:
+        await ready(live, c, "AZ", "ZD")
+        period = live.telescope.control_loop.source.period
+        for ax, n, fast, slow, sign, at in (("AZ", 0, 20.0, 1.0, 1, 0.0), ("AZ", 0, -20.0, -1.0, -1, 0.0),
+                                             ("ZD", 1, 20.0, 1.0, -1, 60.0)):
+            await goto(c, ax, at)
+            s = sim(live, ax)
+            start = s.position
+            assert (await aput(live, "moveaxis", Axis=n, Rate=fast))["ErrorNumber"] == 0
+            await moves_until(live, ax, lambda p: sign * (p - start) > 5.0, f"MoveAxis({n}, {fast}) moving")
+            s.csp_targets.clear()
+            assert (await aput(live, "moveaxis", Axis=n, Rate=slow))["ErrorNumber"] == 0
+            deadline = time.monotonic() + WAIT
+            while True:   # until it runs at the slow rate (the last 20 steps)
+                steps = [b - a for a, b in zip(targets(live, ax)[-21:], targets(live, ax)[-20:])]
+                if len(steps) == 20 and all(abs(x / period - abs(slow) * sign) < 0.01 for x in steps):
+                    break
+                assert time.monotonic() < deadline, f"{ax}: never ran at {slow}°/s ({steps[-3:]})"
+                await asyncio.sleep(0.05)
+            assert (await aput(live, "moveaxis", Axis=n, Rate=0))["ErrorNumber"] == 0
+            await at_rest(c, ax)
+            commanded = targets(live, ax)
+            assert against(commanded, sign) == [], (ax, fast, slow, against(commanded, sign)[:5])
+    finally:
+        await c.close()
+
+
 async def test_moveaxis_altitude_raises_and_stops_at_the_horizon(live):
     """Axis 1 of the alt-az mount is altitude: a positive rate decreases ZD (raises the tube)
     up to the zenith; a negative rate lowers it and stops at the altitude limit SlewToAltAz
@@ -570,9 +604,12 @@ async def test_random_commands_from_every_front_end_never_move_unasked(live):
                 top = axes[moveaxis[n]].section.max_velocity
                 rate = rng.choice([0.0, round(rng.uniform(-top, top), 2)])
                 note([moveaxis[n]], "moveaxis-sent")
+                moved = axes[moveaxis[n]]
+                before = moved.real_position - moved.offset
                 reply = await aput(live, "moveaxis", Axis=n, Rate=rate)
                 if reply["ErrorNumber"] == 0 and rate != 0.0:
-                    note([], "moveaxis", (moveaxis[n], rate, axes[moveaxis[n]].real_position))
+                    note([], "moveaxis", (moveaxis[n], rate, moved.real_position,
+                                          (before, moved.real_position - moved.offset)))
             elif r < 0.70:
                 note(every, "abortslew")
                 await aput(live, "abortslew")
@@ -624,14 +661,19 @@ async def test_random_commands_from_every_front_end_never_move_unasked(live):
             for k, (t0, _, kind, detail) in enumerate(log):
                 if kind != "moveaxis" or detail[0] != ax:
                     continue
-                _, rate, z0 = detail
+                _, rate, z0, (zd0, zd1) = detail
                 t_end = next((tt for tt, touched, _, _ in log[k + 1:] if ax in touched), end)
                 sign = 1 if rate > 0 else -1
                 if ax == "ZD" and t.pointing.mount == "AZ-ZD":
-                    sign = -1 if (z0 >= 0) == (rate > 0) else 1   # altitude: up is towards ZD 0
+                    # altitude: up is towards CURRPOS 0 (REALPOS − OFFSET, the ZD the front end
+                    # judges the side of the zenith by); which side is unknown when the axis
+                    # crossed it while the request was under way
+                    sign = -1 if (zd0 >= 0) == (rate > 0) else 1
+                    if (zd0 >= 0) != (zd1 >= 0):
+                        sign = 0   # (no direction judged; the horizon still is)
                 window = [(tt, p, cont) for tt, p, cont in records if t0 <= tt < t_end]
                 went = False
-                for (ta, pa, _), (tb, pb, cont) in zip(window, window[1:]):
+                for (ta, pa, _), (tb, pb, cont) in (zip(window, window[1:]) if sign else ()):
                     if not cont:
                         went = False
                         continue

@@ -22,6 +22,9 @@ States (``PlannerState``) and what moves between them::
     MOVING     profile finished                        IDLE        (at_target)
     any        the direct profile would cross a limit  BRAKING     (stop first, move afterwards)
     BRAKING    at rest                                 MOVING      (the pending goal)
+    any        heading for the goal faster than the    SLOWING     (down to the move's speed
+               move's speed (a slower MoveAxis)                     first, never the other way)
+    SLOWING    at the move's speed                     MOVING      (the pending goal)
     any        stop(quick)                             STOPPING    (target := where it will rest)
     any        take_over(moving setpoint)              STOPPING    (normal deceleration)
     STOPPING   at rest                                 IDLE
@@ -61,6 +64,7 @@ class PlannerState(enum.Enum):
     IDLE = "idle"
     MOVING = "moving"
     BRAKING = "braking"
+    SLOWING = "slowing"
     STOPPING = "stopping"
     LIMIT = "limit"
 
@@ -100,6 +104,7 @@ class MotionPlanner:
         self._k = 0
         self._n = 0
         self._end = 0.0
+        self._end_velocity = 0.0   # (a SLOWING profile ends at the move's speed, not at rest)
         self._pending: float | None = None
         self._pending_speed: float | None = None  # speed limit of the move planned (and pending)
         self._softlimit: str | None = None
@@ -320,7 +325,7 @@ class MotionPlanner:
         self._k += 1
         finished = self._k >= self._n
         if finished:
-            proposed = Setpoint(self._end, 0.0, 0.0, -prev.acceleration / self.dt)
+            proposed = Setpoint(self._end, self._end_velocity, 0.0, -prev.acceleration / self.dt)
         else:
             p, v, a = sample(self._traj, self._k * self.dt)
             proposed = Setpoint(p, v, a, (a - prev.acceleration) / self.dt)
@@ -334,7 +339,7 @@ class MotionPlanner:
             if not guard.braking:
                 self._idle()
         elif finished:
-            if state is PlannerState.BRAKING and self._pending is not None:
+            if state in (PlannerState.BRAKING, PlannerState.SLOWING) and self._pending is not None:
                 pending, self._pending = self._pending, None
                 self._plan_to(pending, self._pending_speed)
             else:
@@ -353,12 +358,13 @@ class MotionPlanner:
         self._sp = Setpoint(self._sp.position)
         self._k = self._n = 0
 
-    def _start(self, traj, state: PlannerState, end: float) -> None:
+    def _start(self, traj, state: PlannerState, end: float, velocity: float = 0.0) -> None:
         self._traj = traj
         self._verified = True
         self._k = 0
         self._n = max(1, math.ceil(traj.duration / self.dt - 1e-9))
         self._end = float(end)
+        self._end_velocity = float(velocity)
         self._state = state
 
     def _unwound(self, sp: Setpoint, demanded: float) -> Setpoint:
@@ -378,6 +384,53 @@ class MotionPlanner:
             return sp
         return Setpoint(sp.position, sp.velocity, math.copysign(cap, sp.acceleration), 0.0)
 
+    def _slow_down(self, sp: Setpoint, demanded: float, speed: float) -> float | None:
+        """A move from ``sp`` heading for ``demanded`` faster than its ``speed`` (a MoveAxis
+        slower than the motion it replaces, CURRSPEED lowered under a running move): ruckig
+        given ``max_velocity=speed`` first brakes the velocity down to ``speed`` pushing the
+        deceleration further, then unwinds that deceleration at the jerk limit and loses
+        ``a²/2j`` more — below zero: from 20°/s a MoveAxis(1) of AZ stepped back 10 mdeg, from
+        1.6°/s a MoveAxis(0.7) 2 mdeg (a motion nobody asked for). The same when the velocity is
+        below ``speed`` but an acceleration towards the goal would carry it above (its peak,
+        ``|v| + a²/2j``).
+
+        Instead the planner slows down to ``speed`` first (ruckig's velocity control to
+        (speed, 0) with the normal deceleration and jerk: never below the smaller of the two
+        speeds, the acceleration being :meth:`_unwound`), in state SLOWING, and plans the move
+        from there (:meth:`step`). When the goal is too near for that (it would have to brake
+        from ``speed`` past it), the move is planned with the velocity limit it has now, which
+        the profile never exceeds: it brakes straight to the goal.
+
+        Returns
+        -------
+        float or None
+            The velocity limit for the direct move; ``None`` when SLOWING was started.
+        """
+        way = demanded - sp.position
+        if way == 0.0 or sp.velocity * way < 0.0:
+            return speed
+        d = self.dynamics
+        direction = 1.0 if way > 0 else -1.0
+        # the speed it reaches when its acceleration (towards the goal) is unwound at once
+        peak = abs(sp.velocity) + (sp.acceleration ** 2 / (2.0 * d.max_jerk)
+                                   if sp.acceleration * direction > 0 else 0.0)
+        if peak <= speed * (1.0 + 1e-9):
+            return speed
+        slow = self._solver.reach_velocity(sp, direction * speed,
+                                           max_velocity=max(d.max_velocity, abs(sp.velocity)),
+                                           max_acceleration=d.max_acceleration, max_jerk=d.max_jerk)
+        n = max(1, math.ceil(slow.duration / self.dt - 1e-9))
+        end, velocity, _a = sample(slow, n * self.dt)
+        rest = self._solver.stop(Setpoint(end, velocity), max_velocity=max(d.max_velocity, speed),
+                                 max_acceleration=d.max_acceleration, max_jerk=d.max_jerk,
+                                 discrete=False)
+        rest_at = sample(rest, rest.duration)[0]
+        if (demanded - rest_at) * direction >= 0.0 and self._guard.crossing(slow, sp.position) is None:
+            self._start(slow, PlannerState.SLOWING, end, velocity)
+            self._pending = demanded
+            return None
+        return max(speed, min(peak, d.max_velocity))   # (near the goal: braking from its speed)
+
     def _plan_to(self, demanded: float, speed: float | None = None) -> None:
         """Plan from the current setpoint to rest at ``demanded`` (drive frame), at most at
         ``speed`` (default: :attr:`speed`)."""
@@ -391,7 +444,10 @@ class MotionPlanner:
             return
         speed = self._speed if speed is None else speed
         self._pending_speed = speed
-        traj = self._solver.move(sp, demanded, max_velocity=speed,
+        vmax = self._slow_down(sp, demanded, speed)
+        if vmax is None:
+            return
+        traj = self._solver.move(sp, demanded, max_velocity=vmax,
                                  max_acceleration=d.max_acceleration, max_jerk=d.max_jerk)
         side = self._guard.crossing(traj, sp.position)
         if side is None:
