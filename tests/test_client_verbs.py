@@ -281,16 +281,25 @@ def test_stop_and_ctrl_c_stop_the_telescope(env, live):
     assert abs(get(env, "AZ.REALPOS")["AZ.REALPOS"] - 170.0) > 1.0
 
     star = star_up_now()
-    assert client(env, "set", "AZ.TARGETPOS=0", "ZD.TARGETPOS=0").returncode == 0
-    goto = subprocess.Popen([sys.executable, "-m", "tcs.cli.client", "goto", star.name,
-                             "--progress-interval", "0.2"], env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
     pointing = live.telescope.pointing
-    while not on_service(live, lambda: pointing.track):
-        assert time.monotonic() < deadline and goto.poll() is None, "the goto never started"
-        time.sleep(0.02)
-    goto.send_signal(signal.SIGINT)
-    err = goto.communicate(timeout=WAIT)[1]
+    # the test telescope's slew takes 2-4 s: on a loaded host this test may see the tracking
+    # start only after the goto has arrived and exited 0; such an attempt says nothing about
+    # Ctrl-C and is repeated (a client that ignores Ctrl-C fails every attempt)
+    for attempt in range(4):
+        assert client(env, "set", "AZ.TARGETPOS=0", "ZD.TARGETPOS=0").returncode == 0
+        goto = subprocess.Popen([sys.executable, "-m", "tcs.cli.client", "goto", star.name,
+                                 "--progress-interval", "0.2"], env=env, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + WAIT
+        while not on_service(live, lambda: pointing.track):
+            assert time.monotonic() < deadline and goto.poll() is None, "the goto never started"
+            time.sleep(0.02)
+        goto.send_signal(signal.SIGINT)
+        err = goto.communicate(timeout=WAIT)[1]
+        if goto.returncode == 0 and "on target and tracking" in err:
+            assert client(env, "set", "POINTING.TRACK=0").returncode == 0
+            continue    # arrived before the signal: once more
+        break
     assert goto.returncode == 130, err
     assert "interrupted, stopped" in err
     assert get(env, "POINTING.TRACK")["POINTING.TRACK"] == 0
