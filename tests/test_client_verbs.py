@@ -287,9 +287,12 @@ def test_stop_and_ctrl_c_stop_the_telescope(env, live):
     # Ctrl-C and is repeated (a client that ignores Ctrl-C fails every attempt)
     for attempt in range(4):
         assert client(env, "set", "AZ.TARGETPOS=0", "ZD.TARGETPOS=0").returncode == 0
+        # (SIGINT at its default: a test run started in the background of a script inherits
+        # it ignored, and so would the client)
         goto = subprocess.Popen([sys.executable, "-m", "tcs.cli.client", "goto", star.name,
                                  "--progress-interval", "0.2"], env=env, stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True)
+                                stderr=subprocess.PIPE, text=True,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         deadline = time.monotonic() + WAIT
         while not on_service(live, lambda: pointing.track):
             assert time.monotonic() < deadline and goto.poll() is None, "the goto never started"
