@@ -186,6 +186,7 @@ def test_every_property_reads_with_indi_getprop(live):
     assert float(values[f"{DEVICE}.GEOGRAPHIC_COORD.LONG"]) == pytest.approx(site.longitude % 360.0)
 
 
+@pytest.mark.timeout(360)   # ~30 s alone; a dozen waits of INDI's own clients, each bounded by WAIT
 async def test_slew_track_sync_guide_and_abort_with_indis_own_clients(live):
     """Make ready (UNPARK), slew and track JNow coordinates (ending within 10″ of them, as INDI
     reads them back), a guide pulse north moves the target by rate × time, SYNC, ABORT."""
