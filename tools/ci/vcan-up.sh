@@ -3,7 +3,7 @@
 #   tools/ci/vcan-up.sh [vcan0 [vcan1 ...]]     (re-runs itself with sudo when not root)
 # then:  TCS_CAN_INTERFACE=socketcan TCS_CAN_CHANNEL=vcan0 python3 -m pytest tests/vcan
 # pytest-xdist worker gwN uses the N-th interface after TCS_CAN_CHANNEL (tests/vcan/conftest.py):
-# with the default -n 6 create vcan0 … vcan5, so that the workers' drives cannot hear each other.
+# with the default -n 4 create vcan0 … vcan3 (more do no harm), so that the workers' drives cannot hear each other.
 # Idempotent. Loads the vcan module (on Ubuntu's cloud kernels it is in
 # linux-modules-extra-$(uname -r), installed when missing), adds each interface, brings it up.
 set -eu
