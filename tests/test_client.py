@@ -269,3 +269,17 @@ def test_watch_on_the_opentsi_port_shows_faults(tmp_path):
         assert "AZ=" in status, status
     finally:
         svc.stop()
+
+
+def test_the_client_does_not_load_the_server_or_the_model():
+    """``tcs-client`` is started once per call by scripts and checks that poll: it loads the
+    protocol core only, not the server, the model or numpy/erfa (half a second of CPU a start,
+    seconds on a slow cabinet computer or an emulated one)."""
+    code = ("import sys, tcs.cli.client, tcs.opentci_server; "
+            "heavy = sorted(m for m in ('numpy', 'erfa', 'tcs.model', 'tcs.axes', 'tcs.opentci_server.server') "
+            "if m in sys.modules); print(heavy)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]", out.stdout
+    from tcs.opentci_server import Tpl2Server, build_tree   # (still there, loaded on use)
+    assert callable(build_tree) and Tpl2Server.__name__ == "Tpl2Server"
