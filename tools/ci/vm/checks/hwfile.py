@@ -4,7 +4,8 @@
 there, tcs-server is the master). ``--slowdown N`` (a whole number; the stage passes 5 under
 software emulation): the cycle, the heartbeats and their consumer times, SDO, boot,
 following-error, enable, fault-reset, mode-switch, master-loss (the drives' RPDO deadline) and
-homing time-outs are N times longer, as on a host N times slower — the exchanges are the same,
+homing time-outs are N times longer, and the following-error windows N times wider (an error
+from lateness is speed x lateness), as on a host N times slower — the exchanges are the same,
 the clock runs slower (the idle SYNC's period too). ``[server] allow_system_control`` is
 switched on (the checks ask for a reboot to see what the hardened unit does with it)."""
 
@@ -32,6 +33,11 @@ for drive in doc.get("drives", {}).values():
                          ("following_error_timeout", 0.05), ("enable_timeout", 2.0),
                          ("fault_reset_timeout", 1.0), ("mode_switch_timeout", 1.0)):
         drive[key] = round(float(drive.get(key, default)) * n, 3)
+    # a position window too: the error a drive sees from frames that come late is speed x
+    # lateness, and the lateness is what stretches (a 0.3 s backlog of the emulated
+    # simulator at 5 deg/s is 1.5 deg against a window of 1)
+    if "following_error_window" in drive:
+        drive["following_error_window"] = round(float(drive["following_error_window"]) * n, 6)
     if "master_loss_timeout" in drive:  # (absent: 3 SYNC periods, stretched with the period)
         drive["master_loss_timeout"] = round(float(drive["master_loss_timeout"]) * n, 3)
     if "timeout" in drive.get("homing", {}):
