@@ -286,7 +286,8 @@ async def test_moveaxis_keeps_the_operators_currspeed(live):
         sim(live, "AZ").csp_targets.clear()
         # a direct 10° move (goto() would go by 0 first: 230° at the 5°/s under test, 46 s)
         assert done_ok(await c.set(f"AZ.TARGETPOS={round(here + 10.0, 3)}", WAIT), "AZ.TARGETPOS")
-        steps = [b - a for a, b in zip(targets(live, "AZ"), targets(live, "AZ")[1:])]
+        recs = list(sim(live, "AZ").csp_targets)  # (steps between consecutive SYNCs' targets)
+        steps = [b - a for (_, a, _), (_, b, cont) in zip(recs, recs[1:]) if cont]
         period = live.telescope.control_loop.source.period
         assert max(steps) / period <= 5.0 * (1 + 1e-6), max(steps) / period  # (full speed: 60)
     finally:
@@ -506,13 +507,21 @@ async def test_late_cycles_never_send_more_than_the_speed_and_acceleration_limit
             loop.source.remove_callback(late)
         assert lines[-1].endswith("COMMAND COMPLETE"), lines
         await at_rest(c, "AZ")
-        targets = [p for _, p, _ in drive.csp_targets]
+        records = list(drive.csp_targets)
+        targets = [p for _, p, _ in records]
         assert len(targets) > 300
-        steps = [b - a for a, b in zip(targets, targets[1:])]
+        # (steps between targets latched at consecutive SYNCs: a SYNC a late cycle's setpoint
+        # missed — dropped, tcs.drivers.cycle — goes without one, the drive bridges it, and the
+        # next target is no step of the stream: its own re-anchored start, tests/vcan/
+        # test_stall_recovery.py)
+        steps = [b - a if cont else None for (_, a, _), (_, b, cont) in zip(records, records[1:])]
         vmax = 60.0
-        assert max(abs(s) for s in steps) <= vmax * period * (1 + 1e-5) + 1e-5, max(map(abs, steps))
+        assert max(abs(s) for s in steps if s is not None) <= vmax * period * (1 + 1e-5) + 1e-5, \
+            max(abs(s) for s in steps if s is not None)
         section = live.telescope.axis("AZ").section
         for a, b in zip(steps, steps[1:]):
+            if a is None or b is None:
+                continue
             speeding_up = abs(b) > abs(a) and a * b >= 0
             limit = section.max_acceleration if speeding_up else section.stop_deceleration
             # (+ 2 increments: the drive receives whole increments)

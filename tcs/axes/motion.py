@@ -305,10 +305,30 @@ class MotionPlanner:
         else:
             self.stop(quick=False)
 
+    def resume(self, setpoint: Setpoint) -> None:
+        """After a gap in the setpoint stream (the drive bridged it by itself): go on from
+        ``setpoint`` — where the drive's demand really is — to the same goal within the
+        limits: a move is planned again from there (braking first if it would now cross a
+        limit), a stop stops from there with the stop deceleration; never chased back to the
+        path computed before the gap."""
+        state = self._state
+        if state is PlannerState.IDLE and setpoint.at_rest:
+            return
+        self._sp = Setpoint(setpoint.position, setpoint.velocity)
+        if state is PlannerState.MOVING:
+            self._plan_to(self.demanded_target, self._pending_speed)
+        elif state is PlannerState.BRAKING and self._pending is not None:
+            self._plan_to(self._pending, self._pending_speed)
+        else:
+            softlimit = self._softlimit
+            self.stop(quick=True)
+            self._softlimit = softlimit
+
     # -- the cycle ---------------------------------------------------------------------------
 
-    def step(self) -> Setpoint:
-        """Advance one control cycle and return the setpoint to send."""
+    def step(self, periods: int = 1) -> Setpoint:
+        """Advance one control cycle — ``periods`` cycles' time after a gap in the cycle (the
+        drive bridged them) — and return the setpoint to send."""
         state = self._state
         prev = self._sp
         if state is PlannerState.IDLE:
@@ -322,7 +342,7 @@ class MotionPlanner:
                 return sp
             self._sp = sp
             return sp
-        self._k += 1
+        self._k += max(1, int(periods))
         finished = self._k >= self._n
         if finished:
             proposed = Setpoint(self._end, self._end_velocity, 0.0, -prev.acceleration / self.dt)
