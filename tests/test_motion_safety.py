@@ -293,7 +293,7 @@ async def test_moveaxis_altitude_raises_and_stops_at_the_horizon(live):
 
 async def test_a_stall_while_moveaxis_brakes_at_the_horizon_never_passes_it(live):
     """Issue 39 item 6 with the horizon bound: while a MoveAxis lowering ZD at 30°/s brakes to
-    the altitude limit, the control loop is held once for 30 ms (a cycle callback that sleeps:
+    the altitude limit, the control loop is held once for 25 ms (a cycle callback that sleeps:
     no SYNC, no setpoint; the drive runs on at the stream's speed). The axis re-anchors where
     the drive is and brakes to the bound with up to the stop deceleration: no CSP target past
     it, none back (re-planned with the normal deceleration from zero acceleration it ran to
@@ -310,10 +310,10 @@ async def test_a_stall_while_moveaxis_brakes_at_the_horizon_never_passes_it(live
         sp = zd.planner.setpoint
         if state["armed"] and sp.position > 60.0 and 0.0 < sp.velocity < 28.0:
             state["armed"] = False
-            time.sleep(0.03)
+            time.sleep(0.025)   # (a loaded host stretches it: 30 ms asked came back as 50+)
     try:
         await ready(live, c, "AZ", "ZD")
-        for attempt in range(3):
+        for attempt in range(6):
             await goto(c, "ZD", 30.0)
             resumes = zd.resumes
             sim(live, "ZD").csp_targets.clear()
