@@ -40,7 +40,8 @@ late still goes, as before): that SYNC goes without them,
 and the cycle after says :attr:`Cycle.resumed` — the setpoints of the cycle before did not
 reach the drives on time, so the callbacks re-anchor on where the drives really are (the
 TPDOs of this SYNC) before their next setpoint. With kernel SYNC the RPDOs go at once (the
-kernel's SYNC does not wait), and a cycle is resumed after missed SYNCs or a late cycle.
+kernel's SYNC does not wait), and a cycle is resumed when :data:`DROP_SLOTS` or more SYNCs
+passed since the one before it (the drives bridged at least two of them).
 
 Where the SYNC comes from: on ``socketcan`` the kernel broadcast manager sends it
 (``bus.send_periodic``; the runner sees each SYNC through the socket's loopback). Elsewhere the
@@ -166,7 +167,6 @@ class CycleSource:
         self.max_lateness = 0.0  # worst lateness since start, s
         self._divider = 1  # SYNC every this many periods (set_divider)
         self._sync_msg = None  # the kernel's periodic SYNC frame
-        self._ended_late = False  # the last cycle's callbacks ended after the next SYNC was due
 
     @property
     def tpdo_deadline(self) -> float:
@@ -349,7 +349,6 @@ class CycleSource:
             if held is not None:
                 self.bus.hold_sends(None)
         end = self._clock()
-        self._ended_late = end > next_sync
         self.bus.beat(end)  # the TCS heartbeat: only from a cycle whose work is done
         spent = end - sync_time
         self.callback_time.append(spent)
@@ -444,7 +443,12 @@ class CycleSource:
                 first_time, first_count = sync_time, count
             elif count > seen + 1:
                 self._count(missed=count - seen - 1)
-            resumed = previous is not None and (count > seen + 1 or self._ended_late)
+            # (the last cycle's setpoints were made for SYNC seen + 1 and latched at the first
+            # SYNC after they went: DROP_SLOTS or more SYNCs on, the drives bridged that long —
+            # the same bound as the held frames' drop above; a setpoint one or two SYNCs late
+            # is let be, as there: re-anchoring on every late cycle of a loaded host cost more
+            # than the step it avoids)
+            resumed = previous is not None and count - seen >= DROP_SLOTS
             seen = count
             self._late(sync_time - (first_time + (count - first_count) * step))
             self._cycle(count, sync_time, sync_time + step, step, None, resumed, previous)
