@@ -207,6 +207,12 @@ class AxisTrajectory:
         return self.axis.follower.runtime(self.axis.ut1()) if self.axis.follower else 0.0
 
 
+#: after a gap the readback decides the drive held its last target (rather than extrapolated
+#: at the stream's speed) when its demand lies within this share of the way from that target
+#: to the extrapolated stream (:meth:`Axis._resume`)
+HELD_SHARE = 0.25
+
+
 class Axis(ModuleHealth):
     """One OpenTCI axis module bound to one drive.
 
@@ -770,17 +776,19 @@ class Axis(ModuleHealth):
 
         The drive bridged the gap by itself (held its last setpoint, extrapolated it at the
         stream's speed, or in CSV kept its last velocity), and the setpoint made before the
-        gap never reached it (the cycle source dropped it). The base becomes this readback's
-        demand carried on to the next SYNC (which latches this cycle's setpoint) at the
-        speed the demand moved at since the last trusted readback before the gap — or the
-        actual position carried on at the motor's speed, when that is further (a drive that
-        held: the motor ran on while it braked; joining it there is no step back for the
-        motor), and in CSV. A readback is trusted when this cycle's and the
-        previous cycle's synchronous TPDOs all came in time (else one of an older SYNC may
-        stand for this one's on a busy host), and when it does not put the demand behind the
-        last target the drive surely latched; without a trusted one the base is the last
-        setpoint sent, extrapolated at its speed — exact for a drive that extrapolates,
-        ahead of one that held (a step forwards, never back). From that base the step to
+        gap never reached it (the cycle source dropped it). Both bridgings are known exactly
+        from the stream itself: extrapolated, the demand is the last setpoint sent carried on
+        at its speed to this SYNC; held, it is the last target the drive latched. The base
+        becomes the one of the two this readback's demand (position actual + following error
+        0x60F4) says — "held" only when the demand lies within :data:`HELD_SHARE` of the way
+        from the held target to the extrapolated stream, since a readback that lags the gap on
+        a busy host looks like a hold — carried on to the next SYNC (which latches this
+        cycle's setpoint). A drive that held while its motor ran on past the target (braking
+        at its own limit) is joined where the motor is (no step back for the motor); in CSV
+        the base is the actual position and velocity. The readback is used only when this
+        cycle's and the previous cycle's synchronous TPDOs all came in time; without it the
+        base is the extrapolated stream — exact for a drive that extrapolates, ahead of one
+        that held (a step forwards, never back). From that base the step to
         the planner's or follower's setpoint is cut to the axis's speed, acceleration and
         stop deceleration (:meth:`_limit_step`); the planner is planned again from the anchor
         (:meth:`MotionPlanner.resume`), the follower's path is sampled by time and met by
@@ -790,34 +798,35 @@ class Axis(ModuleHealth):
         last = self._last_demand
         vmax = self.dynamics.max_velocity
         trusted = self.cycle_fresh and self._fresh_before
-        # (the drive latched this target at the SYNC before the gap: held or extrapolated, its
-        # demand is not behind it now — a readback that says so mixes TPDOs of two SYNCs)
-        floor = self._latched[1] if self._latched else None
         way = 1.0 if self._sent_velocity >= 0 else -1.0
-        behind = floor is not None and way * (demand - floor) < -1e-6
         interval = self.dt if self.cycle_times is None else self.cycle_times[1] - self.cycle_times[0]
         interval = max(0.0, interval)
-
-        def ahead(p: float, v: float) -> tuple[float, float, float]:
-            v = max(-vmax, min(vmax, v))
-            return way * (p + v * interval), p, v
+        # the two things a drive does without setpoints, each known exactly from the stream:
+        # it extrapolated at the stream's speed (E), or it held the last target it latched (H)
+        velocity, how = self._sent_velocity, "extrapolated setpoint"
+        position = self._sent + velocity * (sync - self._sent_reach)
+        held = self._latched[1] if self._latched else self._sent
         if trusted and st.mode == Mode.CSV:
             position, velocity, how = st.position, st.velocity, "actual position"
-        elif trusted and not behind and last is not None and sync - last[0] > 0:
-            # the demand carried on at the speed it moved at — or, where that is behind it, the
-            # motor at its own speed: a drive that held its last setpoint while the motor ran on
-            # (braking at its own limit) is joined where the motor is, not pulled back
-            _, position, velocity = max(ahead(demand, (demand - last[1]) / (sync - last[0])),
-                                        ahead(st.position, st.velocity))
-            how = "demand" if position == demand else "actual position"
-        else:
-            velocity, how = self._sent_velocity, "extrapolated setpoint"
-            position = self._sent + velocity * (sync - self._sent_reach)
+        elif (trusted and math.isfinite(st.following_error)
+              and abs(demand - held) < HELD_SHARE * abs(position - held)):
+            # the readback says it held: join the motor where it is if it ran on past the
+            # target while braking at its own limit (no step back for it), else the target
+            if way * (st.position - held) > 0.0 and way * st.velocity >= 0.0:
+                position, velocity, how = st.position, st.velocity, "motor (the drive held)"
+            else:
+                position, velocity, how = held, 0.0, "held target"
+        # (the readback only chooses between the two, and says "held" only when it is near the
+        # held target: on a busy host a readback mixes TPDOs or lags the gap — a speed measured
+        # over the gap was off by 1.5 deg/s and a stream re-anchored on it ran 0.5 deg past a
+        # horizon bound it braked to; a stale one looks like a hold)
         velocity = max(-vmax, min(vmax, velocity))
         anchor = Setpoint(position + velocity * interval, velocity)
         log.info("%s: a gap of %.3f s in the setpoint stream; re-anchored on the drive's %s "
-                 "%.5f at %.4f/s (the stream had sent %.5f)", self.module_name,
-                 sync - last[0] if last else float("nan"), how, position, velocity, self._sent)
+                 "%.5f at %.4f/s (the stream had sent %.5f; the readback: demand %.5f, motor "
+                 "%.5f at %.4f/s)", self.module_name,
+                 sync - last[0] if last else float("nan"), how, position, velocity, self._sent,
+                 demand, st.position, st.velocity)
         self._sent, self._sent_velocity = anchor.position, velocity
         self.resumes += 1
         if not self._running:  # (a move goes on from the drive, not back to the old profile)
