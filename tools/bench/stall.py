@@ -35,7 +35,8 @@ Over socketcand when the socketcand client works here (it needs python-can's soc
 interface); ``--bus virtual`` (or a failing socketcand) runs master and drive in one process on
 the virtual bus and stops the master by holding its cycle thread instead — said in the
 output. Run: ``python3 tools/bench/stall.py [--modes csp ip csv] [--gaps 0.05 0.1 0.2 0.3
-0.5] [--bridging extrapolate|hold]``; the last line is one JSON object with every figure.
+0.5] [--bridging extrapolate|hold]``; ``--gaps 0`` is the baseline (the same slew, SIGSTOP and
+SIGCONT at once); the last line is one JSON object with every figure.
 """
 
 from __future__ import annotations
