@@ -176,6 +176,12 @@ def test_a_short_master_gap_mid_slew_never_pulls_the_drive_back(can_channel, mod
     slew goes on; the TCS never commands more than the stop deceleration (the motor's own
     braking depends on the drive's bridging and the host's other late cycles: the bench)."""
     with rig_for(can_channel, mode, bridging) as rig:
+        if rig.system.cycle.kernel_sync:
+            # (the kernel's SYNC goes on while the master is held: the drive counts three SYNCs
+            # without a setpoint and stops itself — the case of tests/vcan/test_driver_safety,
+            # test_stalled_loop_makes_every_drive_quick_stop_by_itself; this test is about a
+            # master whose stall stops the SYNC too: thread mode, socketcand)
+            pytest.skip("kernel SYNC: a held master is a drive's own stop after three SYNCs")
         stand = Stand(rig, mode)
         stand.start()
         stand.slew(150.0)
