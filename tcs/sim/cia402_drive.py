@@ -88,7 +88,6 @@ from tcs.sim.drive_logic import (
     EMCY_POSITION_LIMIT,
     EMCY_RPDO_TIMEOUT,
     MODE_CSP,
-    MODE_IP,
     DriveLogic,
     State,
     error_register_bits,
@@ -187,9 +186,8 @@ class SimDrive:
         self.sync_count = 0
         #: (monotonic time, CSP target in user units, continuous) of each SYNC that applied a
         #: fresh CSP target while enabled: what the master commanded, for tests of the setpoint
-        #: stream (IP: the interpolation data record); ``continuous`` is False for the first
-        #: target after the drive was not following CSP targets (disabled, faulted, another
-        #: mode) or after a SYNC that came without one
+        #: stream; ``continuous`` is False for the first target after the drive was not
+        #: following CSP targets (disabled, faulted, another mode)
         self.csp_targets: collections.deque = collections.deque(maxlen=20000)
         self._csp_gap = True
         self.emcy_sent: list[int] = []
@@ -536,15 +534,12 @@ class SimDrive:
         self.pdo.apply_sync_rpdos()
         fresh, self._rpdo_since_sync = self._rpdo_since_sync, False
         self.logic.on_sync(fresh)
-        if self.logic.mode in (MODE_CSP, MODE_IP) and self.logic.state is State.OPERATION_ENABLED:
+        if self.logic.mode == MODE_CSP and self.logic.state is State.OPERATION_ENABLED:
             if fresh:
-                record = 0x607A if self.logic.mode == MODE_CSP else 0x60C1
                 self.csp_targets.append((time.monotonic(),
-                                         self.store.get(record, 0 if record == 0x607A else 1)
-                                         / self.params.increments_per_unit, not self._csp_gap))
+                                         self.store.get(0x607A, 0) / self.params.increments_per_unit,
+                                         not self._csp_gap))
                 self._csp_gap = False
-            else:  # a SYNC without a setpoint: the drive bridged it (the next is no step)
-                self._csp_gap = True
         else:
             self._csp_gap = True
         frames = self.pdo.on_sync(time.monotonic())
