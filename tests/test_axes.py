@@ -310,8 +310,12 @@ async def test_cable_wrap_goes_the_allowed_way(live):
     round and never passes a limit."""
     c = await connect(live["port"])
     watcher = await connect(live["port"])
+    vmax = float(await c.get("AZ.CURRSPEED!MAX"))
     try:
         await ready(c, "AZ")
+        # (at 40 of this file's 160 deg/s: the way round is what this test is about, and what a
+        # drive runs on by itself while a loaded host stalls the in-process loop is a quarter)
+        assert done_ok(await c.set("AZ.CURRSPEED=40"), "AZ.CURRSPEED")
         await move(c, "AZ", 150)  # targets resolve to the nearest turn: get there in steps
         await move(c, "AZ", 260)
         assert abs(await c.num("AZ.REALPOS") - 260) <= 0.0005
@@ -323,8 +327,10 @@ async def test_cable_wrap_goes_the_allowed_way(live):
         # (measured positions: an encoder increment of settling, 1e-4°, is no wrong way)
         assert max(seen) <= 260.0 + 0.0005, max(seen)
         # past the target only by the arrival's settling (this file's fast dynamics: 1.1 mdeg
-        # measured once in CI), nowhere near the -270 limit
-        assert min(seen) >= -80.0 - 0.01, min(seen)
+        # measured once in CI) or, when a loaded host stalled the loop during the braking, by
+        # what the drive ran on meanwhile (0.13 deg at 160 deg/s once in CI; the stall itself
+        # is not this test's subject): nowhere near the -270 limit
+        assert min(seen) >= -80.0 - 0.5, min(seen)
         assert any(-10 < x < 250 for x in seen), "did not go the long way"
         assert await c.num("AZ.LIMIT_STATE") == 0
         # a direction the axis already points to is reached without moving (the nearest
@@ -335,6 +341,7 @@ async def test_cable_wrap_goes_the_allowed_way(live):
         lines = await c.set("AZ.TARGETPOS=280")
         assert re.fullmatch(r"\d+ DATA ERROR AZ.TARGETPOS RANGE", lines[1]), lines
     finally:
+        await c.set(f"AZ.CURRSPEED={vmax}")
         await watcher.close()
         await c.close()
 

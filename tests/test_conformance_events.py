@@ -56,6 +56,9 @@ async def test_aborted_command_reused_id_gets_no_late_event(fast):
     await c.command(2, "SET AZ.REINIT=1")
     await c.wait("AZ.REFERENCED", lambda v: float(v) == 1.0, WAIT)
     start = float(await c.value("AZ.REALPOS"))
+    # (at 10 of this file's 160 deg/s the 60 deg move lasts 6 s: on a loaded host the ABORT
+    # still reaches a moving axis, whose stop is what emits the late event)
+    assert (await c.set("AZ.CURRSPEED=10"))[-1].endswith("COMMAND COMPLETE")
     await c.send(f"1 SET AZ.TARGETPOS={start + 60.0}")
     await c.event(r"^1 COMMAND OK$")
     assert (await c.command(3, "ABORT 1"))[-1] == "3 COMMAND COMPLETE"
