@@ -312,16 +312,28 @@ async def test_cable_wrap_goes_the_allowed_way(live):
     watcher = await connect(live["port"])
     vmax = float(await c.get("AZ.CURRSPEED!MAX"))
     try:
-        await ready(c, "AZ")
-        # (at 40 of this file's 160 deg/s: the way round is what this test is about, and what a
-        # drive runs on by itself while a loaded host stalls the in-process loop is a quarter)
+        axis = live["svc"].telescope.axis("AZ")
+        # (at 40 of this file's 160 deg/s: what a drive runs on by itself while a loaded host
+        # stalls the loop is a quarter — at full speed a stall ended in the drive's
+        # following-error stop twice in CI; the way round is what this test is about)
         assert done_ok(await c.set("AZ.CURRSPEED=40"), "AZ.CURRSPEED")
-        await move(c, "AZ", 150)  # targets resolve to the nearest turn: get there in steps
-        await move(c, "AZ", 260)
-        assert abs(await c.num("AZ.REALPOS") - 260) <= 0.0005
-        cmd = await c.start("AZ.TARGETPOS=-80")  # = 280: +20 would cross +270
-        seen = await sample_until_done(c, cmd, watcher, "AZ.REALPOS")
-        lines = await c.until(cmd, WAIT)
+        for attempt in range(4):
+            await ready(c, "AZ")   # (a stall may still have ended in the drive's own stop)
+            await move(c, "AZ", 0)
+            await move(c, "AZ", 150)  # targets resolve to the nearest turn: get there in steps
+            await move(c, "AZ", 260)
+            assert abs(await c.num("AZ.REALPOS") - 260) <= 0.0005
+            resumes = axis.resumes
+            cmd = await c.start("AZ.TARGETPOS=-80")  # = 280: +20 would cross +270
+            seen = await sample_until_done(c, cmd, watcher, "AZ.REALPOS")
+            lines = await c.until(cmd, WAIT)
+            # (a host that stalled the control loop meanwhile — the drive bridged the gap at the
+            # stream's speed and the axis re-anchored: docs/motion.md — left the arrival to the
+            # stall recovery, tested in test_motion_safety and tests/vcan: this file's 160 deg/s
+            # run on for a 30 ms stall ends 1-2 deg past, a longer one may end in the drive's
+            # following-error stop, as it did before the stall recovery; the move is repeated)
+            if axis.resumes == resumes:
+                break
         assert lines[-2:] == [f"{cmd} DATA OK AZ.TARGETPOS", f"{cmd} COMMAND COMPLETE"], lines
         assert abs(await c.num("AZ.REALPOS") + 80) <= 0.0005
         # (measured positions: an encoder increment of settling, 1e-4°, is no wrong way)
@@ -358,13 +370,22 @@ async def test_currspeed_lowers_the_speed(live):
         assert re.fullmatch(r"\d+ DATA ERROR DEROTATOR\[2\].CURRSPEED RANGE", lines[1]), lines
         lines = await c.set("DEROTATOR[2].CURRSPEED=10")
         assert done_ok(lines, "DEROTATOR[2].CURRSPEED")
-        start = await c.num("DEROTATOR[2].REALPOS")
-        target = start + 15 if start < 0 else start - 15
-        t0 = time.monotonic()
-        cmd = await c.start(f"DEROTATOR[2].TARGETPOS={target}")
-        speeds = [abs(v) for v in await sample_until_done(c, cmd, watcher, "DEROTATOR[2].CURRSPEED")]
-        elapsed = time.monotonic() - t0
-        lines = await c.until(cmd, WAIT)
+        axis = live["svc"].telescope.axis_array("DEROTATOR")[2]
+        for attempt in range(4):
+            start = await c.num("DEROTATOR[2].REALPOS")
+            target = start + 15 if start < 0 else start - 15
+            resumes = axis.resumes
+            t0 = time.monotonic()
+            cmd = await c.start(f"DEROTATOR[2].TARGETPOS={target}")
+            speeds = [abs(v) for v in await sample_until_done(c, cmd, watcher, "DEROTATOR[2].CURRSPEED")]
+            elapsed = time.monotonic() - t0
+            lines = await c.until(cmd, WAIT)
+            # (a host that stalled the control loop meanwhile left the speed to the stall
+            # recovery — the drive ran on by itself, the motor rings when the stream rejoins it:
+            # docs/motion.md; the move is repeated)
+            if axis.resumes == resumes:
+                break
+            await ready(c, "DEROTATOR[2]")
         assert done_ok(lines, "DEROTATOR[2].TARGETPOS"), lines
         # a move at 10/s cannot be faster than 1.5 s (at the full 80/s it takes 0.4 s); the
         # measured speed is noisy (it is the drive's velocity), its median over the cruise is not

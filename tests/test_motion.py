@@ -481,3 +481,43 @@ def test_property_setpoints_stay_inside_limits(lo, width, frac, v, a, cyclic, cm
     check_dynamics(stream, AZ, amax=AZ.stop_acceleration, jmax=AZ.stop_jerk, start=start,
                    unwind_at=unwind_at)
     assert not planner.moving
+
+
+# the hw_alpaca ZD: 40°/s, 80°/s², jerk 600, stop deceleration 160 (jerk 1200)
+ZD_FAST = AxisDynamics(40.0, 80.0, 600.0, quick_stop_acceleration=160.0, quick_stop_jerk=1200.0)
+
+
+@pytest.mark.parametrize("below,gap,reachable", [
+    (28.0, 0.03, True), (28.0, 0.05, True), (20.0, 0.03, True), (20.0, 0.05, False),
+    (10.0, 0.03, False)])
+def test_a_gap_while_braking_to_a_bound_never_runs_past_it(below, gap, reachable):
+    """A MoveAxis brakes to its bound (the horizon, 75°); the stream stops for ``gap`` s once
+    braking is under way (speed below ``below``) and the drive runs on at the stream's speed
+    meanwhile (extrapolating). Re-anchored there (:meth:`MotionPlanner.resume`), the move
+    brakes to the bound with at most the stop deceleration and does not pass it — planned
+    again with the normal deceleration from zero acceleration it ran to 77.7° after 30 ms and
+    came back. Where even the stop deceleration cannot stop there any more (the drive ran on
+    too far: ``reachable`` False), it stops with it at once (no further than such a stop) and
+    moves back to the bound; never more than the stop deceleration."""
+    planner = MotionPlanner(ZD_FAST, SoftLimits(-85.0, 85.0), DT, position=30.0)
+    planner.move_to(75.0, 30.0)
+    while not (planner.setpoint.position > 60.0 and 0 < planner.setpoint.velocity < below):
+        planner.step()
+    sp = planner.setpoint
+    # (the drive: the gap, and the cycle to the SYNC that latches the first setpoint after it)
+    anchor = Setpoint(sp.position + sp.velocity * (gap + DT), sp.velocity)
+    quick = ProfileSolver(DT).stop(Setpoint(anchor.position, anchor.velocity, sp.acceleration),
+                                   max_velocity=40.0, max_acceleration=160.0, max_jerk=1200.0)
+    assert (quick.at_time(quick.duration)[0][0] <= 75.0) == reachable
+    planner.resume(anchor)
+    after = run(planner)
+    positions = [s.position for s in after]
+    top = 75.0 if reachable else quick.at_time(quick.duration)[0][0]
+    assert max(positions) <= top + 1e-9, (max(positions), top)
+    assert planner.setpoint.position == pytest.approx(75.0, abs=1e-9)
+    steps = [b - a for a, b in zip([anchor.position] + positions, positions)]
+    turned = next((i for i, d in enumerate(steps) if d < -1e-12), len(steps))
+    assert reachable == (turned == len(steps))    # (back only after a stop past the bound)
+    assert all(d <= 1e-12 for d in steps[turned:])
+    decel = max((a - b) / DT ** 2 for a, b in zip(steps[:turned], steps[1:turned]))
+    assert decel <= ZD_FAST.stop_acceleration * (1 + 1e-6), decel

@@ -169,6 +169,15 @@ def targets(live, ax: str) -> list[float]:
     return [p for _, p, _ in sim(live, ax).csp_targets]
 
 
+def bridged(records) -> float:
+    """The longest time a drive bridged by itself in its CSP ``records`` (a SYNC that came
+    without a setpoint: the host stalled, tcs.drivers.cycle drops a stale one): from the last
+    target before such a gap to the first after it, s; 0 without one."""
+    records = list(records)
+    return max((t1 - t0 for (t0, _, _), (t1, _, cont) in zip(records, records[1:]) if not cont),
+               default=0.0)
+
+
 def against(values: list[float], sign: int) -> list[tuple[float, float]]:
     """Consecutive pairs of ``values`` that step against ``sign``."""
     return [(a, b) for a, b in zip(values, values[1:]) if sign * (b - a) < -1e-9]
@@ -238,23 +247,35 @@ async def test_a_slower_moveaxis_slows_the_axis_down_without_stepping_back(live)
 async def test_moveaxis_altitude_raises_and_stops_at_the_horizon(live):
     """Axis 1 of the alt-az mount is altitude: a positive rate decreases ZD (raises the tube)
     up to the zenith; a negative rate lowers it and stops at the altitude limit SlewToAltAz
-    keeps (15° here), not at the mechanical ZD limit of 85°."""
+    keeps (15° here), not at the mechanical ZD limit of 85°.
+
+    A run the host stalled in (a SYNC the drive bridged by itself, running on at the stream's
+    speed: it may pass the bound before the TCS is back, which then stops and returns) is
+    repeated; a gap while braking at the horizon has its own test below."""
     c = await connect(live)
     try:
         await ready(live, c, "AZ", "ZD")
-        await goto(c, "ZD", 30.0)
-        sim(live, "ZD").csp_targets.clear()
-        assert (await aput(live, "moveaxis", Axis=1, Rate=10.0))["ErrorNumber"] == 0
-        await moves_until(live, "ZD", lambda p: p < 25.0, "rising")
-        await at_rest(c, "ZD")  # runs to the zenith and stops there
+        for attempt in range(3):
+            await goto(c, "ZD", 30.0)
+            sim(live, "ZD").csp_targets.clear()
+            assert (await aput(live, "moveaxis", Axis=1, Rate=10.0))["ErrorNumber"] == 0
+            await moves_until(live, "ZD", lambda p: p < 25.0, "rising")
+            await at_rest(c, "ZD")  # runs to the zenith and stops there
+            if not bridged(sim(live, "ZD").csp_targets):
+                break
         assert against(targets(live, "ZD"), -1) == []
         assert abs(sim(live, "ZD").position) < 0.01
         limit = 90.0 - live.telescope.pointing.config.min_altitude
-        sim(live, "ZD").csp_targets.clear()
-        with Sampler(sim(live, "ZD")) as s:
-            assert (await aput(live, "moveaxis", Axis=1, Rate=-30.0))["ErrorNumber"] == 0
-            await moves_until(live, "ZD", lambda p: p > 5.0, "lowering")
-            await at_rest(c, "ZD")
+        for attempt in range(3):
+            if attempt:
+                await goto(c, "ZD", 0.0)
+            sim(live, "ZD").csp_targets.clear()
+            with Sampler(sim(live, "ZD")) as s:
+                assert (await aput(live, "moveaxis", Axis=1, Rate=-30.0))["ErrorNumber"] == 0
+                await moves_until(live, "ZD", lambda p: p > 5.0, "lowering")
+                await at_rest(c, "ZD")
+            if not bridged(sim(live, "ZD").csp_targets):
+                break
         assert against(targets(live, "ZD"), 1) == []
         assert max(targets(live, "ZD")) <= limit + 1e-9, (max(targets(live, "ZD")), limit)
         assert max(s.positions) <= limit + 0.05, (max(s.positions), limit)  # (motor settling)
@@ -266,6 +287,59 @@ async def test_moveaxis_altitude_raises_and_stops_at_the_horizon(live):
         await moves_until(live, "ZD", lambda p: p < limit - 1.0, "rising again")
         assert (await aput(live, "moveaxis", Axis=1, Rate=0))["ErrorNumber"] == 0
         await at_rest(c, "ZD")
+    finally:
+        await c.close()
+
+
+async def test_a_stall_while_moveaxis_brakes_at_the_horizon_never_passes_it(live):
+    """Issue 39 item 6 with the horizon bound: while a MoveAxis lowering ZD at 30°/s brakes to
+    the altitude limit, the control loop is held once for 33 ms (a cycle callback that sleeps:
+    no SYNC, no setpoint; the drive runs on at the stream's speed). The axis re-anchors where
+    the drive is and brakes to the bound with up to the stop deceleration: no CSP target past
+    it, none back (re-planned with the normal deceleration from zero acceleration it ran to
+    76.5–77.7° and came back). A hold the host stretched past what the stop deceleration can
+    still meet (the drive itself then passes the bound: 90 ms and more here) is repeated, up to
+    eight times (never held so: skipped, with each try's figures)."""
+    c = await connect(live)
+    t = live.telescope
+    zd = t.axis("ZD")
+    source = t.control_loop.source
+    limit = 90.0 - t.pointing.config.min_altitude
+    state = {"armed": False}
+
+    def hold(cycle) -> None:
+        sp = zd.planner.setpoint
+        if state["armed"] and sp.position > 60.0 and 0.0 < sp.velocity < 28.0:
+            state["armed"] = False
+            time.sleep(0.033)   # (three SYNC slots: the held setpoint is dropped; a loaded
+            # host stretches it: 30 ms asked came back as 50+, then the attempt is repeated)
+    try:
+        await ready(live, c, "AZ", "ZD")
+        tries = []
+        for attempt in range(8):
+            await goto(c, "ZD", 30.0)
+            resumes = zd.resumes
+            sim(live, "ZD").csp_targets.clear()
+            source.add_callback(hold)
+            state["armed"] = True
+            try:
+                assert (await aput(live, "moveaxis", Axis=1, Rate=-30.0))["ErrorNumber"] == 0
+                await moves_until(live, "ZD", lambda p: p > 35.0, "lowering")
+                await at_rest(c, "ZD")
+            finally:
+                source.remove_callback(hold)
+            gap = bridged(sim(live, "ZD").csp_targets)
+            tries.append((not state["armed"], zd.resumes - resumes, round(gap, 3)))
+            # (the drive bridged under 75 ms: 28 deg/s run on from 5 deg before the bound can still
+            # be stopped there with the stop deceleration — 70 ms was, 90 ms ran 0.36 deg past)
+            if not state["armed"] and zd.resumes > resumes and gap < 0.075:
+                break
+        else:   # (held, resumes, the drive's longest bridged gap) of every try
+            pytest.skip(f"the host never held the loop for 30-75 ms while ZD braked: {tries}")
+        commanded = targets(live, "ZD")
+        assert max(commanded) <= limit + 1e-9, (max(commanded), limit)
+        assert against(commanded, 1) == [], against(commanded, 1)[:5]
+        assert sim(live, "ZD").position == pytest.approx(limit, abs=0.01)
     finally:
         await c.close()
 
@@ -286,7 +360,8 @@ async def test_moveaxis_keeps_the_operators_currspeed(live):
         sim(live, "AZ").csp_targets.clear()
         # a direct 10° move (goto() would go by 0 first: 230° at the 5°/s under test, 46 s)
         assert done_ok(await c.set(f"AZ.TARGETPOS={round(here + 10.0, 3)}", WAIT), "AZ.TARGETPOS")
-        steps = [b - a for a, b in zip(targets(live, "AZ"), targets(live, "AZ")[1:])]
+        recs = list(sim(live, "AZ").csp_targets)  # (steps between consecutive SYNCs' targets)
+        steps = [b - a for (_, a, _), (_, b, cont) in zip(recs, recs[1:]) if cont]
         period = live.telescope.control_loop.source.period
         assert max(steps) / period <= 5.0 * (1 + 1e-6), max(steps) / period  # (full speed: 60)
     finally:
@@ -506,13 +581,21 @@ async def test_late_cycles_never_send_more_than_the_speed_and_acceleration_limit
             loop.source.remove_callback(late)
         assert lines[-1].endswith("COMMAND COMPLETE"), lines
         await at_rest(c, "AZ")
-        targets = [p for _, p, _ in drive.csp_targets]
+        records = list(drive.csp_targets)
+        targets = [p for _, p, _ in records]
         assert len(targets) > 300
-        steps = [b - a for a, b in zip(targets, targets[1:])]
+        # (steps between targets latched at consecutive SYNCs: a SYNC a late cycle's setpoint
+        # missed — dropped, tcs.drivers.cycle — goes without one, the drive bridges it, and the
+        # next target is no step of the stream: its own re-anchored start, tests/vcan/
+        # test_stall_recovery.py)
+        steps = [b - a if cont else None for (_, a, _), (_, b, cont) in zip(records, records[1:])]
         vmax = 60.0
-        assert max(abs(s) for s in steps) <= vmax * period * (1 + 1e-5) + 1e-5, max(map(abs, steps))
+        assert max(abs(s) for s in steps if s is not None) <= vmax * period * (1 + 1e-5) + 1e-5, \
+            max(abs(s) for s in steps if s is not None)
         section = live.telescope.axis("AZ").section
         for a, b in zip(steps, steps[1:]):
+            if a is None or b is None:
+                continue
             speeding_up = abs(b) > abs(a) and a * b >= 0
             limit = section.max_acceleration if speeding_up else section.stop_deceleration
             # (+ 2 increments: the drive receives whole increments)
@@ -672,11 +755,15 @@ async def test_random_commands_from_every_front_end_never_move_unasked(live):
                     if (zd0 >= 0) != (zd1 >= 0):
                         sign = 0   # (no direction judged; the horizon still is)
                 window = [(tt, p, cont) for tt, p, cont in records if t0 <= tt < t_end]
+                # (judged up to a SYNC the drive bridged by itself, the host stalled: running
+                # on at the stream's speed it may pass the move's end before the TCS is back,
+                # which then stops there and returns — the stall tests judge that case:
+                # test_a_stall_while_moveaxis_brakes_at_the_horizon_never_passes_it,
+                # tests/vcan/test_stall_recovery.py)
+                gap = next((k for k, (_, _, cont) in enumerate(window) if k and not cont), None)
+                window = window[:gap]
                 went = False
-                for (ta, pa, _), (tb, pb, cont) in (zip(window, window[1:]) if sign else ()):
-                    if not cont:
-                        went = False
-                        continue
+                for (ta, pa, _), (tb, pb, _) in (zip(window, window[1:]) if sign else ()):
                     if sign * (pb - pa) > 1e-9:
                         went = True
                     elif went and sign * (pb - pa) < -BACKSTEP:

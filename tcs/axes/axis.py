@@ -30,6 +30,16 @@ of the command that started a motion (``abort_request``, matched by the command'
 ``move_toward`` (Alpaca MoveAxis) runs to a drive-frame end at its own speed, never the other
 way; every sent setpoint step is cut to the speed and acceleration limits (``_limit_step``).
 
+After a gap (the control loop says ``cycle_resumed``: the setpoints of the cycle before did not
+reach the drive on time — this process stalled or was starved) the drive has bridged the gap by
+itself, holding or extrapolating its demand (docs/motion.md, "Stall recovery"). The axis then
+*re-anchors* (:meth:`_resume`) before its next setpoint: on the drive's demand of this cycle's
+readback (position actual + following error 0x60F4; in CSV the actual position) moving at the
+speed the demand moved at over the gap; the planner is planned again from there to its goal
+(the follower samples its path by time anyway), and the steps from the re-anchored demand on
+stay within the axis's limits — never from the setpoint last *sent*, which would pull the
+drive back.
+
 Discrete axes (FILTER, MIRROR) move between configured positions with profile-position moves
 of the drive; their positions are the integer keys of ``[axes.<name>].positions``.
 """
@@ -197,6 +207,12 @@ class AxisTrajectory:
         return self.axis.follower.runtime(self.axis.ut1()) if self.axis.follower else 0.0
 
 
+#: after a gap the readback decides the drive held its last target (rather than extrapolated
+#: at the stream's speed) when its demand lies within this share of the way from that target
+#: to the extrapolated stream (:meth:`Axis._resume`)
+HELD_SHARE = 0.25
+
+
 class Axis(ModuleHealth):
     """One OpenTCI axis module bound to one drive.
 
@@ -245,6 +261,10 @@ class Axis(ModuleHealth):
                                      quick_stop_jerk=section.max_jerk * max(stop, section.max_acceleration)
                                      / section.max_acceleration)
         self.planner = MotionPlanner(self.dynamics, self.limits, dt)
+        limit_motion = getattr(drive, "limit_motion", None)
+        if limit_motion is not None:  # (a CSV drive's own position loop: the axis's limits)
+            limit_motion(section.max_velocity, section.max_acceleration,
+                         self.dynamics.quick_stop_acceleration)
         # a drive at rest reports a velocity of a few increments/s (encoder noise): below the
         # tolerance per second it counts as standing still (MOTION_STATE bit 0)
         self._standstill = max(section.tolerance, 1e-9)
@@ -288,6 +308,21 @@ class Axis(ModuleHealth):
         self._settle_started = False
         self._reference_cause = None  # the REINIT that started homing (events 19/20 name it)
         self._sp = Setpoint(0.0)
+        #: set by the control loop before each cycle: the setpoints of the cycle before did not
+        #: reach the drive on time (Cycle.resumed)
+        self.cycle_resumed = False
+        self.cycle_fresh = True   # every synchronous TPDO of this cycle came (the readback is new)
+        self.cycle_periods = 1    # SYNC periods since the previous cycle (more after a gap)
+        self._fresh_before = True  # and of the cycle before
+        #: the monotonic times of this cycle's SYNC and of the next one (set by the loop)
+        self.cycle_times: tuple[float, float] | None = None
+        #: (monotonic time of the SYNC that latched it, target): the last target the drive
+        #: surely latched (a re-anchor never puts its demand behind it, :meth:`_resume`)
+        self._latched: tuple[float, float] | None = None
+        self._sent_reach = 0.0  # UT1 at which the drive reaches _sent (the cycle's t)
+        self.resumes = 0  # re-anchorings after gaps (_resume)
+        self._resumed_planner = False  # the planner was re-planned from the anchor this cycle
+        self._last_demand: tuple[float, float] | None = None  # (SYNC UT1, drive demand) last cycle
         self._sent: float | None = None  # the last setpoint sent (for _limit_step)
         self._sent_velocity = 0.0        # and its step / T
         self.clamped_steps = 0  # setpoint steps cut to the velocity limit
@@ -705,17 +740,119 @@ class Axis(ModuleHealth):
             except TcsError as exc:
                 self._complete(future, exc)
         self._watch_drive(st, now)
+        sync = t if measured is None else measured
+        demand = self._demand(st)
+        if self.cycle_resumed:
+            self._resume(st, t, sync, demand)
+            self._latched = None
+        elif self._sent is not None and self.cycle_times is not None:
+            self._latched = (self.cycle_times[0], self._sent)
         setpoint = self._motion(st, t)
         if setpoint is not None:
             setpoint = self._limit_step(setpoint, st.position, st.velocity)
             self.drive.set_setpoint(setpoint.position, setpoint.velocity)
+            self._sent_reach = t
         else:
-            self._sent = None
+            self._sent, self._latched = None, None
+        if self.cycle_fresh and self._fresh_before:  # (else it may be an older SYNC's)
+            self._last_demand = (sync, demand)
+        self._fresh_before = self.cycle_fresh
         self.drive.step()
-        sync = t if measured is None else measured
         self.sample = (sync, st.position, t, None if setpoint is None else setpoint.position)
         self._publish(st, sync)
         self._flush()
+
+    def _demand(self, st: DriveStatus) -> float:
+        """Where the drive's demand is by this cycle's readback: position actual + following
+        error (0x60F4 = demand − actual) in CSP/IP; the actual position in CSV (the drive has
+        no position demand there; the following error is the TCS's own)."""
+        if st.mode == Mode.CSV or not math.isfinite(st.following_error):
+            return st.position
+        return st.position + st.following_error
+
+    def _resume(self, st: DriveStatus, t: float, sync: float, demand: float) -> None:
+        """The cycle after a gap: re-anchor the base of :meth:`_limit_step` on where the
+        drive's demand really is.
+
+        The drive bridged the gap by itself (held its last setpoint, extrapolated it at the
+        stream's speed, or in CSV kept its last velocity), and the setpoint made before the
+        gap never reached it (the cycle source dropped it). Both bridgings are known exactly
+        from the stream itself: extrapolated, the demand is the last setpoint sent carried on
+        at its speed to this SYNC; held, it is the last target the drive latched. The base
+        becomes the one of the two this readback's demand (position actual + following error
+        0x60F4) says — "held" only when the demand lies within :data:`HELD_SHARE` of the way
+        from the held target to the extrapolated stream, since a readback that lags the gap on
+        a busy host looks like a hold — carried on to the next SYNC (which latches this
+        cycle's setpoint). A drive that held while its motor ran on past the target (braking
+        at its own limit) is joined where the motor is (no step back for the motor); in CSV
+        the base is the actual position and velocity. The readback is used only when this
+        cycle's and the previous cycle's synchronous TPDOs all came in time; without it the
+        base is the extrapolated stream — exact for a drive that extrapolates, ahead of one
+        that held (a step forwards, never back). From that base the step to
+        the planner's or follower's setpoint is cut to the axis's speed, acceleration and
+        stop deceleration (:meth:`_limit_step`); the planner is planned again from the anchor
+        (:meth:`MotionPlanner.resume`), the follower's path is sampled by time and met by
+        the step limit's catch-up. Nothing to do while no setpoint streams."""
+        if self._sent is None or not st.enabled or self._homing or self.discrete:
+            return
+        last = self._last_demand
+        vmax = self.dynamics.max_velocity
+        trusted = self.cycle_fresh and self._fresh_before
+        way = 1.0 if self._sent_velocity >= 0 else -1.0
+        interval = self.dt if self.cycle_times is None else self.cycle_times[1] - self.cycle_times[0]
+        interval = max(0.0, interval)
+        # the two things a drive does without setpoints, each known exactly from the stream:
+        # it extrapolated at the stream's speed (E), or it held the last target it latched (H)
+        velocity, how = self._sent_velocity, "extrapolated setpoint"
+        # (a drive extrapolates for its RPDO deadline at most, then stops by itself: a gap
+        # longer than that is its fault reaction's, and the stream goes on from where the
+        # extrapolation ended — a drive whose own clock stalled with this host's, as the
+        # in-process simulator's does, bridged no longer either)
+        bridged = max(0.0, sync - self._sent_reach)
+        bound = getattr(self.drive, "bridging_limit", None)
+        if bound is not None:
+            bridged = min(bridged, bound)
+        position = self._sent + velocity * bridged
+        held = self._latched[1] if self._latched else self._sent
+        if trusted and st.mode == Mode.CSV:
+            position, velocity, how = st.position, st.velocity, "actual position"
+        elif (trusted and math.isfinite(st.following_error)
+              and abs(demand - held) < HELD_SHARE * abs(position - held)):
+            # the readback says it held: join the motor where it is if it ran on past the
+            # target while braking at its own limit (no step back for it), else the target
+            if way * (st.position - held) > 0.0 and way * st.velocity >= 0.0:
+                position, velocity, how = st.position, st.velocity, "motor (the drive held)"
+            else:
+                position, velocity, how = held, 0.0, "held target"
+        elif st.mode != Mode.CSV and math.isfinite(demand) and self._sent_velocity != 0.0:
+            # on from the drive's demand at the stream's speed, the demand taken no further
+            # than the two bridgings allow (from the held target to the stream extrapolated):
+            # a drive whose own clock stalled with this host (the in-process simulator, which
+            # leaves its own stalls out of its physics) bridged only part of the gap, and the
+            # extrapolated stream would be a jump ahead of it — 47-51 deg after 0.29-0.36 s
+            # stalls at 130-160 deg/s, following-error stops. After a stall of this process the
+            # readback is often not fresh (the TPDOs of the SYNC before the gap): the latest
+            # there is, within those bounds, a step back of its age at most
+            lo, hi = sorted((held, position))
+            joined = min(hi, max(lo, demand))
+            if joined != position:
+                position, how = joined, "demand (it bridged part of the gap)"
+        # (the readback only chooses between the two, and says "held" only when it is near the
+        # held target: on a busy host a readback mixes TPDOs or lags the gap — a speed measured
+        # over the gap was off by 1.5 deg/s and a stream re-anchored on it ran 0.5 deg past a
+        # horizon bound it braked to; a stale one looks like a hold)
+        velocity = max(-vmax, min(vmax, velocity))
+        anchor = Setpoint(position + velocity * interval, velocity)
+        log.info("%s: a gap of %.3f s in the setpoint stream; re-anchored on the drive's %s "
+                 "%.5f at %.4f/s (the stream had sent %.5f; the readback: demand %.5f, motor "
+                 "%.5f at %.4f/s%s)", self.module_name,
+                 sync - last[0] if last else float("nan"), how, position, velocity, self._sent,
+                 demand, st.position, st.velocity, "" if trusted else ", not fresh")
+        self._sent, self._sent_velocity = anchor.position, velocity
+        self.resumes += 1
+        if not self._running:  # (a move goes on from the drive, not back to the old profile)
+            self.planner.resume(anchor)
+            self._resumed_planner = True
 
     def _limit_step(self, sp: Setpoint, measured: float, measured_velocity: float = 0.0) -> Setpoint:
         """The last line of the speed and acceleration limits: the drive interpolates from one
@@ -1172,7 +1309,12 @@ class Axis(ModuleHealth):
                     self._resolve("run")
                 self.planner.take_over(self._sp)
         else:
-            self._sp = self.planner.step()
+            # (after a gap the planner moves on by the SYNC periods that passed: the drive
+            # bridged them, so its path goes on from where the drive is, not one step after
+            # the last setpoint sent)
+            periods = self.cycle_periods if self.cycle_resumed and not self._resumed_planner else 1
+            self._resumed_planner = False
+            self._sp = self.planner.step(periods)
             if self.planner.softlimit is not None and ("target" in self._pending or "offset" in self._pending):
                 self._fail_motion(TcsError(f"{self.module_name}: software limit {self.planner.softlimit}",
                                            ErrorNumber.SOFTLIMIT))

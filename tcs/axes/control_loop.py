@@ -76,6 +76,7 @@ class ControlLoop:
         self.clock = clock
         self.errors = 0
         self.cycles = 0
+        self.resumes = 0  # cycles after a gap (Cycle.resumed): the axes re-anchored
         self.last_cycle = 0.0
         self.max_step = 0.0
         self.setpoint_ut1 = self.measured_ut1 = 0.0
@@ -116,7 +117,17 @@ class ControlLoop:
         measured = ut1 + (cycle.sync_time - at)  # the drives sampled their position at SYNC
         #: for observers (tests, diagnostics): this cycle's setpoint and measurement times
         self.setpoint_ut1, self.measured_ut1 = t, measured
+        # (after a gap the axes re-anchor on their drives' readback; the interval to the next
+        # SYNC bounds the next setpoint step: tcs.axes.axis, "Stall recovery" in docs/motion.md)
+        resumed, times = cycle.resumed, (cycle.sync_time, cycle.next_sync)
+        periods = 1
+        if cycle.previous_sync is not None:
+            periods = max(1, round((cycle.sync_time - cycle.previous_sync) / self.source.period))
+        if resumed:
+            self.resumes += 1
         for axis in self.axes:
+            axis.cycle_resumed, axis.cycle_times = resumed, times
+            axis.cycle_fresh, axis.cycle_periods = cycle.tpdos_complete, periods
             try:
                 axis.cycle(t, now, measured)
             except Exception:
@@ -154,6 +165,7 @@ class ControlLoop:
         s = self.source.stats()
         return {"cycles": s.cycles, "late": s.late, "missed": s.missed,
                 "tpdo_timeouts": s.tpdo_timeouts, "errors": self.errors,
+                "resumes": self.resumes, "dropped": s.dropped,
                 "max_step_ms": self.max_step * 1e3, "max_lateness": self.source.max_lateness,
                 "realtime": int(self.source.realtime), "period": self.source.period,
                 "sync_divider": self.source.divider,

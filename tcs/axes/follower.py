@@ -295,7 +295,9 @@ class TrajectoryFollower:
         state = self._state
         t_last = self._t_last
         self._t_last = t
-        dt = t - t_last if t_last is not None and 0.0 < t - t_last < 10 * self.dt else self.dt
+        # (the time since the last step: longer after a gap in the cycle, up to the longest
+        # a drive bridges before it stops by itself)
+        dt = t - t_last if t_last is not None and 0.0 < t - t_last < 100 * self.dt else self.dt
         if state is FollowerState.IDLE or state is FollowerState.ENDED:
             return FollowStep(Setpoint(current.position), _NO_EVENTS)
         events: list = []

@@ -26,6 +26,9 @@ States (``PlannerState``) and what moves between them::
                move's speed (a slower MoveAxis)                     first, never the other way)
     SLOWING    at the move's speed                     MOVING      (the pending goal)
     any        stop(quick)                             STOPPING    (target := where it will rest)
+    MOVING     resume(anchor) after a gap              MOVING      (from the anchor; braking up
+                                                                    to the stop deceleration
+                                                                    not to pass the goal)
     any        take_over(moving setpoint)              STOPPING    (normal deceleration)
     STOPPING   at rest                                 IDLE
     any        a setpoint beyond a limit (guard)       LIMIT       (braking to rest at the limit,
@@ -50,6 +53,7 @@ from tcs.axes.profile import (
     AxisDynamics,
     ProfileSolver,
     checked_speed,
+    extrema,
     Setpoint,
     sample,
     theoretical_minimum_time,
@@ -305,10 +309,104 @@ class MotionPlanner:
         else:
             self.stop(quick=False)
 
+    def resume(self, setpoint: Setpoint) -> None:
+        """After a gap in the setpoint stream (the drive bridged it by itself): go on from
+        ``setpoint`` — where the drive's demand really is — to the same goal within the
+        limits: a move is planned again from there (braking first if it would now cross a
+        limit), a stop stops from there with the stop deceleration; never chased back to the
+        path computed before the gap.
+
+        A move that was braking to its goal when the gap came is ahead of its path now (the
+        drive ran on at the stream's speed meanwhile, and the anchor starts at zero
+        acceleration): planned again with the normal deceleration it would run past its goal
+        and come back — a MoveAxis lowering ZD ran 2.7° below its horizon bound after a
+        30 ms gap. The goal is a bound (the horizon, the envelope's end of a MoveAxis), so
+        such a move brakes to it instead with the least deceleration that stops there, up to
+        the stop deceleration (:meth:`_brake_to`); only a gap so long that even that runs
+        past it stops at once (quick stop) and comes back to the goal afterwards."""
+        state = self._state
+        if state is PlannerState.IDLE and setpoint.at_rest:
+            return
+        # (a path that was braking goes on braking as hard as it did: the drive's demand ran
+        # on at its speed through the gap, and a deceleration unwound to zero would first
+        # have to build up again at the jerk limit — 0.13 s at 28°/s, 1.9° more for ZD)
+        before = self._sp
+        braking = (state is not PlannerState.IDLE and before.acceleration * setpoint.velocity < 0.0
+                   and before.velocity * setpoint.velocity > 0.0)
+        acc = max(-self.dynamics.stop_acceleration,
+                  min(self.dynamics.stop_acceleration, before.acceleration)) if braking else 0.0
+        self._sp = Setpoint(setpoint.position, setpoint.velocity, acc)
+        goal = None
+        if state is PlannerState.MOVING:
+            goal = self.demanded_target
+        elif state in (PlannerState.BRAKING, PlannerState.SLOWING) and self._pending is not None:
+            # (braking or slowing down before the move: plan it from there, which brakes or
+            # slows down first again if it still has to)
+            goal = self._pending
+        if goal is None:
+            softlimit = self._softlimit
+            self.stop(quick=True)
+            self._softlimit = softlimit
+            return
+        self._plan_to(goal, self._pending_speed)
+        if self._state is PlannerState.MOVING and self._passes(self._traj, self._sp, goal):
+            self._brake_to(self._sp, goal)
+
+    @staticmethod
+    def _passes(traj, sp: Setpoint, goal: float) -> bool:
+        """``traj`` from ``sp``, heading for ``goal``, runs past it on the way."""
+        way = goal - sp.position
+        if traj is None or way * sp.velocity <= 0.0:
+            return False
+        lo, hi = extrema(traj)
+        tol = 1e-9 * max(1.0, abs(goal))
+        return hi > goal + tol if way > 0 else lo < goal - tol
+
+    def _brake_to(self, sp: Setpoint, goal: float) -> None:
+        """From ``sp`` heading for ``goal`` too fast to stop there with the normal deceleration:
+        brake to rest on ``goal`` with the least deceleration (between the normal one and the
+        stop deceleration, its jerk scaled alike) that does, never faster than now (MOVING);
+        when even the stop deceleration runs past it, stop with it (BRAKING) and move back to
+        ``goal`` afterwards."""
+        d = self.dynamics
+        a0, a1 = d.max_acceleration, d.stop_acceleration
+        j0, j1 = d.max_jerk, d.stop_jerk
+        vmax = max(d.max_velocity, abs(sp.velocity))
+        way = 1.0 if goal > sp.position else -1.0
+
+        def limits(a: float) -> tuple[float, float]:
+            share = 1.0 if a1 <= a0 else (a - a0) / (a1 - a0)
+            return a, j0 + (j1 - j0) * share
+
+        def stops_short(a: float) -> bool:
+            acc, jerk = limits(a)
+            rest = self._solver.stop(sp, max_velocity=vmax, max_acceleration=acc, max_jerk=jerk,
+                                     discrete=False)
+            return (goal - sample(rest, rest.duration)[0]) * way >= 0.0
+
+        if stops_short(a1):
+            lo, hi = a0, a1
+            for _ in range(24):   # (bisection: the least deceleration that stops in time)
+                mid = 0.5 * (lo + hi)
+                lo, hi = (lo, mid) if stops_short(mid) else (mid, hi)
+            acc, jerk = limits(hi)
+            traj = self._solver.move(sp, goal, max_velocity=max(abs(sp.velocity), 1e-9),
+                                     max_acceleration=acc, max_jerk=jerk)
+            if not self._passes(traj, sp, goal) and self._guard.crossing(traj, sp.position) is None:
+                self._start(traj, PlannerState.MOVING, goal)
+                return
+        traj = self._solver.stop(sp, max_velocity=vmax, max_acceleration=a1, max_jerk=j1)
+        side = self._guard.crossing(traj, sp.position)
+        if side is not None:
+            traj, _ = self._guard.brake_profile(sp, side)
+        self._start(traj, PlannerState.BRAKING, sample(traj, traj.duration)[0])
+        self._pending = goal
+
     # -- the cycle ---------------------------------------------------------------------------
 
-    def step(self) -> Setpoint:
-        """Advance one control cycle and return the setpoint to send."""
+    def step(self, periods: int = 1) -> Setpoint:
+        """Advance one control cycle — ``periods`` cycles' time after a gap in the cycle (the
+        drive bridged them) — and return the setpoint to send."""
         state = self._state
         prev = self._sp
         if state is PlannerState.IDLE:
@@ -322,7 +420,7 @@ class MotionPlanner:
                 return sp
             self._sp = sp
             return sp
-        self._k += 1
+        self._k += max(1, int(periods))
         finished = self._k >= self._n
         if finished:
             proposed = Setpoint(self._end, self._end_velocity, 0.0, -prev.acceleration / self.dt)

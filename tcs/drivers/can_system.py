@@ -275,7 +275,7 @@ class CanDrives:
         now = self._clock()
         step = self.cycle.period * self.cycle.divider
         for drive in self.drives.values():
-            drive.note_cycle(now, step)
+            drive.note_cycle(now, step, cycle)
 
     def _on_bus_error(self, error: TcsError) -> None:
         """Bus health changed (notifier thread): bus-off / error passive fault every drive."""

@@ -222,6 +222,9 @@ class CanBus:
         self._closing = threading.Event()
         self._reconnector: threading.Thread | None = None
         self._failures_in_row = 0
+        #: frames sent from this thread are held in this list instead (CycleSource: the
+        #: cycle's RPDOs go out just before the SYNC that latches them, see tcs.drivers.cycle)
+        self._held: tuple[int, list] | None = None
         self._reopening = False
         self.reconnects = 0
 
@@ -404,7 +407,12 @@ class CanBus:
 
     # ---------------------------------------------------------------- sending
     def send(self, cob_id: int, data: bytes) -> None:
-        """Send one frame (any thread). A failure is recorded and raised as CommunicationError."""
+        """Send one frame (any thread). A failure is recorded and raised as CommunicationError.
+        From the thread :meth:`hold_sends` names, the frame is kept for the cycle source."""
+        held = self._held
+        if held is not None and held[0] == threading.get_ident():
+            held[1].append((cob_id, bytes(data)))
+            return
         bus = self.bus
         if bus is None:
             raise CommunicationError(self.name, "bus is closed")
@@ -423,6 +431,11 @@ class CanBus:
                 self._broken.set()
             raise error from exc
         self._failures_in_row = 0
+
+    def hold_sends(self, frames: list | None) -> None:
+        """From now on the calling thread's :meth:`send` appends ``(cob_id, data)`` to
+        ``frames`` instead of sending (None: sends go out again). The cycle runner only."""
+        self._held = None if frames is None else (threading.get_ident(), frames)
 
     # ---------------------------------------------------------------- health
     def health(self) -> BusHealth:

@@ -183,7 +183,12 @@ class Cia402Drive:
         self._velocity_ff = 0
         # CSV: the position loop closed here (feed-forward + PI), following-error supervision
         self._period = can.sync_period
-        self._csv_targets: list[int] = []      # targets of the last cycles (increments)
+        self._csv_targets: list[tuple[float, int]] = []  # (when reached, target) of the last cycles
+        self._sync_times: tuple[float, float] | None = None  # this cycle's SYNC and the next one's
+        self._resumed = False                  # this cycle follows a gap (Cycle.resumed)
+        #: the axis's own limits (limit_motion): velocity, acceleration, deceleration; None:
+        #: the drive table's (max_velocity, max_acceleration)
+        self._motion_limits: tuple[float, float, float] | None = None
         self._csv_integral = 0.0               # user units/s
         self._csv_velocity = 0.0               # last command, user units/s
         self._csv_error = 0.0                  # following error, user units
@@ -222,6 +227,16 @@ class Cia402Drive:
         self.layouts = pdos
         self._rpdos = sorted((p for p in pdos.values() if p.receive), key=lambda p: p.number)
         self._code_mapped = any(0x603F in p.indices for p in pdos.values())
+
+    @property
+    def bridging_limit(self) -> float | None:
+        """The longest the drive bridges missing setpoints by itself, s: the RPDO deadline the
+        boot writes (``master_loss_timeout``, default 3 SYNC periods; 0x1400+n:5) — past it
+        the drive stops per 0x6007. None: no deadline (the drive holds or runs on unbounded)."""
+        timeout = self.section.master_loss_timeout
+        if timeout is None:
+            timeout = 3 * self._can.sync_period
+        return timeout if timeout > 0 else None
 
     @property
     def referenced_by_configuration(self) -> bool:
@@ -781,11 +796,16 @@ class Cia402Drive:
             cw |= sm.CW_HALT
         self._send(cw, target)
 
-    def note_cycle(self, now: float, step: float = 0.0) -> None:
+    def note_cycle(self, now: float, step: float = 0.0, cycle=None) -> None:
         """The cycle thread starts a cycle (before anything reads this drive's status in it):
         a cycle more than :data:`HOST_STALL` after the previous one *was due* means this
         process stalled (see the docstring); ``step`` is the time between SYNCs now (longer
-        under the idle SYNC, :mod:`tcs.drivers.idle_sync`)."""
+        under the idle SYNC, :mod:`tcs.drivers.idle_sync`); ``cycle`` the
+        :class:`~tcs.drivers.cycle.Cycle` (its SYNC times, whether it follows a gap: the CSV
+        loop works in real time)."""
+        if cycle is not None:
+            self._sync_times = (cycle.sync_time, cycle.next_sync)
+            self._resumed = cycle.resumed
         last, self._last_step = self._last_step, now
         # (the longer of the steps before and now: the SYNC may have slowed or sped up between)
         self._slow_sync = max(0.0, max(step, self._cycle_step) - self._can.sync_period)
@@ -870,34 +890,75 @@ class Cia402Drive:
         self._fe_since = None
         return 0
 
+    def limit_motion(self, max_velocity: float, max_acceleration: float,
+                     deceleration: float | None = None) -> None:
+        """The axis's own limits (``[axes.*]``, user units): the CSV loop's velocity command
+        stays within them — never the drive table's looser ones. Control-loop thread (or
+        before the cyclic phase)."""
+        dec = max(abs(deceleration or max_acceleration), abs(max_acceleration))
+        self._motion_limits = (abs(max_velocity), abs(max_acceleration), dec)
+
     def _csv_step(self, target: int, actual: int, now: float) -> int:
         """CSV: the velocity (drive units) for the next SYNC period.
 
-        The target sent in cycle k is where a CSP drive would be at SYNC k+2 (latched at
-        k+1, interpolated over one period): the velocity command applied from SYNC k+1 is the
-        feed-forward (target_k − target_k−1) / T plus a PI correction on the following error
-        e = target_k−2 − actual_k (clamped to ``csv_max_correction``; the integral is held
-        within it), limited to ``max_velocity`` and to a change of ``max_acceleration`` × T
-        per cycle. |e| beyond ``following_error_window`` for longer than
-        ``following_error_timeout`` is a following-error fault of the axis (controlled stop).
+        The target sent in cycle k is where a CSP drive would be one period after SYNC k+1
+        (latched at k+1, interpolated over one period): each target is kept with that time,
+        on the real clock (the next SYNC's time + one period). The velocity command applied
+        from SYNC k+1 is the feed-forward (target_k − target_k−1) / (the real time between
+        their times) plus a PI correction on the following error e = demand − actual_k, the
+        demand being the target stream *at the real time of SYNC k* (interpolated between
+        the kept targets): the drive integrates the command in real time, so a late SYNC
+        (the drive ran on at the old speed for longer) is no error — comparing with
+        target_k−2 made every late cycle one (and skipped ones tripped the supervision). The
+        correction is clamped to ``csv_max_correction``; the integral is held within it; the
+        command stays within the axis's speed (:meth:`limit_motion`, else the drive table's
+        ``max_velocity``) and changes by no more than its acceleration (speeding up) or its
+        stop deceleration (slowing down) × T per cycle. After a gap (:attr:`Cycle.resumed`:
+        the drive kept the last command meanwhile) the loop starts afresh from the drive's
+        actual velocity: no error is judged until two targets span the SYNC again. |e|
+        beyond ``following_error_window`` for longer than ``following_error_timeout`` is a
+        following-error fault of the axis (controlled stop): a drive that runs away from
+        the stream is still caught.
         """
         sec, k, period = self.section, self._scale, self._period
         history = self._csv_targets
-        history.append(target)
-        if len(history) > 3:
+        sync, nxt = self._sync_times if self._sync_times is not None else (now, now + period)
+        if self._resumed:
+            history.clear()
+            self._csv_integral = 0.0
+            self._csv_velocity = self._raw.get(0x606C, 0) / sec.velocity_scale
+            self._resumed = False
+        history.append((nxt + period, target))
+        if len(history) > 4:
             del history[0]
-        previous = history[-2] if len(history) >= 2 else target
-        demand = history[0]  # the target of cycle k-2 (the oldest kept at the start)
-        feed_forward = (target - previous) / k / period
-        error = (demand - actual) / k
-        self._csv_error = error
+        if len(history) >= 2:
+            (t1, p1), (t2, p2) = history[-2], history[-1]
+            feed_forward = (p2 - p1) / k / max(t2 - t1, 0.25 * period)
+        else:
+            feed_forward = self._csv_velocity
+        demand = None
+        for (ta, pa), (tb, pb) in zip(history, history[1:]):
+            if ta <= sync <= tb:
+                demand = pa + (pb - pa) * (sync - ta) / max(tb - ta, 1e-9)
+                break
         limit = sec.csv_max_correction if sec.csv_max_correction is not None else 0.1 * sec.max_velocity
-        self._csv_integral = min(max(self._csv_integral + sec.csv_ki * error * period, -limit), limit)
+        if demand is None:  # (a fresh start: nothing spans this SYNC yet)
+            error = 0.0
+        else:
+            error = (demand - actual) / k
+            self._csv_integral = min(max(self._csv_integral + sec.csv_ki * error * period, -limit), limit)
+        self._csv_error = error
         correction = min(max(sec.csv_kp * error + self._csv_integral, -limit), limit)
         velocity = feed_forward + correction
-        vmax, dv = abs(sec.max_velocity), abs(sec.max_acceleration) * period
+        vmax, acc, dec = self._motion_limits or (abs(sec.max_velocity), abs(sec.max_acceleration),
+                                                 abs(sec.max_acceleration))
+        vmax = min(vmax, abs(sec.max_velocity))
         velocity = min(max(velocity, -vmax), vmax)
-        velocity = min(max(velocity, self._csv_velocity - dv), self._csv_velocity + dv)
+        v0 = self._csv_velocity
+        up, down = acc * period, dec * period
+        lo = v0 - (down if v0 > 0 else up)
+        hi = v0 + (up if v0 >= 0 else down)
+        velocity = min(max(velocity, lo), hi)
         self._csv_velocity = velocity
         window = abs(sec.following_error_window)
         if abs(error) > window:

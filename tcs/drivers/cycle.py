@@ -28,6 +28,21 @@ d = 0.5 leaves half the period to the callbacks. Counters (:class:`CycleStats`):
 * ``lateness`` — the last ``history`` SYNC send times minus their ideal schedule (thread mode)
   or SYNC receive intervals minus *T* accumulated on the ideal grid (socketcan).
 
+When the runner sends SYNC itself, the frames a callback sends (the drives' RPDOs) are held
+(:meth:`tcs.drivers.canbus.CanBus.hold_sends`) and go out just before the SYNC they were made
+for — so a stall of this process (SIGSTOP, a starved host) never leaves a setpoint made before
+it waiting in the drives for the first SYNC after it (the drives bridge the gap; that old
+setpoint would pull their demand back). A runner that wakes a whole period or more late sends
+the SYNC of the latest slot due (the ones before are ``missed``); held frames made for a slot
+:data:`DROP_SLOTS` or more slots back are dropped (``dropped``; never twice in a row, or the
+drives would count the RPDOs missing towards their time-out — a setpoint one or two slots
+late still goes, as before): that SYNC goes without them,
+and the cycle after says :attr:`Cycle.resumed` — the setpoints of the cycle before did not
+reach the drives on time, so the callbacks re-anchor on where the drives really are (the
+TPDOs of this SYNC) before their next setpoint. With kernel SYNC the RPDOs go at once (the
+kernel's SYNC does not wait), and a cycle is resumed when :data:`DROP_SLOTS` or more SYNCs
+passed since the one before it (the drives bridged at least two of them).
+
 Where the SYNC comes from: on ``socketcan`` the kernel broadcast manager sends it
 (``bus.send_periodic``; the runner sees each SYNC through the socket's loopback). Elsewhere the
 runner thread itself sends SYNC at ``t_k``: it sleeps to the slot, sends, waits for the
@@ -65,15 +80,28 @@ from tcs.errors import TcsError
 
 log = logging.getLogger(__name__)
 
+#: Held frames made for a SYNC slot this many slots or more before the one due are dropped (a
+#: stall); frames one or two slots late still go: a drive's RPDO deadline (by default 3
+#: periods, ``master_loss_timeout``) must keep seeing RPDOs through the late cycles of a busy
+#: host, and each dropped setpoint lets an extrapolating drive run on at the stream's speed
+#: for a period more (past a path that brakes); a setpoint one or two periods late pulls such
+#: a drive back by at most that many periods' travel.
+DROP_SLOTS = 3
+
 
 @dataclass(frozen=True)
 class Cycle:
-    """What a callback gets: the cycle number, when its SYNC went out, when the next is due."""
+    """What a callback gets: the cycle number, when its SYNC went out, when the next is due;
+    ``resumed``: the setpoints of the cycle before did not reach the drives on time (a gap:
+    the drives bridged it; re-anchor on their readback); ``previous_sync``: when the SYNC of
+    the cycle before went out (None for the first)."""
 
     index: int
     sync_time: float
     next_sync: float
     tpdos_complete: bool
+    resumed: bool = False
+    previous_sync: float | None = None
 
 
 @dataclass(frozen=True)
@@ -85,6 +113,7 @@ class CycleStats:
     callback_errors: int = 0
     sync_failures: int = 0
     max_callback: float = 0.0
+    dropped: int = 0  # cycles whose held RPDOs were dropped (their SYNC was skipped or late)
 
 
 class CycleSource:
@@ -292,24 +321,33 @@ class CycleSource:
         if not self._expected:
             self._arrived.set()
 
-    def _cycle(self, index: int, sync_time: float, next_sync: float, step: float) -> None:
+    def _cycle(self, index: int, sync_time: float, next_sync: float, step: float,
+               held: list | None = None, resumed: bool = False,
+               previous: float | None = None) -> None:
         # (``step``: this cycle's length, the period times the divider — a resting
-        # telescope's slower SYNC leaves its TPDOs the same share of its longer cycle)
+        # telescope's slower SYNC leaves its TPDOs the same share of its longer cycle;
+        # ``held``: where this thread's sends go until the next SYNC, None: sent at once)
         deadline = sync_time + self.tpdo_deadline * step
         complete = self._arrived.wait(max(0.0, deadline - self._clock()))
         if self._stop.is_set():
             return
-        cycle = Cycle(index, sync_time, next_sync, complete)
+        cycle = Cycle(index, sync_time, next_sync, complete, resumed, previous)
         errors = 0
         with self._lock:
             callbacks = list(self._callbacks)
-        for callback in callbacks:
-            try:
-                callback(cycle)
-            except Exception as exc:  # a failing callback must not stop the SYNC
-                errors += 1
-                self.last_error = exc
-                log.exception("cycle callback %r failed", callback)
+        if held is not None:
+            self.bus.hold_sends(held)
+        try:
+            for callback in callbacks:
+                try:
+                    callback(cycle)
+                except Exception as exc:  # a failing callback must not stop the SYNC
+                    errors += 1
+                    self.last_error = exc
+                    log.exception("cycle callback %r failed", callback)
+        finally:
+            if held is not None:
+                self.bus.hold_sends(None)
         end = self._clock()
         self.bus.beat(end)  # the TCS heartbeat: only from a cycle whose work is done
         spent = end - sync_time
@@ -319,7 +357,7 @@ class CycleSource:
             cycles=s.cycles + 1, late=s.late + (end > next_sync), missed=s.missed,
             tpdo_timeouts=s.tpdo_timeouts + (not complete),
             callback_errors=s.callback_errors + errors, sync_failures=s.sync_failures,
-            max_callback=max(s.max_callback, spent))
+            max_callback=max(s.max_callback, spent), dropped=s.dropped)
 
     def _count(self, **delta: int) -> None:
         s = self._stats
@@ -330,11 +368,41 @@ class CycleSource:
         period = self.period
         index = 0
         slot = self._clock() + period
+        held: list = []            # the last cycle's RPDOs, sent just before the next SYNC
+        held_for = -1              # the index of the SYNC they were made for
+        previous: float | None = None  # when the previous SYNC went out
+        dropped_last = False       # the last held frames were dropped
         while not self._stop.is_set():
             delay = slot - self._clock()
             if delay > 0 and self._stop.wait(delay):
                 break
             self._new_cycle()
+            step = period * self._divider
+            now = self._clock()
+            if now - slot >= step:  # woke a whole period or more late (stopped, starved):
+                skipped = int((now - slot) // step)  # this SYNC takes the latest slot due
+                self._count(missed=skipped)
+                slot += skipped * step
+                index += skipped
+            resumed = False
+            if held:
+                # (never two drops in a row: a drive faults after a few SYNCs without an RPDO,
+                # and the frames after a drop come from a cycle that re-anchored)
+                if index - held_for < DROP_SLOTS or dropped_last:
+                    for cob_id, data in held:
+                        try:
+                            self.bus.send(cob_id, data)
+                        except TcsError as exc:  # (recorded in the bus health)
+                            self.last_error = exc
+                else:  # made for a skipped slot, or a whole period late: stale
+                    resumed = True
+                    self._count(dropped=1)
+                    log.debug("cycle %d: %d held frame(s) dropped (%.1f ms late)", index,
+                              len(held), (now - slot) * 1e3)
+                dropped_last = resumed
+                held = []
+            else:
+                dropped_last = False
             sent = self._clock()
             try:
                 self.bus.send(SYNC_COB_ID, b"")
@@ -342,8 +410,8 @@ class CycleSource:
                 self.last_error = exc
                 self._count(sync_failures=1)
             self._late(sent - slot)
-            step = period * self._divider
-            self._cycle(index, sent, slot + step, step)
+            self._cycle(index, sent, slot + step, step, held, resumed, previous)
+            previous, held_for = sent, index + 1
             index += 1
             slot += step
             now = self._clock()
@@ -360,6 +428,7 @@ class CycleSource:
         first_time = None
         first_count = 0
         divider = self._divider
+        previous: float | None = None
         while not self._stop.is_set():
             with self._sync_seen:
                 while self._sync_count == seen and not self._stop.is_set():
@@ -374,6 +443,13 @@ class CycleSource:
                 first_time, first_count = sync_time, count
             elif count > seen + 1:
                 self._count(missed=count - seen - 1)
+            # (the last cycle's setpoints were made for SYNC seen + 1 and latched at the first
+            # SYNC after they went: DROP_SLOTS or more SYNCs on, the drives bridged that long —
+            # the same bound as the held frames' drop above; a setpoint one or two SYNCs late
+            # is let be, as there: re-anchoring on every late cycle of a loaded host cost more
+            # than the step it avoids)
+            resumed = previous is not None and count - seen >= DROP_SLOTS
             seen = count
             self._late(sync_time - (first_time + (count - first_count) * step))
-            self._cycle(count, sync_time, sync_time + step, step)
+            self._cycle(count, sync_time, sync_time + step, step, None, resumed, previous)
+            previous = sync_time

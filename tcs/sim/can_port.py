@@ -69,6 +69,10 @@ POLL_PERIOD = 0.01
 REST_POLL_PERIOD = 0.05
 #: A gap (s) in the port's own threads longer than this is a stall of the simulator's host.
 HOST_STALL = 0.1
+
+#: The longest a received frame's wait (its send stamp to its handling) is taken as real: a
+#: longer one comes from a stamp of another clock (a gateway's)
+MAX_FRAME_LAG = 5.0
 #: Most the awake clock advances from one wake-up of the port's threads to the next, in
 #: periods of the poll (the slower one's while the bus rests).
 AWAKE_STEPS = 2
@@ -156,6 +160,7 @@ class SimCanPort:
         self._alive: float | None = None  # monotonic time a port thread last ran
         self._stall_noted = float("-inf")  # when the latest stall was counted
         self.awake = 0.0  # the awake clock (see the module docstring)
+        self.frame_lag = 0.0  # how long the frame being handled waited unread, s
 
     # -- receive -----------------------------------------------------------------------------
     def subscribe(self, cob_id: int, callback: FrameCallback) -> None:
@@ -194,6 +199,9 @@ class SimCanPort:
             if self._closed:
                 return
             self._note_alive(lag)
+            # (how long the frame in hand waited unread, for the nodes' callbacks: a SYNC is
+            # handled as of when it was sent; 0 where unknown or stamped by another clock)
+            self.frame_lag = lag if 0.0 < lag < MAX_FRAME_LAG else 0.0
             for callback in list(self._subscribers.get(cob_id, ())):
                 try:
                     callback(cob_id, data)

@@ -88,6 +88,7 @@ from tcs.sim.drive_logic import (
     EMCY_POSITION_LIMIT,
     EMCY_RPDO_TIMEOUT,
     MODE_CSP,
+    MODE_IP,
     DriveLogic,
     State,
     error_register_bits,
@@ -186,8 +187,9 @@ class SimDrive:
         self.sync_count = 0
         #: (monotonic time, CSP target in user units, continuous) of each SYNC that applied a
         #: fresh CSP target while enabled: what the master commanded, for tests of the setpoint
-        #: stream; ``continuous`` is False for the first target after the drive was not
-        #: following CSP targets (disabled, faulted, another mode)
+        #: stream (IP: the interpolation data record); ``continuous`` is False for the first
+        #: target after the drive was not following CSP targets (disabled, faulted, another
+        #: mode) or after a SYNC that came without one
         self.csp_targets: collections.deque = collections.deque(maxlen=20000)
         self._csp_gap = True
         self.emcy_sent: list[int] = []
@@ -527,19 +529,26 @@ class SimDrive:
 
     def _on_sync(self) -> None:
         self.sync_count += 1
-        self.logic.update(self.clock())
+        # as of when the master sent it, as a drive handles it on its own hardware: a SYNC that
+        # waited unread behind a starved receive thread latches the setpoints where the demand
+        # was then, not after the demand bridged on by itself meanwhile (which pulled it back
+        # by the wait's travel: 7.6 deg after 77 ms at 122 deg/s, a following-error stop)
+        self.logic.update(self.clock() - self._port.frame_lag)
         if self.nmt_state != OPERATIONAL:
             return
         self._last_sync = self._port.awake
         self.pdo.apply_sync_rpdos()
         fresh, self._rpdo_since_sync = self._rpdo_since_sync, False
         self.logic.on_sync(fresh)
-        if self.logic.mode == MODE_CSP and self.logic.state is State.OPERATION_ENABLED:
+        if self.logic.mode in (MODE_CSP, MODE_IP) and self.logic.state is State.OPERATION_ENABLED:
             if fresh:
+                record = 0x607A if self.logic.mode == MODE_CSP else 0x60C1
                 self.csp_targets.append((time.monotonic(),
-                                         self.store.get(0x607A, 0) / self.params.increments_per_unit,
-                                         not self._csp_gap))
+                                         self.store.get(record, 0 if record == 0x607A else 1)
+                                         / self.params.increments_per_unit, not self._csp_gap))
                 self._csp_gap = False
+            else:  # a SYNC without a setpoint: the drive bridged it (the next is no step)
+                self._csp_gap = True
         else:
             self._csp_gap = True
         frames = self.pdo.on_sync(time.monotonic())
@@ -571,8 +580,10 @@ class SimDrive:
         if self._stopped or self.nmt_state == INITIALISING:
             return False
         self._check_stall()
-        self.logic.update(self.clock())
-        if self.responding and not self._port.receive_backlog():
+        backlog = self._port.receive_backlog()
+        if not backlog:   # (frames wait unread: the receive thread advances the physics to
+            self.logic.update(self.clock())   # each one's own time when it handles it)
+        if self.responding and not backlog:
             self._supervise()  # (frames wait unread: the master is not judged silent meanwhile)
         return (time.monotonic() < self._lively_until or not self.logic.resting()
                 or (self.nmt_state == OPERATIONAL and self.pdo.shortest_event_timer() < REST_EVENT_TIMER))

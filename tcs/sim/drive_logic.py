@@ -53,10 +53,17 @@ Behaviour chosen where CiA-402 leaves it to the vendor (the driver can rely on i
   voltage, 3 quick stop per 0x605A; 2 and 3 send the code by EMCY as a warning). The node
   applies the same reaction when SYNC stops (0x1006), when an RPDO misses its deadline
   (event timer 0x1400:5, watched in real time by the node) or NMT takes it out of
-  operational. With a deadline set, a CSP drive bridges the missing setpoints until then at
-  the setpoint stream's speed (the last two setpoints' difference per SYNC; no braking at the
-  motor's limit before the reaction starts), so
-  a lost master ends in a ramp at 0x6085 (0x6007 = 3, 0x605A = 2).
+  operational. Until then the drive *bridges* the missing setpoints (CSP, IP) as
+  ``SimDriveParams.bridging`` says: ``"extrapolate"`` (default) — with a deadline set the
+  demand goes on at the setpoint stream's speed (the last two setpoints' difference per
+  interpolation period — over the real time between the SYNCs that latched them when SYNC
+  itself had stopped — capped at the motor's speed; no braking at
+  the motor's limit before the reaction starts), bounded by the deadline and the software
+  limits — or ``"hold"`` — the demand stays at the last setpoint (the motor brakes at its own
+  limit, as a drive whose interpolator runs dry). CSV keeps the last target velocity. So a
+  lost master ends in a ramp at 0x6085 (0x6007 = 3, 0x605A = 2). The first setpoint after a
+  gap is latched like any other: a line from wherever the demand is to it (a stale setpoint
+  made before the gap would pull the demand back: the master must not send one).
 * Disable operation (transition 5) ramps down with the profile deceleration when 0x605C = 1,
   brakes at once when 0. Every SYNC without a fresh
   RPDO while enabled in CSP counts in ``rpdo_missed``. The velocity offset 0x60B1 is accepted
@@ -157,6 +164,7 @@ class DriveLogic:
         self.alarm_reason: str | None = None
         self.missed_in_row = 0
         self._last_goal: float | None = None   # the last streamed setpoint (CSP/IP), units
+        self._last_goal_t = 0.0                # and the time of the SYNC that latched it
         self.rpdo_missed = 0
         self.ip_ignored = 0                    # IP records received without enable-IP (bit 4)
         self.rpdo_deadlines: dict[int, float] = {}  # RPDO → deadline, s (set by the node)
@@ -624,10 +632,15 @@ class DriveLogic:
         period = value * 10.0 ** exponent
         start, goal = ax.demand()[0], self.to_phys(target)
         last, self._last_goal = self._last_goal, goal
+        since, self._last_goal_t = ax.t - self._last_goal_t, ax.t
         trend = 0.0
         if last is not None and period > 0:
+            # (the last increment per interpolation period, as drives extrapolate — over the
+            # real time between the two latching SYNCs only when SYNC itself stopped for a
+            # while: a stalled master sending it; one slot is not the time that took)
             top = self.params.max_velocity
-            trend = max(-top, min(top, (goal - last) / (period * slots)))
+            span = period * slots
+            trend = max(-top, min(top, (goal - last) / (since if since > 2 * span else span)))
         ax.set_reference(linear_profile(ax.t, start, goal, period, self._bridge(goal, trend), trend))
 
     def _bridge(self, goal: float, v: float) -> float:
@@ -642,7 +655,7 @@ class DriveLogic:
         more than doubled it: the demand swung ±0.6° around a 0.4°/s path and the motor
         faulted with a following error on a loaded machine)."""
         deadline = max(self.rpdo_deadlines.values(), default=0.0)
-        if deadline <= 0 or v == 0:
+        if deadline <= 0 or v == 0 or self.params.bridging == "hold":
             return 0.0
         limits = self._software_limits()
         if limits is not None:

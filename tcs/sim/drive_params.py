@@ -57,6 +57,13 @@ class SimDriveParams:
     tpdo_latency:
         Seconds from a SYNC to the synchronous TPDOs sampled at it (0: at once, as the
         simulator's host allows): a drive or gateway that answers late.
+    bridging:
+        What the drive does in CSP and IP while synchronous setpoints are missing (the master
+        stalled), until the RPDO deadline 0x1400:5 (or the SYNC loss) makes it apply the
+        abort connection reaction 0x6007: ``"extrapolate"`` — the demand goes on at the
+        setpoint stream's speed (bounded extrapolation, as drives that bridge lost frames
+        do); ``"hold"`` — the demand stays at the last setpoint (the interpolator runs dry:
+        the motor brakes at its own limit). CSV keeps the last target velocity either way.
     """
 
     increments_per_unit: float = 10000.0
@@ -77,6 +84,7 @@ class SimDriveParams:
     objects: dict | None = None
     pdo_timer_in_operational: bool = True
     tpdo_latency: float = 0.0
+    bridging: str = "extrapolate"
 
     def problems(self) -> list[str]:
         """What is wrong with these parameters (empty when they are usable)."""
@@ -95,6 +103,8 @@ class SimDriveParams:
             out.append("boot_delay must not be negative")
         if not 0 <= self.tpdo_latency < 1:
             out.append("tpdo_latency must be at least 0 and below 1 s")
+        if self.bridging not in ("extrapolate", "hold"):
+            out.append('bridging must be "extrapolate" or "hold"')
         if (self.negative_limit_switch is not None and self.positive_limit_switch is not None
                 and self.negative_limit_switch >= self.positive_limit_switch):
             out.append("negative_limit_switch must lie below positive_limit_switch")
