@@ -56,6 +56,10 @@ timer resumes where it was. Supervision is also not judged while received frames
 and its windows are measured on the port's awake clock (``SimCanPort.awake``): on a host so
 busy that the simulator's own wake-ups come late — which starves a master in the same
 process (the ``virtual`` bus) just as much — they last longer in real time.
+A SYNC is handled as of when the master sent it (``SimCanPort.frame_lag``: how long it waited
+unread), and the poll does not move the physics on while frames wait unread: a drive latches its
+setpoints at the SYNC on its own hardware, never after bridging the time its receive thread
+was starved.
 A master that is silent while the drive runs still faults it exactly as before (0x8250,
 0x8130); so do :meth:`inject_fault`, :meth:`hold_heartbeat` and :meth:`set_responding`.
 
