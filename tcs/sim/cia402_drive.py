@@ -537,7 +537,8 @@ class SimDrive:
         # waited unread behind a starved receive thread latches the setpoints where the demand
         # was then, not after the demand bridged on by itself meanwhile (which pulled it back
         # by the wait's travel: 7.6 deg after 77 ms at 122 deg/s, a following-error stop)
-        self.logic.update(self.clock() - self._port.frame_lag)
+        # (on the real clock only: a test's own clock does not run while a frame waits)
+        self.logic.update(self.clock() - (self._port.frame_lag if self._compensate else 0.0))
         if self.nmt_state != OPERATIONAL:
             return
         self._last_sync = self._port.awake
@@ -585,8 +586,10 @@ class SimDrive:
             return False
         self._check_stall()
         backlog = self._port.receive_backlog()
-        if not backlog:   # (frames wait unread: the receive thread advances the physics to
-            self.logic.update(self.clock())   # each one's own time when it handles it)
+        # (frames wait unread: the receive thread advances the physics to each one's own time
+        # when it handles it — on the real clock; a test's own clock does not run meanwhile)
+        if not (backlog and self._compensate):
+            self.logic.update(self.clock())
         if self.responding and not backlog:
             self._supervise()  # (frames wait unread: the master is not judged silent meanwhile)
         return (time.monotonic() < self._lively_until or not self.logic.resting()
