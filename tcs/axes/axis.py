@@ -34,8 +34,9 @@ After a gap (the control loop says ``cycle_resumed``: the setpoints of the cycle
 reach the drive on time — this process stalled or was starved) the drive has bridged the gap by
 itself, holding or extrapolating its demand (docs/motion.md, "Stall recovery"). The axis then
 *re-anchors* (:meth:`_resume`) before its next setpoint: on the drive's demand of this cycle's
-readback (position actual + following error 0x60F4; in CSV the actual position) moving at the
-speed the demand moved at over the gap; the planner is planned again from there to its goal
+readback (position actual + following error 0x60F4), kept between the last target the drive
+latched and the stream extrapolated over the gap, moving on at the stream's speed (in CSV the
+actual position and velocity); the planner is planned again from there to its goal
 (the follower samples its path by time anyway), and the steps from the re-anchored demand on
 stay within the axis's limits — never from the setpoint last *sent*, which would pull the
 drive back.
@@ -778,17 +779,18 @@ class Axis(ModuleHealth):
         stream's speed, or in CSV kept its last velocity), and the setpoint made before the
         gap never reached it (the cycle source dropped it). Both bridgings are known exactly
         from the stream itself: extrapolated, the demand is the last setpoint sent carried on
-        at its speed to this SYNC; held, it is the last target the drive latched. The base
-        becomes the one of the two this readback's demand (position actual + following error
-        0x60F4) says — "held" only when the demand lies within :data:`HELD_SHARE` of the way
-        from the held target to the extrapolated stream, since a readback that lags the gap on
-        a busy host looks like a hold — carried on to the next SYNC (which latches this
-        cycle's setpoint). A drive that held while its motor ran on past the target (braking
-        at its own limit) is joined where the motor is (no step back for the motor); in CSV
-        the base is the actual position and velocity. The readback is used only when this
-        cycle's and the previous cycle's synchronous TPDOs all came in time; without it the
-        base is the extrapolated stream — exact for a drive that extrapolates, ahead of one
-        that held (a step forwards, never back). From that base the step to
+        at its speed to this SYNC (for the drive's RPDO deadline at most,
+        ``drive.bridging_limit``); held, it is the last target the drive latched. A readback
+        whose synchronous TPDOs (of this cycle and the one before) all came in time says
+        "held" when its demand (position actual + following error 0x60F4) lies within
+        :data:`HELD_SHARE` of the way from the held target to the extrapolated stream — a
+        readback that lags the gap looks like a hold — and the base is then the held target,
+        or the motor where it ran on past it while braking at its own limit (no step back for
+        the motor); in CSV the base is the actual position and velocity. Otherwise the base is
+        the readback's demand (fresh or not) kept between those two bridgings, moving on at
+        the stream's speed: a drive that bridged only part of the gap is joined where it is.
+        The base is carried on to the next SYNC (which latches this cycle's setpoint). From
+        that base the step to
         the planner's or follower's setpoint is cut to the axis's speed, acceleration and
         stop deceleration (:meth:`_limit_step`); the planner is planned again from the anchor
         (:meth:`MotionPlanner.resume`), the follower's path is sampled by time and met by
@@ -825,22 +827,19 @@ class Axis(ModuleHealth):
             else:
                 position, velocity, how = held, 0.0, "held target"
         elif st.mode != Mode.CSV and math.isfinite(demand) and self._sent_velocity != 0.0:
-            # on from the drive's demand at the stream's speed, the demand taken no further
-            # than the two bridgings allow (from the held target to the stream extrapolated):
-            # a drive whose own clock stalled with this host (the in-process simulator, which
-            # leaves its own stalls out of its physics) bridged only part of the gap, and the
-            # extrapolated stream would be a jump ahead of it — 47-51 deg after 0.29-0.36 s
-            # stalls at 130-160 deg/s, following-error stops. After a stall of this process the
-            # readback is often not fresh (the TPDOs of the SYNC before the gap): the latest
-            # there is, within those bounds, a step back of its age at most
+            # on from the drive's demand at the stream's speed, kept between the two
+            # bridgings: a drive that bridged only part of the gap (the in-process simulator
+            # leaves its own stalls out of its physics) was 47-51 deg behind the stream
+            # extrapolated over 0.29-0.36 s stalls at 130-160 deg/s, and a stale readback is
+            # a step back of its age at most
             lo, hi = sorted((held, position))
             joined = min(hi, max(lo, demand))
             if joined != position:
                 position, how = joined, "demand (it bridged part of the gap)"
-        # (the readback only chooses between the two, and says "held" only when it is near the
-        # held target: on a busy host a readback mixes TPDOs or lags the gap — a speed measured
-        # over the gap was off by 1.5 deg/s and a stream re-anchored on it ran 0.5 deg past a
-        # horizon bound it braked to; a stale one looks like a hold)
+        # (the speed is always the stream's, and "held" needs a demand near the held target:
+        # on a busy host a readback mixes TPDOs or lags the gap — a speed measured over the gap
+        # was off by 1.5 deg/s and a stream re-anchored on it ran 0.5 deg past a horizon bound
+        # it braked to; a stale one looks like a hold)
         velocity = max(-vmax, min(vmax, velocity))
         anchor = Setpoint(position + velocity * interval, velocity)
         log.info("%s: a gap of %.3f s in the setpoint stream; re-anchored on the drive's %s "

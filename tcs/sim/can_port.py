@@ -69,7 +69,6 @@ POLL_PERIOD = 0.01
 REST_POLL_PERIOD = 0.05
 #: A gap (s) in the port's own threads longer than this is a stall of the simulator's host.
 HOST_STALL = 0.1
-
 #: The longest a received frame's wait (its send stamp to its handling) is taken as real: a
 #: longer one comes from a stamp of another clock (a gateway's)
 MAX_FRAME_LAG = 5.0
