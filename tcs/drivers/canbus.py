@@ -406,12 +406,15 @@ class CanBus:
         return self._heartbeat_task is not None or (self._cycle_beats and self._heartbeat_wanted)
 
     # ---------------------------------------------------------------- sending
-    def send(self, cob_id: int, data: bytes) -> None:
+    def send(self, cob_id: int, data: bytes,
+             retime: Callable[[float], bytes] | None = None) -> None:
         """Send one frame (any thread). A failure is recorded and raised as CommunicationError.
-        From the thread :meth:`hold_sends` names, the frame is kept for the cycle source."""
+        From the thread :meth:`hold_sends` names, the frame is kept for the cycle source, with
+        ``retime``: the frame's data again for a SYNC that goes out that many seconds after
+        the slot the frame was made for (a setpoint moved on along its stream; None: as is)."""
         held = self._held
         if held is not None and held[0] == threading.get_ident():
-            held[1].append((cob_id, bytes(data)))
+            held[1].append((cob_id, bytes(data), retime))
             return
         bus = self.bus
         if bus is None:
@@ -433,7 +436,7 @@ class CanBus:
         self._failures_in_row = 0
 
     def hold_sends(self, frames: list | None) -> None:
-        """From now on the calling thread's :meth:`send` appends ``(cob_id, data)`` to
+        """From now on the calling thread's :meth:`send` appends ``(cob_id, data, retime)`` to
         ``frames`` instead of sending (None: sends go out again). The cycle runner only."""
         self._held = None if frames is None else (threading.get_ident(), frames)
 

@@ -87,6 +87,9 @@ log = logging.getLogger(__name__)
 #: for a period more (past a path that brakes); a setpoint one or two periods late pulls such
 #: a drive back by at most that many periods' travel.
 DROP_SLOTS = 3
+#: A runner whose callbacks end less than this share of a period after the next SYNC slot
+#: still sends that SYNC, late (thread mode); beyond it the slot is skipped.
+LATE_SYNC = 0.5
 
 
 @dataclass(frozen=True)
@@ -167,6 +170,10 @@ class CycleSource:
         self.max_lateness = 0.0  # worst lateness since start, s
         self._divider = 1  # SYNC every this many periods (set_divider)
         self._sync_msg = None  # the kernel's periodic SYNC frame
+        #: held setpoints going out with a late SYNC are moved on along their stream by its
+        #: lateness (the frames' ``retime``; see the module docstring). False: sent as made
+        #: (the benchmark's baseline, tools/bench/sync_jitter.py)
+        self.retime = True
 
     @property
     def tpdo_deadline(self) -> float:
@@ -389,7 +396,16 @@ class CycleSource:
                 # (never two drops in a row: a drive faults after a few SYNCs without an RPDO,
                 # and the frames after a drop come from a cycle that re-anchored)
                 if index - held_for < DROP_SLOTS or dropped_last:
-                    for cob_id, data in held:
+                    # (a SYNC later than its slot: each setpoint goes where its stream is by
+                    # then — the drive interpolates it over the nominal period from this SYNC
+                    # on, so a setpoint made for the slot would run the demand that much faster
+                    # over the shorter interval to the next, on-time SYNC. The lateness within
+                    # this slot only: the planner's stream goes one step per SYNC, and a slot
+                    # skipped before is the stream's slip, not a step it owes)
+                    late = self._clock() - slot if self.retime else 0.0
+                    for cob_id, data, retime in held:
+                        if retime is not None and late > 0:
+                            data = retime(late)
                         try:
                             self.bus.send(cob_id, data)
                         except TcsError as exc:  # (recorded in the bus health)
@@ -415,8 +431,12 @@ class CycleSource:
             index += 1
             slot += step
             now = self._clock()
-            if now > slot:  # overran one or more slots: skip them, keep the grid
-                skipped = int((now - slot) // step) + 1
+            if now - slot >= LATE_SYNC * step:  # overran: skip the slots long past, keep the grid
+                # (a slot less than LATE_SYNC periods past still gets its SYNC, late, its
+                # setpoints moved on by the lateness: a skipped slot is a step of the planner's
+                # stream left out — the drive's demand stalls for it, and the drive's
+                # extrapolation from that short step makes the next line too fast)
+                skipped = int((now - slot) / step - LATE_SYNC) + 1
                 self._count(missed=skipped)
                 slot += skipped * step
                 index += skipped

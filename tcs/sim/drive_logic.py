@@ -55,9 +55,9 @@ Behaviour chosen where CiA-402 leaves it to the vendor (the driver can rely on i
   (event timer 0x1400:5, watched in real time by the node) or NMT takes it out of
   operational. Until then the drive *bridges* the missing setpoints (CSP, IP) as
   ``SimDriveParams.bridging`` says: ``"extrapolate"`` (default) — with a deadline set the
-  demand goes on at the setpoint stream's speed (the last two setpoints' difference per
-  interpolation period — over the real time between the SYNCs that latched them when SYNC
-  itself had stopped — capped at the motor's speed; no braking at
+  demand goes on at the setpoint stream's speed (the last two setpoints' difference over the
+  real time between the SYNCs that latched them: a drive that synchronizes its cycle to SYNC
+  knows that interval — capped at the motor's speed; no braking at
   the motor's limit before the reaction starts), bounded by the deadline and the software
   limits — or ``"hold"`` — the demand stays at the last setpoint (the motor brakes at its own
   limit, as a drive whose interpolator runs dry). CSV keeps the last target velocity. So a
@@ -635,17 +635,19 @@ class DriveLogic:
         since, self._last_goal_t = ax.t - self._last_goal_t, ax.t
         trend = 0.0
         if last is not None and period > 0:
-            # (the last increment per interpolation period, as drives extrapolate — over the
-            # real time between the two latching SYNCs only when SYNC itself stopped for a
-            # while: a stalled master sending it; one slot is not the time that took)
+            # (the last increment over the real time between the two SYNCs that latched it,
+            # which a drive synchronized to SYNC measures: per nominal period, a late SYNC's
+            # setpoint — moved on by its lateness — bridged at the increment of a longer
+            # interval, an early one's at a shorter: the demand ran ahead and fell back by a
+            # step's share, 5.2°/s over 100 ms against a 5°/s stream with SYNCs 0-9 ms late)
             top = self.params.max_velocity
             span = period * slots
-            trend = max(-top, min(top, (goal - last) / (since if since > 2 * span else span)))
+            trend = max(-top, min(top, (goal - last) / (since if since > 0 else span)))
         ax.set_reference(linear_profile(ax.t, start, goal, period, self._bridge(goal, trend), trend))
 
     def _bridge(self, goal: float, v: float) -> float:
         """How long the CSP demand goes on, after reaching ``goal``, at the setpoint stream's
-        speed ``v`` (the last two setpoints' difference over the interpolation period) when
+        speed ``v`` (the last two setpoints' difference over the time between their SYNCs) when
         the next setpoints do not come: the RPDO deadline (0x1400:5; the drive then stops per
         0x6007 at 0x6085), never past a software limit; 0 (hold the last setpoint) without one.
 
