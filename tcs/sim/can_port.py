@@ -159,7 +159,7 @@ class SimCanPort:
         self._alive: float | None = None  # monotonic time a port thread last ran
         self._stall_noted = float("-inf")  # when the latest stall was counted
         self.awake = 0.0  # the awake clock (see the module docstring)
-        self.frame_lag = 0.0  # how long the frame being handled waited unread, s
+        self._frame_stamp = 0.0  # the wall-clock send time of the frame being handled, 0: unknown
 
     # -- receive -----------------------------------------------------------------------------
     def subscribe(self, cob_id: int, callback: FrameCallback) -> None:
@@ -187,20 +187,28 @@ class SimCanPort:
     def _on_message(self, msg: can.Message) -> None:
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
             return
-        lag = time.time() - msg.timestamp if msg.timestamp else 0.0
-        self._dispatch(msg.arbitration_id, bytes(msg.data), lag)
+        self._dispatch(msg.arbitration_id, bytes(msg.data), msg.timestamp or 0.0)
 
     def _on_network_frame(self, cob_id: int, data: bytearray, timestamp: float) -> None:
         self._dispatch(cob_id, bytes(data))
 
-    def _dispatch(self, cob_id: int, data: bytes, lag: float = 0.0) -> None:
+    @property
+    def frame_lag(self) -> float:
+        """How long the frame being handled has waited since it was sent, s, read now (a node
+        takes its own clock in the same expression: a SYNC is handled as of when it was sent);
+        0 where unknown or stamped by another clock. Receive thread, under the lock."""
+        stamp = self._frame_stamp
+        lag = time.time() - stamp if stamp else 0.0
+        return lag if 0.0 < lag < MAX_FRAME_LAG else 0.0
+
+    def _dispatch(self, cob_id: int, data: bytes, stamp: float = 0.0) -> None:
         with self.lock:
             if self._closed:
                 return
-            self._note_alive(lag)
-            # (how long the frame in hand waited unread, for the nodes' callbacks: a SYNC is
-            # handled as of when it was sent; 0 where unknown or stamped by another clock)
-            self.frame_lag = lag if 0.0 < lag < MAX_FRAME_LAG else 0.0
+            # (the wait is taken inside the lock: a wait for it — another thread of the
+            # simulator holding it — is part of how long the frame waited unread)
+            self._note_alive(time.time() - stamp if stamp else 0.0)
+            self._frame_stamp = stamp
             for callback in list(self._subscribers.get(cob_id, ())):
                 try:
                     callback(cob_id, data)

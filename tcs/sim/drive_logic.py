@@ -55,9 +55,10 @@ Behaviour chosen where CiA-402 leaves it to the vendor (the driver can rely on i
   (event timer 0x1400:5, watched in real time by the node) or NMT takes it out of
   operational. Until then the drive *bridges* the missing setpoints (CSP, IP) as
   ``SimDriveParams.bridging`` says: ``"extrapolate"`` (default) — with a deadline set the
-  demand goes on at the setpoint stream's speed (the last two setpoints' difference over the
-  real time between the SYNCs that latched them: a drive that synchronizes its cycle to SYNC
-  knows that interval — capped at the motor's speed; no braking at
+  demand goes on at the setpoint stream's speed (the travel of its last
+  :data:`TREND_SETPOINTS` setpoints over the real time between the SYNCs that latched them: a
+  drive that synchronizes its cycle to SYNC measures those intervals — capped at the motor's
+  speed; no braking at
   the motor's limit before the reaction starts), bounded by the deadline and the software
   limits — or ``"hold"`` — the demand stays at the last setpoint (the motor brakes at its own
   limit, as a drive whose interpolator runs dry). CSV keeps the last target velocity. So a
@@ -75,6 +76,7 @@ Behaviour chosen where CiA-402 leaves it to the vendor (the driver can rely on i
 
 from __future__ import annotations
 
+import collections
 from collections.abc import Callable
 from fractions import Fraction
 
@@ -105,6 +107,9 @@ EMCY_POSITION_LIMIT = 0x8612
 IMMEDIATE_FAULTS = frozenset({EMCY_OVERCURRENT, EMCY_ENCODER})
 #: Consecutive SYNCs without an RPDO (enabled in CSP) that fault the drive.
 RPDO_TIMEOUT_SYNCS = 3
+#: A CSP/IP drive bridges a missing setpoint at the speed of its last this many setpoints (their
+#: travel over the real time between the SYNCs that latched the first and the last)
+TREND_SETPOINTS = 4
 
 SW_MIN, SW_MAX = "software limit min", "software limit max"
 _MAX_EVENTS_PER_UPDATE = 100000
@@ -163,8 +168,9 @@ class DriveLogic:
         self.internal_limit = False
         self.alarm_reason: str | None = None
         self.missed_in_row = 0
-        self._last_goal: float | None = None   # the last streamed setpoint (CSP/IP), units
-        self._last_goal_t = 0.0                # and the time of the SYNC that latched it
+        #: the last streamed setpoints (CSP/IP), units, with the time of the SYNC that latched
+        #: each (the stream's speed for bridging: TREND_SETPOINTS)
+        self._goals: collections.deque[tuple[float, float]] = collections.deque(maxlen=TREND_SETPOINTS)
         self.rpdo_missed = 0
         self.ip_ignored = 0                    # IP records received without enable-IP (bit 4)
         self.rpdo_deadlines: dict[int, float] = {}  # RPDO → deadline, s (set by the node)
@@ -607,11 +613,13 @@ class DriveLogic:
     def on_sync(self, fresh_rpdo: bool) -> None:
         """A SYNC (after :meth:`update` to its time and after applying the synchronous RPDOs)."""
         if self.state is not S.OPERATION_ENABLED or self.mode not in STREAMING_MODES:
-            self.missed_in_row, self._last_goal = 0, None
+            self.missed_in_row = 0
+            self._goals.clear()
             return
         if self.mode == MODE_IP and not self.controlword & 0x10:
             # IP not enabled (controlword bit 4): the interpolation data record is ignored
-            self.missed_in_row, self._last_goal = 0, None
+            self.missed_in_row = 0
+            self._goals.clear()
             if fresh_rpdo and self.store.get(0x60C1, 1) != self.to_inc(self.axis.x):
                 self.ip_ignored += 1
             return
@@ -621,7 +629,7 @@ class DriveLogic:
             if self.missed_in_row >= RPDO_TIMEOUT_SYNCS:
                 self.connection_lost(EMCY_RPDO_TIMEOUT)
             return
-        slots, self.missed_in_row = self.missed_in_row + 1, 0
+        self.missed_in_row = 0
         if self.mode == MODE_CSV:
             self._csv_velocity(self.store.get(0x60FF, 0))
             return
@@ -631,23 +639,24 @@ class DriveLogic:
         value, exponent = self.store.get(0x60C2, 1), self.store.get(0x60C2, 2)
         period = value * 10.0 ** exponent
         start, goal = ax.demand()[0], self.to_phys(target)
-        last, self._last_goal = self._last_goal, goal
-        since, self._last_goal_t = ax.t - self._last_goal_t, ax.t
         trend = 0.0
-        if last is not None and period > 0:
-            # (the last increment over the real time between the two SYNCs that latched it,
-            # which a drive synchronized to SYNC measures: per nominal period, a late SYNC's
-            # setpoint — moved on by its lateness — bridged at the increment of a longer
-            # interval, an early one's at a shorter: the demand ran ahead and fell back by a
-            # step's share, 5.2°/s over 100 ms against a 5°/s stream with SYNCs 0-9 ms late)
+        if self._goals and period > 0:
+            # (the stream's travel over the real time since the oldest of the last setpoints
+            # latched, which a drive synchronized to SYNC measures: per nominal period, a late
+            # SYNC's setpoint — moved on by its lateness — bridged at the increment of a longer
+            # interval, an early one's at a shorter: 5.2°/s over 100 ms against a 5°/s stream
+            # with SYNCs 0-9 ms late; over the last interval alone, one SYNC that went out a
+            # little later than its setpoint was made for doubled the speed of a short one)
+            t0, g0 = self._goals[0]
             top = self.params.max_velocity
-            span = period * slots
-            trend = max(-top, min(top, (goal - last) / (since if since > 0 else span)))
+            if ax.t > t0:
+                trend = max(-top, min(top, (goal - g0) / (ax.t - t0)))
+        self._goals.append((ax.t, goal))
         ax.set_reference(linear_profile(ax.t, start, goal, period, self._bridge(goal, trend), trend))
 
     def _bridge(self, goal: float, v: float) -> float:
         """How long the CSP demand goes on, after reaching ``goal``, at the setpoint stream's
-        speed ``v`` (the last two setpoints' difference over the time between their SYNCs) when
+        speed ``v`` (its last setpoints' travel over the real time between their SYNCs) when
         the next setpoints do not come: the RPDO deadline (0x1400:5; the drive then stops per
         0x6007 at 0x6085), never past a software limit; 0 (hold the last setpoint) without one.
 
