@@ -43,6 +43,17 @@ TPDOs of this SYNC) before their next setpoint. With kernel SYNC the RPDOs go at
 kernel's SYNC does not wait), and a cycle is resumed when :data:`DROP_SLOTS` or more SYNCs
 passed since the one before it (the drives bridged at least two of them).
 
+A SYNC that goes out late (the runner woke late, or its callbacks overran the slot by less than
+:data:`LATE_SYNC` of a period — a slot overrun by more is skipped) carries setpoints *moved on
+by its lateness within its slot* along their stream (each held frame's ``retime``, given by the
+driver: :meth:`tcs.drivers.cia402_drive.Cia402Drive._retimer`): a drive latches a setpoint at
+the SYNC it gets and interpolates it over the nominal period from there, so a setpoint made for
+the slot would run its demand faster than the stream over the shorter interval to the next,
+on-time SYNC (issue 39 item 10; docs/motion.md). The setpoints the callbacks made, and every
+bound on them, stay as made. ``retime = False`` sends them as made (the baseline of the jitter
+bench); :attr:`CycleSource.retime_delays` notes SYNCs a preempted runner sent noticeably later
+than the lateness it moved their setpoints on by.
+
 Where the SYNC comes from: on ``socketcan`` the kernel broadcast manager sends it
 (``bus.send_periodic``; the runner sees each SYNC through the socket's loopback). Elsewhere the
 runner thread itself sends SYNC at ``t_k``: it sleeps to the slot, sends, waits for the
@@ -90,6 +101,9 @@ DROP_SLOTS = 3
 #: A runner whose callbacks end less than this share of a period after the next SYNC slot
 #: still sends that SYNC, late (thread mode); beyond it the slot is skipped.
 LATE_SYNC = 0.5
+#: A SYNC sent more than this (s) after its setpoints were moved on by its lateness is noted in
+#: :attr:`CycleSource.retime_delays`.
+RETIME_DELAY_NOTED = 0.0005
 
 
 @dataclass(frozen=True)
@@ -174,6 +188,13 @@ class CycleSource:
         #: lateness (the frames' ``retime``; see the module docstring). False: sent as made
         #: (the benchmark's baseline, tools/bench/sync_jitter.py)
         self.retime = True
+        #: (send time, delay) of the SYNCs that went more than :data:`RETIME_DELAY_NOTED` s
+        #: after the lateness their setpoints were moved on by was taken (the newest
+        #: ``history``; tests and the jitter bench leave those SYNCs out of their judgement)
+        self.retime_delays: collections.deque[tuple[float, float]] = collections.deque(maxlen=history)
+        #: when the runner skipped SYNC slots (thread mode; the newest ``history``): the
+        #: planner's stream slips a step there, the drives bridge it
+        self.skips: collections.deque[float] = collections.deque(maxlen=history)
 
     @property
     def tpdo_deadline(self) -> float:
@@ -377,6 +398,7 @@ class CycleSource:
         slot = self._clock() + period
         held: list = []            # the last cycle's RPDOs, sent just before the next SYNC
         held_for = -1              # the index of the SYNC they were made for
+        retimed_at = None          # when the held frames' lateness was taken
         previous: float | None = None  # when the previous SYNC went out
         dropped_last = False       # the last held frames were dropped
         while not self._stop.is_set():
@@ -389,6 +411,7 @@ class CycleSource:
             if now - slot >= step:  # woke a whole period or more late (stopped, starved):
                 skipped = int((now - slot) // step)  # this SYNC takes the latest slot due
                 self._count(missed=skipped)
+                self.skips.append(now)
                 slot += skipped * step
                 index += skipped
             resumed = False
@@ -402,7 +425,8 @@ class CycleSource:
                     # over the shorter interval to the next, on-time SYNC. The lateness within
                     # this slot only: the planner's stream goes one step per SYNC, and a slot
                     # skipped before is the stream's slip, not a step it owes)
-                    late = self._clock() - slot if self.retime else 0.0
+                    retimed_at = self._clock()
+                    late = retimed_at - slot if self.retime else 0.0
                     for cob_id, data, retime in held:
                         if retime is not None and late > 0:
                             data = retime(late)
@@ -425,6 +449,13 @@ class CycleSource:
             except TcsError as exc:
                 self.last_error = exc
                 self._count(sync_failures=1)
+            if retimed_at is not None:
+                # (how much later than the lateness its setpoints were moved on by this SYNC
+                # went: the runner preempted in between, a busy host's share of the jitter)
+                delay = self._clock() - retimed_at
+                if delay > RETIME_DELAY_NOTED:
+                    self.retime_delays.append((sent, delay))
+                retimed_at = None
             self._late(sent - slot)
             self._cycle(index, sent, slot + step, step, held, resumed, previous)
             previous, held_for = sent, index + 1
@@ -438,6 +469,7 @@ class CycleSource:
                 # extrapolation from that short step makes the next line too fast)
                 skipped = int((now - slot) / step - LATE_SYNC) + 1
                 self._count(missed=skipped)
+                self.skips.append(now)
                 slot += skipped * step
                 index += skipped
 
