@@ -48,6 +48,23 @@ def _no_leaked_threads():  # the module's service thread is expected; LiveServic
 
 # ----------------------------------------------------------------------------- helpers
 
+class stream_as_made:
+    """Within: the cycle source sends each setpoint as the axis made it, not moved on by its
+    SYNC's lateness (``CycleSource.retime``). For the tests that judge the axis's stream step by
+    step over the nominal period — a retimed setpoint is the stream's travel over the real
+    interval between its SYNC and the one before, which a late SYNC makes longer or shorter
+    (judged over real time: tests/vcan/test_stall_recovery.py, the jittery-SYNC test)."""
+
+    def __init__(self, live):
+        self.source = live.telescope.control_loop.source
+
+    def __enter__(self):
+        self.before, self.source.retime = self.source.retime, False
+        return self
+
+    def __exit__(self, *exc):
+        self.source.retime = self.before
+
 class Sampler:
     """Samples a simulated drive's reported position every few ms in a thread of its own."""
 
@@ -359,7 +376,8 @@ async def test_moveaxis_keeps_the_operators_currspeed(live):
         here = sim(live, "AZ").position
         sim(live, "AZ").csp_targets.clear()
         # a direct 10° move (goto() would go by 0 first: 230° at the 5°/s under test, 46 s)
-        assert done_ok(await c.set(f"AZ.TARGETPOS={round(here + 10.0, 3)}", WAIT), "AZ.TARGETPOS")
+        with stream_as_made(live):  # (the axis's own steps are under test)
+            assert done_ok(await c.set(f"AZ.TARGETPOS={round(here + 10.0, 3)}", WAIT), "AZ.TARGETPOS")
         recs = list(sim(live, "AZ").csp_targets)  # (steps between consecutive SYNCs' targets)
         steps = [b - a for (_, a, _), (_, b, cont) in zip(recs, recs[1:]) if cont]
         period = live.telescope.control_loop.source.period
@@ -576,7 +594,8 @@ async def test_late_cycles_never_send_more_than_the_speed_and_acceleration_limit
         drive.csp_targets.clear()
         loop.source.add_callback(late)
         try:
-            lines = await c.set("AZ.TRAJECTORY.RUN=1", WAIT)
+            with stream_as_made(live):  # (the axis's own steps under late cycles are under test)
+                lines = await c.set("AZ.TRAJECTORY.RUN=1", WAIT)
         finally:
             loop.source.remove_callback(late)
         assert lines[-1].endswith("COMMAND COMPLETE"), lines
@@ -625,6 +644,7 @@ async def test_random_commands_from_every_front_end_never_move_unasked(live):
     t = live.telescope
     c = await connect(live)
     tsi = await Client.connect(live.service.opentsi_port)
+    stream = stream_as_made(live).__enter__()  # (each CSP step is judged over one period)
     try:
         await ready(live, c, "AZ", "ZD")
         rotator, port = t.pointing.active_derotator()
@@ -779,6 +799,7 @@ async def test_random_commands_from_every_front_end_never_move_unasked(live):
         assert {"moveaxis", "targetpos", "run", "abort", "fault"} <= kinds, kinds
         assert sum(1 for _, _, kind, _ in log if kind == "moveaxis") > 50
     finally:
+        stream.__exit__()
         for ax in ("AZ", "ZD"):
             try:
                 await c.set(f"{ax}.CURRSPEED={t.axis(ax).section.max_velocity}")

@@ -160,6 +160,7 @@ class SimCanPort:
         self._stall_noted = float("-inf")  # when the latest stall was counted
         self.awake = 0.0  # the awake clock (see the module docstring)
         self._frame_stamp = 0.0  # the wall-clock send time of the frame being handled, 0: unknown
+        self._in_hand = 0  # frames the receive thread took from the queue and has not handled
 
     # -- receive -----------------------------------------------------------------------------
     def subscribe(self, cob_id: int, callback: FrameCallback) -> None:
@@ -202,6 +203,13 @@ class SimCanPort:
         return lag if 0.0 < lag < MAX_FRAME_LAG else 0.0
 
     def _dispatch(self, cob_id: int, data: bytes, stamp: float = 0.0) -> None:
+        self._in_hand += 1  # (taken from the queue, not handled yet: receive_backlog)
+        try:
+            self._dispatch_locked(cob_id, data, stamp)
+        finally:
+            self._in_hand -= 1
+
+    def _dispatch_locked(self, cob_id: int, data: bytes, stamp: float) -> None:
         with self.lock:
             if self._closed:
                 return
@@ -278,12 +286,14 @@ class SimCanPort:
                      "their supervision restarts, no fault", stall)
 
     def receive_backlog(self) -> int:
-        """Frames received but not yet handled (0 where the bus does not tell)."""
+        """Frames received but not yet handled: waiting in the bus's queue (0 where the bus
+        does not tell) or taken from it and waiting for the lock."""
         q = getattr(self._bus, "queue", None)
         try:
-            return q.qsize() if q is not None else 0
+            queued = q.qsize() if q is not None else 0
         except (AttributeError, NotImplementedError):
-            return 0
+            queued = 0
+        return queued + self._in_hand
 
     def _poll_all(self) -> None:
         self._note_alive()

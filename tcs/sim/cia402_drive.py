@@ -325,7 +325,12 @@ class SimDrive:
 
     # -- introspection (tests and benchmarks; never used by the TCS) --------------------------
     def _now(self):
-        self.logic.update(self.clock())
+        # (not past frames that wait unread, on the real clock: a SYNC among them is handled
+        # as of when it was sent, and a reading taken meanwhile must not have moved the
+        # physics on beyond that — the demand would have bridged on, and the SYNC's line
+        # start from there: a reader's own artefact, 4.1 then 5.7 deg/s around one such SYNC)
+        if not (self._compensate and self._port.receive_backlog()):
+            self.logic.update(self.clock())
         return self.logic
 
     @property

@@ -215,6 +215,10 @@ def test_a_short_master_gap_mid_slew_never_pulls_the_drive_back(can_channel, mod
     slew goes on; the TCS never commands more than the stop deceleration (the motor's own
     braking depends on the drive's bridging and the host's other late cycles: the bench)."""
     with rig_for(can_channel, mode, bridging) as rig:
+        # (the TCS's commanded deceleration is judged step by step over the nominal period:
+        # the setpoints as the axis made them, not moved on by their SYNC's lateness, which
+        # makes a step the stream's travel over the real interval — the jittery-SYNC test)
+        rig.system.cycle.retime = False
         if rig.system.cycle.kernel_sync:
             # (the kernel's SYNC goes on while the master is held: the drive counts three SYNCs
             # without a setpoint and stops itself — the case of tests/vcan/test_driver_safety,
