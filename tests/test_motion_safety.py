@@ -183,7 +183,7 @@ async def moves_until(live, ax: str, pred, what: str, timeout: float = WAIT) -> 
 def targets(live, ax: str) -> list[float]:
     """The CSP targets the simulated drive of ``ax`` received, one per SYNC (what the TCS
     commanded; the motor's reported position adds its own loop's settling to it)."""
-    return [p for _, p, _ in sim(live, ax).csp_targets]
+    return [p for _, p, _ in list(sim(live, ax).csp_targets)]  # (a copy: the sim appends)
 
 
 def bridged(records) -> float:
@@ -234,6 +234,7 @@ async def test_a_slower_moveaxis_slows_the_axis_down_without_stepping_back(live)
     braked down to it and unwound its deceleration below zero, 10 mdeg back (the randomized
     test saw 1–3 mdeg: ``AZ: MoveAxis(0.8) stepped back``)."""
     c = await connect(live)
+    stream = stream_as_made(live).__enter__()  # (each CSP step is judged over one period)
     try:
         await ready(live, c, "AZ", "ZD")
         period = live.telescope.control_loop.source.period
@@ -258,6 +259,7 @@ async def test_a_slower_moveaxis_slows_the_axis_down_without_stepping_back(live)
             commanded = targets(live, ax)
             assert against(commanded, sign) == [], (ax, fast, slow, against(commanded, sign)[:5])
     finally:
+        stream.__exit__()
         await c.close()
 
 

@@ -17,6 +17,10 @@ How it works
   go to the :class:`~tcs.drivers.worker.SdoWorker` and are polled in later cycles.
 * :meth:`Cia402Drive.status` builds a frozen :class:`~tcs.drivers.drive.DriveStatus` from
   those fields, from any thread.
+* A streamed CSP/IP setpoint goes with a ``retime`` (:meth:`_retimer`): when the cycle source
+  holds the RPDO for a SYNC that then goes out late, the setpoint is moved on by that lateness
+  along its stream — a drive interpolates it over the nominal period from the SYNC it got
+  (:mod:`tcs.drivers.cycle`, docs/motion.md "Speed over real time").
 
 Safety rules kept here
 ----------------------
@@ -185,6 +189,7 @@ class Cia402Drive:
         # control-loop side
         self._setpoint: int | None = None
         self._setpoint_velocity: float | None = None  # the stream's velocity there, units/s
+        self._setpoint_fresh = False  # set_setpoint was called since the last step
         self._stream: tuple[int, float] | None = None  # the last streamed (target, velocity inc/s)
         self._velocity_ff = 0
         # CSV: the position loop closed here (feed-forward + PI), following-error supervision
@@ -574,7 +579,7 @@ class Cia402Drive:
         """CSP target for the next SYNC, clamped to the software limits (control-loop thread)."""
         position = min(max(position, self._lo), self._hi)
         self._setpoint = round(position * self._scale)
-        self._setpoint_velocity = velocity
+        self._setpoint_velocity, self._setpoint_fresh = velocity, True
         kv = self.section.velocity_scale
         self._velocity_ff = round(velocity * kv) if velocity is not None else 0
 
@@ -805,16 +810,20 @@ class Cia402Drive:
         if streaming and mode in (Mode.CSP, Mode.IP) and self._setpoint is not None:
             stream = self._stream_motion(target)
         else:
-            self._stream = None
+            self._stream, self._setpoint_fresh = None, False
         self._send(cw, target, stream)
 
     def _stream_motion(self, target: int) -> tuple[float, float]:
         """The setpoint stream's velocity (increments/s) and acceleration (increments/s²) at
-        ``target``: the axis's velocity for it (its difference from the last target over the
-        period when none came), the acceleration from the last one's."""
+        ``target``: the axis's velocity for it (or, when it gave none, the difference from the
+        last target over the period; 0 when it made no setpoint this cycle: the last one is
+        held), the acceleration from the last one's."""
         period = self._cycle_step or self._can.sync_period
         last, v = self._stream, self._setpoint_velocity
-        if v is not None:
+        fresh, self._setpoint_fresh = self._setpoint_fresh, False
+        if not fresh:  # (the axis made no setpoint this cycle: the last one is held, not moved on)
+            v = 0.0
+        elif v is not None:
             v *= self._scale
         elif last is not None:
             v = (target - last[0]) / period

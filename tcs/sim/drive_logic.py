@@ -57,7 +57,8 @@ Behaviour chosen where CiA-402 leaves it to the vendor (the driver can rely on i
   ``SimDriveParams.bridging`` says: ``"extrapolate"`` (default) — with a deadline set the
   demand goes on at the setpoint stream's speed (the travel of its last
   :data:`TREND_SETPOINTS` setpoints over the real time between the SYNCs that latched them: a
-  drive that synchronizes its cycle to SYNC measures those intervals — capped at the motor's
+  drive that synchronizes its cycle to SYNC measures those intervals; never faster than the
+  last interval's, so a stream slowing to a stop is not bridged past it — capped at the motor's
   speed; no braking at
   the motor's limit before the reaction starts), bounded by the deadline and the software
   limits — or ``"hold"`` — the demand stays at the last setpoint (the motor brakes at its own
@@ -77,6 +78,7 @@ Behaviour chosen where CiA-402 leaves it to the vendor (the driver can rely on i
 from __future__ import annotations
 
 import collections
+import math
 from collections.abc import Callable
 from fractions import Fraction
 
@@ -647,10 +649,16 @@ class DriveLogic:
             # interval, an early one's at a shorter: 5.2°/s over 100 ms against a 5°/s stream
             # with SYNCs 0-9 ms late; over the last interval alone, one SYNC that went out a
             # little later than its setpoint was made for doubled the speed of a short one)
+            # (and never faster than the last interval's: a stream that slows down to a stop
+            # is not bridged past it at its speed of three setpoints before)
             t0, g0 = self._goals[0]
+            t1, g1 = self._goals[-1]
             top = self.params.max_velocity
             if ax.t > t0:
-                trend = max(-top, min(top, (goal - g0) / (ax.t - t0)))
+                trend = (goal - g0) / (ax.t - t0)
+                last = (goal - g1) / (ax.t - t1) if ax.t > t1 else trend
+                trend = 0.0 if trend * last <= 0 else math.copysign(min(abs(trend), abs(last)), trend)
+                trend = max(-top, min(top, trend))
         self._goals.append((ax.t, goal))
         ax.set_reference(linear_profile(ax.t, start, goal, period, self._bridge(goal, trend), trend))
 
