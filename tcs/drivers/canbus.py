@@ -435,6 +435,11 @@ class CanBus:
             raise error from exc
         self._failures_in_row = 0
 
+    def holding(self) -> bool:
+        """The calling thread's sends are held for the cycle source (:meth:`hold_sends`)."""
+        held = self._held
+        return held is not None and held[0] == threading.get_ident()
+
     def hold_sends(self, frames: list | None) -> None:
         """From now on the calling thread's :meth:`send` appends ``(cob_id, data, retime)`` to
         ``frames`` instead of sending (None: sends go out again). The cycle runner only."""

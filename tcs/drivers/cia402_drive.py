@@ -1017,6 +1017,8 @@ class Cia402Drive:
         values = {0x6040: cw, 0x607A: target, 0x60B1: self._velocity_ff, 0x60C1: target,
                   0x60FF: self._velocity_cmd}
         self._cw, self._target_sent = cw, target
+        if stream is not None and not self._bus.holding():
+            stream = None  # (sent at once — kernel SYNC —: never retimed, nothing to build)
         for rpdo in self._rpdos:  # (usually one; more when the drive's RPDO1 is small)
             retime = None
             if stream is not None and (0x607A in rpdo.indices or 0x60C1 in rpdo.indices):
