@@ -190,3 +190,29 @@ def test_acknowledge_faults_action(live):
     t.Unpark()
     until(lambda: not t.AtPark, "ready again")
     t.Disconnect()
+
+
+def test_a_failure_is_read_even_before_the_operations_callback_ran():
+    """An operation that ended with an error is failed for a completion read served between the
+    task's end and its done-callback (the event loop runs them in turn): never a read that finds
+    it neither running nor failed — a slew ended by a fault once read as arrived that way."""
+    from tcs.alpaca.device import Device
+    from tcs.alpaca.protocol import AscomError
+    from tcs.errors import TcsError
+
+    async def scenario() -> str:
+        device = Device(0, "t", "t", None)
+
+        async def slew() -> None:
+            raise TcsError("ZD: cannot run a trajectory: drive fault")
+
+        device.start_operation("slew", slew(), "the slew")
+        while device.running("slew"):
+            await asyncio.sleep(0)   # (wakes right after the task's end, before its callback)
+        try:
+            device.report_failure()
+        except AscomError as exc:
+            return str(exc)
+        return ""
+
+    assert "the slew failed: ZD: cannot run a trajectory" in asyncio.run(scenario())

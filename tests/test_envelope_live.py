@@ -334,14 +334,17 @@ def test_alpaca_moveaxis_stops_at_the_sun_cone(live):
             until(lambda: not az.motion_state & 1, "stopped again")
         except InvalidValueException as exc:
             assert "border" in str(exc), exc
-        # (read a moment after the stop at the border: the Sun moves ~0.004°/s meanwhile)
-        assert 30.0 - 1e-4 <= sep_from_sun(live, t.Azimuth, 90.0 - t.Altitude) < 30.2
-        t.MoveAxis(TelescopeAxes.axisPrimary, -10.0)
-        until(lambda: sep_from_sun(live, t.Azimuth, 90.0 - t.Altitude) > 32.0, "away from the Sun")
-        t.MoveAxis(TelescopeAxes.axisPrimary, 0.0)
+        # (read a moment after the stop at the border: the Sun moves ~0.004°/s meanwhile, and
+        # the separation is computed here from positions read over Alpaca: 3.6" of tolerance)
+        assert 30.0 - 1e-3 <= sep_from_sun(live, t.Azimuth, 90.0 - t.Altitude) < 30.2
     finally:
-        t.AbortSlew()
-        t.Disconnect()
+        try:   # away from the Sun, passed or failed: the next tests start from outside the cone
+            t.MoveAxis(TelescopeAxes.axisPrimary, -10.0)
+            until(lambda: sep_from_sun(live, t.Azimuth, 90.0 - t.Altitude) > 32.0, "away from the Sun")
+            t.MoveAxis(TelescopeAxes.axisPrimary, 0.0)
+        finally:
+            t.AbortSlew()
+            t.Disconnect()
 
 
 async def test_targetpos_is_judged_on_the_cable_wrap_turn_the_axis_takes(live):

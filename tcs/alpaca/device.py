@@ -50,7 +50,7 @@ from tcs import __version__ as TCS_VERSION
 from tcs.alpaca.protocol import AlpacaRequest, AscomError, BadRequest, Code, from_tcs_error, not_implemented
 from tcs.errors import ErrorNumber, TcsError
 from tcs.model.equipment_power import power_axis, shielded  # noqa: F401  (the equipment's)
-from tcs.state_epoch import EPOCH
+from tcs.state_epoch import EPOCH, bump as bump_epoch
 
 log = logging.getLogger(__name__)
 
@@ -134,6 +134,7 @@ class Device:
         self._operations: dict[str, asyncio.Future] = {}
         self._dropped: weakref.WeakSet = weakref.WeakSet()
         self._failure: str | None = None
+        self._what: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # running task -> what
         self._quiet_failures = False   # DeviceState reads do not take a failure away
         self.referencing: asyncio.Future | None = None   # an axis referencing a first move started
         self.unique_id = str(uuid.uuid5(uuid.NAMESPACE_URL, f"tcs-alpaca:{unique_seed}:{self.TYPE}:{number}"))
@@ -277,20 +278,26 @@ class Device:
             self._dropped.add(old)   # superseded by this one: its end is no failure
         task = asyncio.ensure_future(awaitable)
         self._operations[key] = task
+        self._what[task] = what
+        task.add_done_callback(self._settle)
 
-        def done(f: asyncio.Future) -> None:
-            if f.cancelled():
-                return
-            exc = f.exception()
-            log.debug("%s %s: %s ended: %r", self.NAME, self.number, what, exc)
-            if exc is None or f in self._dropped:
-                return
-            if isinstance(exc, TcsError) and exc.number == ErrorNumber.TARGETCHANGE:
-                return   # superseded by a newer command
-            self._failure = f"{what} failed: {getattr(exc, 'message', exc)}"
-            log.warning("%s %s: %s", self.NAME, self.number, self._failure)
-
-        task.add_done_callback(done)
+    def _settle(self, f: asyncio.Future) -> None:
+        """Record how operation ``f`` ended (its failure for the next completion read), once:
+        from its done-callback, or earlier from :meth:`report_failure` — a read served between
+        the task's end and its callback (the loop runs them in turn) must not find it neither
+        running nor failed."""
+        what = self._what.pop(f, None)
+        if what is None or f.cancelled():
+            return
+        exc = f.exception()
+        log.debug("%s %s: %s ended: %r", self.NAME, self.number, what, exc)
+        if exc is None or f in self._dropped:
+            return
+        if isinstance(exc, TcsError) and exc.number == ErrorNumber.TARGETCHANGE:
+            return   # superseded by a newer command
+        self._failure = f"{what} failed: {getattr(exc, 'message', exc)}"
+        bump_epoch()   # (a state read kept from before must not hide it)
+        log.warning("%s %s: %s", self.NAME, self.number, self._failure)
 
     def running(self, key: str) -> bool:
         task = self._operations.get(key)
@@ -316,6 +323,8 @@ class Device:
 
     def report_failure(self) -> None:
         """Raise (once) the failure of the last operation that failed: a completion read calls it."""
+        for task in [t for t in self._operations.values() if t.done()]:
+            self._settle(task)   # (ended, its callback not yet run)
         if self._failure is not None and not self._quiet_failures:
             message, self._failure = self._failure, None
             raise AscomError(Code.DRIVER_ERROR, message)
