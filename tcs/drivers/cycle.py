@@ -41,7 +41,12 @@ and the cycle after says :attr:`Cycle.resumed` — the setpoints of the cycle be
 reach the drives on time, so the callbacks re-anchor on where the drives really are (the
 TPDOs of this SYNC) before their next setpoint. With kernel SYNC the RPDOs go at once (the
 kernel's SYNC does not wait), and a cycle is resumed when :data:`DROP_SLOTS` or more SYNCs
-passed since the one before it (the drives bridged at least two of them).
+passed since the one before it (the drives bridged at least two of them). The cycle's
+``sync_time``/``next_sync`` are then the kernel timer's grid, not when the notifier delivered
+the SYNC: its latency varies by milliseconds on a busy host, and a trajectory sampled for the
+notifier's time instead of the SYNC's runs the demand that much faster or slower over the
+interval (issue 39 item 10). The timer's phase on the grid is the least lateness seen over the
+last :data:`GRID_PHASE_SYNCS` SYNCs.
 
 A SYNC that goes out late (the runner woke late, or its callbacks overran the slot by less than
 :data:`LATE_SYNC` of a period — a slot overrun by more is skipped) carries setpoints *moved on
@@ -101,6 +106,9 @@ DROP_SLOTS = 3
 #: A runner whose callbacks end less than this share of a period after the next SYNC slot
 #: still sends that SYNC, late (thread mode); beyond it the slot is skipped.
 LATE_SYNC = 0.5
+#: With kernel SYNC, the SYNC timer's phase is the least lateness seen over this many SYNCs
+#: (the notifier's latency varies; the timer does not).
+GRID_PHASE_SYNCS = 200
 #: A SYNC sent more than this (s) after its setpoints were moved on by its lateness is noted in
 #: :attr:`CycleSource.retime_delays`.
 RETIME_DELAY_NOTED = 0.0005
@@ -481,6 +489,7 @@ class CycleSource:
         first_count = 0
         divider = self._divider
         previous: float | None = None
+        phase: collections.deque[float] = collections.deque(maxlen=GRID_PHASE_SYNCS)
         while not self._stop.is_set():
             with self._sync_seen:
                 while self._sync_count == seen and not self._stop.is_set():
@@ -493,6 +502,7 @@ class CycleSource:
             step = period * divider
             if first_time is None:
                 first_time, first_count = sync_time, count
+                phase.clear()
             elif count > seen + 1:
                 self._count(missed=count - seen - 1)
             # (the last cycle's setpoints were made for SYNC seen + 1 and latched at the first
@@ -502,6 +512,14 @@ class CycleSource:
             # than the step it avoids)
             resumed = previous is not None and count - seen >= DROP_SLOTS
             seen = count
-            self._late(sync_time - (first_time + (count - first_count) * step))
-            self._cycle(count, sync_time, sync_time + step, step, None, resumed, previous)
-            previous = sync_time
+            ideal = first_time + (count - first_count) * step
+            lateness = sync_time - ideal
+            self._late(lateness)
+            # (the kernel sends SYNC on its timer; this thread sees it later by the notifier's
+            # latency, which varies: the least lateness of the last SYNCs is the timer's phase
+            # on the grid, and the cycle's times are the grid's — a setpoint is sampled for
+            # when its SYNC really comes, not for the notifier's latency after one)
+            phase.append(lateness)
+            grid = min(ideal + min(phase), sync_time)
+            self._cycle(count, grid, grid + step, step, None, resumed, previous)
+            previous = grid
