@@ -25,6 +25,8 @@ d = 0.5 leaves half the period to the callbacks. Counters (:class:`CycleStats`):
 * ``missed`` — SYNC slots skipped because the runner was still busy (no SYNC was sent then in
   thread mode; the kernel sent it anyway on socketcan, with no new setpoint behind it);
 * ``tpdo_timeouts`` — cycles that ran at the deadline without every synchronous TPDO;
+* ``retimed_again`` — cycles whose held setpoints were retimed and sent again before their
+  SYNC (:data:`RETIME_AGAIN`: the runner was preempted while sending them);
 * ``lateness`` — the last ``history`` SYNC send times minus their ideal schedule (thread mode)
   or SYNC receive intervals minus *T* accumulated on the ideal grid (socketcan).
 
@@ -106,6 +108,9 @@ DROP_SLOTS = 3
 #: A runner whose callbacks end less than this share of a period after the next SYNC slot
 #: still sends that SYNC, late (thread mode); beyond it the slot is skipped.
 LATE_SYNC = 0.5
+#: Held setpoints whose sending took the runner longer than :data:`RETIME_DELAY_NOTED` (it was
+#: preempted) are retimed and sent again, at most this many times, before their SYNC.
+RETIME_AGAIN = 2
 #: With kernel SYNC, the SYNC timer's phase is the least lateness seen over this many SYNCs
 #: (the notifier's latency varies; the timer does not).
 GRID_PHASE_SYNCS = 200
@@ -139,6 +144,7 @@ class CycleStats:
     sync_failures: int = 0
     max_callback: float = 0.0
     dropped: int = 0  # cycles whose held RPDOs were dropped (their SYNC was skipped or late)
+    retimed_again: int = 0  # held setpoints retimed and sent again (the runner was preempted)
 
 
 class CycleSource:
@@ -196,6 +202,9 @@ class CycleSource:
         #: lateness (the frames' ``retime``; see the module docstring). False: sent as made
         #: (the benchmark's baseline, tools/bench/sync_jitter.py)
         self.retime = True
+        #: how many times at most held setpoints are retimed and sent again when sending them
+        #: took the runner too long (:data:`RETIME_AGAIN`; 0: never — the bench's baseline)
+        self.retime_again = RETIME_AGAIN
         #: (send time, delay) of the SYNCs that went more than :data:`RETIME_DELAY_NOTED` s
         #: after the lateness their setpoints were moved on by was taken (the newest
         #: ``history``; tests and the jitter bench leave those SYNCs out of their judgement)
@@ -393,7 +402,8 @@ class CycleSource:
             cycles=s.cycles + 1, late=s.late + (end > next_sync), missed=s.missed,
             tpdo_timeouts=s.tpdo_timeouts + (not complete),
             callback_errors=s.callback_errors + errors, sync_failures=s.sync_failures,
-            max_callback=max(s.max_callback, spent), dropped=s.dropped)
+            max_callback=max(s.max_callback, spent), dropped=s.dropped,
+            retimed_again=s.retimed_again)
 
     def _count(self, **delta: int) -> None:
         s = self._stats
@@ -438,10 +448,19 @@ class CycleSource:
                     for cob_id, data, retime in held:
                         if retime is not None and late > 0:
                             data = retime(late)
-                        try:
-                            self.bus.send(cob_id, data)
-                        except TcsError as exc:  # (recorded in the bus health)
-                            self.last_error = exc
+                        self._send_held(cob_id, data)
+                    # (preempted while sending them — a busy host — the retimed ones again,
+                    # moved on by the lateness now: a drive latches the last it got before
+                    # its SYNC; what is left is a preemption after the last look at the clock)
+                    for _ in range(self.retime_again):
+                        now = self._clock()
+                        if not self.retime or now - retimed_at <= RETIME_DELAY_NOTED:
+                            break
+                        retimed_at, late = now, now - slot
+                        self._count(retimed_again=1)
+                        for cob_id, _data, retime in held:
+                            if retime is not None:
+                                self._send_held(cob_id, retime(late))
                 else:  # made for a skipped slot, or a whole period late: stale
                     resumed = True
                     self._count(dropped=1)
@@ -480,6 +499,12 @@ class CycleSource:
                 self.skips.append(now)
                 slot += skipped * step
                 index += skipped
+
+    def _send_held(self, cob_id: int, data) -> None:
+        try:
+            self.bus.send(cob_id, data)
+        except TcsError as exc:  # (recorded in the bus health)
+            self.last_error = exc
 
     def _run_kernel(self) -> None:
         """SYNC from the kernel: wake on each SYNC seen in the loopback, then as above."""

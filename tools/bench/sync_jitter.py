@@ -35,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from stall import Master, Sampler, sections, wait  # noqa: E402
 
+from tcs.drivers.cycle import RETIME_AGAIN  # noqa: E402
 from tcs.sim.cia402_drive import SimDrive  # noqa: E402
 from tcs.sim.drive_network import params_from_config  # noqa: E402
 
@@ -80,7 +81,13 @@ def peak_speeds(samples, skip=()) -> tuple[float, float, int]:
     return round(best[0], 4), round(best[1], 4), judged
 
 
-def run_case(pattern: str, retime: bool, cycles: int) -> dict:
+#: (name, retime, retime_again) of each run: without the retime (the baseline), retimed once
+#: before the SYNC, and retimed again when the runner was preempted while sending
+MODES = (("off", False, 0), ("once", True, 0), ("on", True, RETIME_AGAIN))
+
+
+def run_case(pattern: str, mode: str, cycles: int) -> dict:
+    _name, retime, again = next(m for m in MODES if m[0] == mode)
     config, _, _, _ = sections("csp", {})
     channel = f"jitter-{uuid.uuid4().hex[:8]}"
     params = params_from_config(config)[config.drives["az"].node_id]
@@ -93,7 +100,7 @@ def run_case(pattern: str, retime: bool, cycles: int) -> dict:
         master = Master("csp", {"interface": "virtual", "channel": channel})
         source = master.system.cycle
         wake = source._stop = LateWake()  # (before the runner's next sleep; it only waits on it)
-        source.retime = retime
+        source.retime, source.retime_again = retime, again
         master.power()
         master.command("target", GOAL)
         wait(lambda: sim.velocity > 4.99, 60, "cruising at 5°/s")
@@ -110,9 +117,10 @@ def run_case(pattern: str, retime: bool, cycles: int) -> dict:
         skip = [(t - period, t + 6 * period) for t in irregular]
         demand, motor, _ = peak_speeds(samples)
         clean_demand, clean_motor, judged = peak_speeds(samples, skip)
-        return {"pattern": pattern, "retime": retime, "demand": demand, "motor": motor,
+        return {"pattern": pattern, "retime": mode, "demand": demand, "motor": motor,
                 "clean_demand": clean_demand, "clean_motor": clean_motor, "clean_windows": judged,
                 "preempted": len(source.retime_delays), "skipped": len(source.skips),
+                "sent_again": source.stats().retimed_again,
                 "fault": None if master.axis.fault is None else master.axis.fault.message,
                 "emcy": [f"0x{c:04X}" for c in sim.emcy_sent]}
     finally:
@@ -126,18 +134,19 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--patterns", nargs="+", default=list(PATTERNS), choices=list(PATTERNS))
     ap.add_argument("--cycles", type=int, default=300)
+    ap.add_argument("--modes", nargs="+", default=[m[0] for m in MODES], choices=[m[0] for m in MODES])
     args = ap.parse_args(argv)
     results = []
     print(f"{'pattern':8} {'retime':6} {'demand':>7} {'motor':>7} {'clean d':>8} {'clean m':>8} "
-          f"{'windows':>7} {'preempted':>9} {'skipped':>7}   (deg/s over {WINDOW * 1e3:g} ms; "
+          f"{'windows':>7} {'preempted':>9} {'skipped':>7} {'again':>5}   (deg/s over {WINDOW * 1e3:g} ms; "
           f"axis limit 5)")
     for pattern in args.patterns:
-        for retime in (False, True):
-            r = run_case(pattern, retime, args.cycles)
+        for mode in args.modes:
+            r = run_case(pattern, mode, args.cycles)
             results.append(r)
-            print(f"{pattern:8} {'on' if retime else 'off':6} {r['demand']:7.3f} {r['motor']:7.3f} "
+            print(f"{pattern:8} {mode:6} {r['demand']:7.3f} {r['motor']:7.3f} "
                   f"{r['clean_demand']:8.3f} {r['clean_motor']:8.3f} {r['clean_windows']:7d} "
-                  f"{r['preempted']:9d} {r['skipped']:7d}"
+                  f"{r['preempted']:9d} {r['skipped']:7d} {r['sent_again']:5d}"
                   + (f"   fault: {r['fault']}" if r["fault"] else ""), flush=True)
     print(json.dumps({"sync_jitter": results}))
     return 0
