@@ -105,6 +105,24 @@ def test_move_reaches_target_exactly_within_limits(distance):
     assert planner.step() == Setpoint(10.0 + distance)
 
 
+
+@pytest.mark.parametrize("speed", [0.004, 0.01])
+def test_a_slow_move_longer_than_ruckig_can_plan_goes_in_legs(speed):
+    """A MoveAxis at a guiding rate towards a far end lasts longer than ruckig plans (~7,600 s;
+    it answered -101 and the control cycle failed): the move goes in legs at its speed — never
+    faster, never back — and ends at rest at its goal; remaining_time counts the whole move."""
+    dt = 0.5   # (a long run: coarse cycles; the profile does not depend on them)
+    planner = MotionPlanner(AZ, SoftLimits(-270.0, 270.0), dt, position=-10.0)
+    goal = -10.0 + 9000.0 * speed        # 9,000 s away at that speed
+    planner.move_to(goal, speed)
+    assert planner.state is PlannerState.MOVING
+    assert planner.remaining_time == pytest.approx(9000.0, rel=0.01)
+    stream = run(planner, max_steps=40_000)
+    assert stream[-1].position == goal and stream[-1].velocity == 0.0
+    assert len(stream) * dt == pytest.approx(9000.0, rel=0.01)
+    steps = [(b.position - a.position) / dt for a, b in zip([Setpoint(-10.0)] + stream, stream)]
+    assert min(steps) >= 0.0 and max(steps) <= speed * (1 + 1e-9)
+
 def test_target_outside_limits_is_refused_before_anything_moves():
     planner = MotionPlanner(AZ, SoftLimits(-90.0, 90.0), DT, position=5.0)
     with pytest.raises(RangeRefused) as info:

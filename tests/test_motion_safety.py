@@ -227,6 +227,29 @@ async def test_moveaxis_moves_a_wrapping_axis_the_way_asked(live):
         await c.close()
 
 
+
+async def test_a_moveaxis_at_a_guiding_rate_runs(live):
+    """MoveAxis of AZ at 0.01°/s (a guiding rate; its end, the software limit, is over 7,600 s
+    away, longer than ruckig plans — it answered -101, the control cycle failed and stopped
+    the axis): the axis moves at that rate its way, no error, and MoveAxis(0) stops it."""
+    c = await connect(live)
+    try:
+        await ready(live, c, "AZ")
+        await goto(c, "AZ", 0.0)
+        axis = live.telescope.axis("AZ")
+        errors = live.telescope.control_loop.errors
+        start = sim(live, "AZ").position
+        reply = await aput(live, "moveaxis", Axis=0, Rate=0.01)
+        assert reply["ErrorNumber"] == 0, reply
+        await moves_until(live, "AZ", lambda p: p - start > 0.005, "MoveAxis(0, 0.01) moving its way")
+        assert axis.motion_state & 1 and axis.fault is None
+        assert live.telescope.control_loop.errors == errors
+        assert (await aput(live, "moveaxis", Axis=0, Rate=0))["ErrorNumber"] == 0
+        await at_rest(c, "AZ")
+        assert 0.005 < sim(live, "AZ").position - start < 0.1
+    finally:
+        await c.close()
+
 async def test_a_slower_moveaxis_slows_the_axis_down_without_stepping_back(live):
     """MoveAxis at 20°/s, then MoveAxis at 1°/s the same way (AZ both ways, the altitude
     up): the axis slows down to the new rate and runs on at it — never a CSP target back.

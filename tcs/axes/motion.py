@@ -75,6 +75,9 @@ class PlannerState(enum.Enum):
 
 #: a velocity or acceleration within this fraction of its limit counts as "limited" (bit 4)
 SATURATION = 0.99
+#: A move longer than about this many seconds goes in legs this long (ruckig plans at most
+#: ~7,600 s: a MoveAxis at a guiding rate towards a far limit was refused with -101).
+LEG_SECONDS = 1000.0
 
 
 class MotionPlanner:
@@ -177,16 +180,19 @@ class MotionPlanner:
 
     @property
     def remaining_time(self) -> float:
-        """Seconds until the running profile ends (for BRAKING, plus an estimate of the
-        pending move); 0 when idle."""
+        """Seconds until the running profile ends (braking, slowing down or a leg of a long
+        move: plus an estimate of the pending move at its speed); 0 when idle."""
         if self._state is PlannerState.IDLE:
             return 0.0
         if self._state is PlannerState.LIMIT:
             return 0.0 if self._guard._brake is None else max(
                 0.0, self._guard._brake.duration - self._guard._brake_steps * self.dt)
         left = max(0.0, (self._n - self._k) * self.dt)
-        if self._pending is not None:
-            left += theoretical_minimum_time(self._pending - self._end, self._dyn_speed())
+        if self._pending is not None:   # (at the pending move's own speed: a MoveAxis's)
+            d = self.dynamics
+            speed = min(self._pending_speed or self._speed, d.max_velocity)
+            left += theoretical_minimum_time(self._pending - self._end,
+                                             AxisDynamics(speed, d.max_acceleration, d.max_jerk))
         return left
 
     # -- commands ----------------------------------------------------------------------------
@@ -437,7 +443,7 @@ class MotionPlanner:
             if not guard.braking:
                 self._idle()
         elif finished:
-            if state in (PlannerState.BRAKING, PlannerState.SLOWING) and self._pending is not None:
+            if self._pending is not None:   # (braked, slowed down, or a leg of a long move)
                 pending, self._pending = self._pending, None
                 self._plan_to(pending, self._pending_speed)
             else:
@@ -445,10 +451,6 @@ class MotionPlanner:
         return sp
 
     # -- internals ---------------------------------------------------------------------------
-
-    def _dyn_speed(self) -> AxisDynamics:
-        d = self.dynamics
-        return AxisDynamics(self._speed, d.max_acceleration, d.max_jerk)
 
     def _idle(self) -> None:
         self._state = PlannerState.IDLE
@@ -545,6 +547,20 @@ class MotionPlanner:
         vmax = self._slow_down(sp, demanded, speed)
         if vmax is None:
             return
+        way = demanded - sp.position
+        if abs(way) > vmax * LEG_SECONDS + abs(sp.velocity) * LEG_SECONDS:
+            # (a long slow move — a MoveAxis at a guiding rate towards a far limit — lasts
+            # longer than ruckig can plan (~7,600 s: it answers -101): it goes in legs of
+            # LEG_SECONDS at its speed, each ending at that speed on the way, the next
+            # planned from there as one ends, the last one to rest at ``demanded``)
+            leg = math.copysign(vmax * LEG_SECONDS, way)
+            traj = self._solver.move(sp, sp.position + leg, math.copysign(vmax, way),
+                                     max_velocity=max(vmax, abs(sp.velocity)),
+                                     max_acceleration=d.max_acceleration, max_jerk=d.max_jerk)
+            if self._guard.crossing(traj, sp.position) is None:
+                self._start(traj, PlannerState.MOVING, sp.position + leg, math.copysign(vmax, way))
+                self._pending = demanded
+                return
         traj = self._solver.move(sp, demanded, max_velocity=vmax,
                                  max_acceleration=d.max_acceleration, max_jerk=d.max_jerk)
         side = self._guard.crossing(traj, sp.position)
