@@ -14,6 +14,7 @@ latched); waits are for states with generous time-outs, never for durations.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import threading
 import time
@@ -302,6 +303,20 @@ JITTER = {"every 7th 6 ms": [0.0] * 6 + [0.006],
           "15 ms in 17": [0.0] * 16 + [0.015]}
 
 
+@contextlib.contextmanager
+def cruising(can_channel):
+    """(rig, cycle source, stand) of a CSP rig whose runner sends SYNC itself, AZ cruising at
+    5°/s towards 150° (skipped with kernel SYNC: the runner does not send it there)."""
+    with rig_for(can_channel, Mode.CSP) as rig:
+        source = rig.system.cycle
+        if source.kernel_sync:
+            pytest.skip("kernel SYNC: the runner does not send the SYNC")
+        stand = Stand(rig, Mode.CSP)
+        stand.start()
+        stand.slew(150.0)
+        yield rig, source, stand
+
+
 @pytest.mark.parametrize("jitter", sorted(JITTER))
 def test_a_jittery_sync_never_runs_the_demand_above_the_speed_limit(can_channel, jitter):
     """Item 10: SYNCs that go out late (the runner's thread woken late) latch setpoints made for
@@ -318,14 +333,7 @@ def test_a_jittery_sync_never_runs_the_demand_above_the_speed_limit(can_channel,
     a slot it skipped (``CycleSource.skips``: overran by more than half a period, the stream
     slips a step) are left out — a loaded host's own jitter, not the pattern's; the test is
     skipped when the host left too few windows to judge."""
-    mode = Mode.CSP
-    with rig_for(can_channel, mode) as rig:
-        source = rig.system.cycle
-        if source.kernel_sync:
-            pytest.skip("kernel SYNC: the runner does not send the SYNC")
-        stand = Stand(rig, mode)
-        stand.start()
-        stand.slew(150.0)
+    with cruising(can_channel) as (rig, source, stand):
         stand.wake.pattern = [late * SLOWDOWN for late in JITTER[jitter]]
         cycles = stand.loop.cycles
         source.retime_delays.clear()
@@ -352,14 +360,7 @@ def test_a_runner_preempted_while_sending_its_setpoints_sends_them_again_moved_o
     (5.10°/s over 100 ms at 5°/s). The runner sees the time it lost, moves them on again and
     sends them again before the SYNC (a drive latches the last it got): the demand stays within
     the axis's 5°/s over every 100 ms window (slots the host itself skipped judged apart)."""
-    mode = Mode.CSP
-    with rig_for(can_channel, mode) as rig:
-        source = rig.system.cycle
-        if source.kernel_sync:
-            pytest.skip("kernel SYNC: the runner does not send the SYNC")
-        stand = Stand(rig, mode)
-        stand.start()
-        stand.slew(150.0)
+    with cruising(can_channel) as (rig, source, stand):
         transport = source.bus.bus
         send = transport.send
         count = {"syncs": 0, "first": True}
