@@ -368,11 +368,13 @@ class CycleSource:
 
     def _cycle(self, index: int, sync_time: float, next_sync: float, step: float,
                held: list | None = None, resumed: bool = False,
-               previous: float | None = None) -> None:
+               previous: float | None = None, heard: float | None = None) -> None:
         # (``step``: this cycle's length, the period times the divider — a resting
         # telescope's slower SYNC leaves its TPDOs the same share of its longer cycle;
-        # ``held``: where this thread's sends go until the next SYNC, None: sent at once)
-        deadline = sync_time + self.tpdo_deadline * step
+        # ``held``: where this thread's sends go until the next SYNC, None: sent at once;
+        # ``heard``: when this thread heard the SYNC (kernel SYNC: later than ``sync_time``,
+        # the grid's) — the TPDOs that follow it come through the same notifier)
+        deadline = (sync_time if heard is None else heard) + self.tpdo_deadline * step
         complete = self._arrived.wait(max(0.0, deadline - self._clock()))
         if self._stop.is_set():
             return
@@ -546,5 +548,5 @@ class CycleSource:
             # when its SYNC really comes, not for the notifier's latency after one)
             phase.append(lateness)
             grid = min(ideal + min(phase), sync_time)
-            self._cycle(count, grid, grid + step, step, None, resumed, previous)
+            self._cycle(count, grid, grid + step, step, None, resumed, previous, sync_time)
             previous = grid
