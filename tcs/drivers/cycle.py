@@ -44,11 +44,14 @@ reach the drives on time, so the callbacks re-anchor on where the drives really 
 TPDOs of this SYNC) before their next setpoint. With kernel SYNC the RPDOs go at once (the
 kernel's SYNC does not wait), and a cycle is resumed when :data:`DROP_SLOTS` or more SYNCs
 passed since the one before it (the drives bridged at least two of them). The cycle's
-``sync_time``/``next_sync`` are then the kernel timer's grid, not when the notifier delivered
-the SYNC: its latency varies by milliseconds on a busy host, and a trajectory sampled for the
+``sync_time``/``next_sync`` are then when the SYNC went — the stamp the kernel gives the frame
+as it passes the loopback, as an age on the monotonic clock — not when the notifier delivered
+it: its latency varies by milliseconds on a busy host, and a trajectory sampled for the
 notifier's time instead of the SYNC's runs the demand that much faster or slower over the
-interval (issue 39 item 10). The timer's phase on the grid is the least lateness seen over the
-last :data:`GRID_PHASE_SYNCS` SYNCs.
+interval (issue 39 item 10). Not a fixed grid: the broadcast manager re-arms its timer from
+when it fired (``ktime_get() + ival``, net/can/bcm.c), so its SYNCs drift later by the
+timer's latency each period — a grid fitted to them was milliseconds off in the CI's emulated
+VM.
 
 A SYNC that goes out late (the runner woke late, or its callbacks overran the slot by less than
 :data:`LATE_SYNC` of a period — a slot overrun by more is skipped) carries setpoints *moved on
@@ -111,9 +114,9 @@ LATE_SYNC = 0.5
 #: Held setpoints whose sending took the runner longer than :data:`RETIME_DELAY_NOTED` (it was
 #: preempted) are retimed and sent again, at most this many times, before their SYNC.
 RETIME_AGAIN = 2
-#: With kernel SYNC, the SYNC timer's phase is the least lateness seen over this many SYNCs
-#: (the notifier's latency varies; the timer does not).
-GRID_PHASE_SYNCS = 200
+#: With kernel SYNC, a SYNC frame's stamp older than this (s) when it is handled is taken as of
+#: another clock: the SYNC's time is then when it was heard.
+MAX_SYNC_AGE = 1.0
 #: A SYNC sent more than this (s) after its setpoints were moved on by its lateness is noted in
 #: :attr:`CycleSource.retime_delays`.
 RETIME_DELAY_NOTED = 0.0005
@@ -185,7 +188,8 @@ class CycleSource:
         self._arrived = threading.Event()
         self._sync_seen = threading.Condition()
         self._sync_count = 0
-        self._sync_time = 0.0
+        self._sync_time = 0.0   # when the last SYNC went (its frame's stamp)
+        self._sync_heard = 0.0  # when this process heard it
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._periodic = None
@@ -336,9 +340,17 @@ class CycleSource:
         # Reset the TPDO barrier here, in the notifier thread, so the TPDOs that follow this
         # SYNC on the bus are counted for it whatever the runner is doing.
         self._new_cycle()
+        heard = self._clock()
+        # (when the SYNC went: the kernel stamps a frame as it passes the loopback, the virtual
+        # bus as it is sent — wall-clock stamps, taken here as an age; the notifier's latency,
+        # milliseconds on a busy host, is not the SYNC's. A stamp of another clock, or none:
+        # when it was heard)
+        age = time.time() - timestamp if timestamp else 0.0
+        if not 0.0 <= age < MAX_SYNC_AGE:
+            age = 0.0
         with self._sync_seen:
             self._sync_count += 1
-            self._sync_time = self._clock()
+            self._sync_time, self._sync_heard = heard - age, heard
             self._sync_seen.notify_all()
 
     # ---------------------------------------------------------------- runner
@@ -516,12 +528,11 @@ class CycleSource:
         first_count = 0
         divider = self._divider
         previous: float | None = None
-        phase: collections.deque[float] = collections.deque(maxlen=GRID_PHASE_SYNCS)
         while not self._stop.is_set():
             with self._sync_seen:
                 while self._sync_count == seen and not self._stop.is_set():
                     self._sync_seen.wait(0.5)
-                count, sync_time = self._sync_count, self._sync_time
+                count, sync_time, heard = self._sync_count, self._sync_time, self._sync_heard
             if self._stop.is_set():
                 break
             if self._divider != divider:  # a new rate: a new grid from this SYNC on
@@ -529,7 +540,6 @@ class CycleSource:
             step = period * divider
             if first_time is None:
                 first_time, first_count = sync_time, count
-                phase.clear()
             elif count > seen + 1:
                 self._count(missed=count - seen - 1)
             # (the last cycle's setpoints were made for SYNC seen + 1 and latched at the first
@@ -539,14 +549,9 @@ class CycleSource:
             # than the step it avoids)
             resumed = previous is not None and count - seen >= DROP_SLOTS
             seen = count
-            ideal = first_time + (count - first_count) * step
-            lateness = sync_time - ideal
-            self._late(lateness)
-            # (the kernel sends SYNC on its timer; this thread sees it later by the notifier's
-            # latency, which varies: the least lateness of the last SYNCs is the timer's phase
-            # on the grid, and the cycle's times are the grid's — a setpoint is sampled for
-            # when its SYNC really comes, not for the notifier's latency after one)
-            phase.append(lateness)
-            grid = min(ideal + min(phase), sync_time)
-            self._cycle(count, grid, grid + step, step, None, resumed, previous, sync_time)
-            previous = grid
+            self._late(sync_time - (first_time + (count - first_count) * step))
+            # (the cycle's times are when the SYNC went — a setpoint is sampled for when its
+            # SYNC really comes, not for the notifier's latency after one; the wait for the
+            # TPDOs counts from when it was heard: they come through the same notifier)
+            self._cycle(count, sync_time, sync_time + step, step, None, resumed, previous, heard)
+            previous = sync_time

@@ -209,46 +209,49 @@ def test_sync_from_send_periodic_drives_the_cycle(can_channel):
 
 
 
-def test_kernel_sync_cycles_are_timed_on_the_sync_grid_not_the_notifiers_latency(can_channel):
+def test_kernel_sync_cycles_are_timed_when_the_sync_went_not_when_it_was_heard(can_channel):
     """Kernel SYNC (the socketcan path): the runner hears each SYNC through the notifier, whose
     latency varies on a busy host — here a callback ahead of the runner's holds each SYNC 0-6 ms
     in a repeating pattern. The cycles' ``sync_time``/``next_sync`` (the times the axes sample
-    their trajectories for) stay on the SYNC timer's grid, never after the SYNC was heard;
-    timed by when it was heard, a 5 deg/s trajectory's setpoints would be off by up to 0.03
-    deg and its demand's speed over 100 ms windows 6 % off (issue 39 item 10)."""
+    their trajectories for) are when the SYNC went (its frame's stamp), never after it was
+    heard: timed by when it was heard, a 5 deg/s trajectory's setpoints would be off by up to
+    0.03 deg and its demand's speed over 100 ms windows 6 % off (issue 39 item 10)."""
     options = {"receive_own_messages": "true"} if can_channel["interface"] == "virtual" else {}
     pattern = [0.0, 0.004, 0.001, 0.006, 0.0, 0.002, 0.005, 0.003]
-    heard: list[float] = []
-    cycles: list[tuple[float, float, float]] = []
+    heard: list[tuple[float, float]] = []   # (the hold, when the runner's callback comes)
+    cycles: list[tuple[float, float, float, float]] = []
     with Rig(can_channel, {"az": AxisSpec(1)}, kernel_sync=True, options=options) as rig:
         source = rig.system.cycle
         k = [0]
 
         def notifier_latency(cob_id, data, timestamp):
-            time.sleep(pattern[k[0] % len(pattern)] * SLOWDOWN)
+            hold = pattern[k[0] % len(pattern)] * SLOWDOWN
             k[0] += 1
-            heard.append(time.monotonic())
+            time.sleep(hold)
+            heard.append((hold, time.monotonic()))
 
         assert rig.system.boot() == {}
         network = source.bus.network
         network.subscribe(0x80, notifier_latency)  # (before the runner's own: it hears later)
         rig.system.start()
         rig.cycle_hooks.append(lambda cycle: cycles.append(
-            (cycle.sync_time, cycle.next_sync, heard[-1] if heard else math.inf)))
-        rig.wait(lambda: len(cycles) > 300, timeout=30.0, what="300 cycles")
+            (cycle.sync_time, cycle.next_sync) + (heard[-1] if heard else (0.0, math.inf))))
+        rig.wait(lambda: len(cycles) > 200, timeout=30.0, what="200 cycles")
         network.unsubscribe(0x80, notifier_latency)
     step = source.period
-    assert all(n - s == pytest.approx(step, abs=1e-9) for s, n, _h in cycles)
+    judged = cycles[10:]
+    assert all(n - s == pytest.approx(step, abs=1e-9) for s, n, _d, _h in judged)
     # (``h``: just before the runner's own callback stamps the SYNC heard)
-    assert all(s <= h + 0.0005 for s, _n, h in cycles), "a cycle timed after its SYNC was heard"
-    judged = cycles[50:]   # (once the grid's phase has been seen)
-    s0 = judged[0][0]
-    residual = [s - s0 - round((s - s0) / step) * step for s, _n, _h in judged]
-    heard_residual = [h - s0 - round((h - s0) / step) * step for _s, _n, h in judged]
-    assert max(heard_residual) - min(heard_residual) > 0.003 * SLOWDOWN, "the latency did not vary"
-    print("phase of the SYNCs heard, ms:", 1e3 * min(heard_residual), 1e3 * max(heard_residual),
-          "of the cycles' times:", 1e3 * min(residual), 1e3 * max(residual))
-    assert max(residual) - min(residual) < 0.0015 * SLOWDOWN, (min(residual), max(residual))
+    assert all(s <= h + 0.0005 for s, _n, _d, h in judged), "a cycle timed after its SYNC was heard"
+    # the time from the SYNC to its hearing covers the notifier's hold (on average: a late
+    # runner's cycle may pair with the next SYNC's hold)
+    held = sum(d for _s, _n, d, _h in judged) / len(judged)
+    early = sum(h - s for s, _n, _d, h in judged) / len(judged)
+    print(f"notifier held {held * 1e3:.2f} ms on average; cycles timed {early * 1e3:.2f} ms before "
+          f"their SYNC was heard")
+    assert held > 0.002 * SLOWDOWN
+    assert early > held - 0.001 * SLOWDOWN, (held, early)
+
 
 def _realtime_allowed() -> bool:
     """Whether this process may give a thread SCHED_FIFO (probed in a throw-away thread)."""
