@@ -227,7 +227,6 @@ async def test_moveaxis_moves_a_wrapping_axis_the_way_asked(live):
         await c.close()
 
 
-
 async def test_a_moveaxis_at_a_guiding_rate_runs(live):
     """MoveAxis of AZ at 0.01°/s (a guiding rate; its end, the software limit, is over 7,600 s
     away, longer than ruckig plans — it answered -101, the control cycle failed and stopped
@@ -249,6 +248,7 @@ async def test_a_moveaxis_at_a_guiding_rate_runs(live):
         assert 0.005 < sim(live, "AZ").position - start < 0.1
     finally:
         await c.close()
+
 
 async def test_a_slower_moveaxis_slows_the_axis_down_without_stepping_back(live):
     """MoveAxis at 20°/s, then MoveAxis at 1°/s the same way (AZ both ways, the altitude

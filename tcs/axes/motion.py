@@ -548,7 +548,7 @@ class MotionPlanner:
         if vmax is None:
             return
         way = demanded - sp.position
-        if abs(way) > vmax * LEG_SECONDS + abs(sp.velocity) * LEG_SECONDS:
+        if abs(way) > (vmax + abs(sp.velocity)) * LEG_SECONDS:
             # (a long slow move — a MoveAxis at a guiding rate towards a far limit — lasts
             # longer than ruckig can plan (~7,600 s: it answers -101): it goes in legs of
             # LEG_SECONDS at its speed, each ending at that speed on the way, the next

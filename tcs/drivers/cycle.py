@@ -385,7 +385,7 @@ class CycleSource:
         # telescope's slower SYNC leaves its TPDOs the same share of its longer cycle;
         # ``held``: where this thread's sends go until the next SYNC, None: sent at once;
         # ``heard``: when this thread heard the SYNC (kernel SYNC: later than ``sync_time``,
-        # the grid's) — the TPDOs that follow it come through the same notifier)
+        # when it went) — the TPDOs that follow it come through the same notifier)
         deadline = (sync_time if heard is None else heard) + self.tpdo_deadline * step
         complete = self._arrived.wait(max(0.0, deadline - self._clock()))
         if self._stop.is_set():

@@ -81,13 +81,13 @@ def peak_speeds(samples, skip=()) -> tuple[float, float, int]:
     return round(best[0], 4), round(best[1], 4), judged
 
 
-#: (name, retime, retime_again) of each run: without the retime (the baseline), retimed once
-#: before the SYNC, and retimed again when the runner was preempted while sending
-MODES = (("off", False, 0), ("once", True, 0), ("on", True, RETIME_AGAIN))
+#: each run's (retime, retime_again): without the retime (the baseline), retimed once before
+#: the SYNC, and retimed again when the runner was preempted while sending
+MODES = {"off": (False, 0), "once": (True, 0), "on": (True, RETIME_AGAIN)}
 
 
 def run_case(pattern: str, mode: str, cycles: int) -> dict:
-    _name, retime, again = next(m for m in MODES if m[0] == mode)
+    retime, again = MODES[mode]
     config, _, _, _ = sections("csp", {})
     channel = f"jitter-{uuid.uuid4().hex[:8]}"
     params = params_from_config(config)[config.drives["az"].node_id]
@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--patterns", nargs="+", default=list(PATTERNS), choices=list(PATTERNS))
     ap.add_argument("--cycles", type=int, default=300)
-    ap.add_argument("--modes", nargs="+", default=[m[0] for m in MODES], choices=[m[0] for m in MODES])
+    ap.add_argument("--modes", nargs="+", default=list(MODES), choices=list(MODES))
     args = ap.parse_args(argv)
     results = []
     print(f"{'pattern':8} {'retime':6} {'demand':>7} {'motor':>7} {'clean d':>8} {'clean m':>8} "
