@@ -24,6 +24,7 @@ from tcs.axes import (
     TrajectoryFollower,
     TrajectoryQueue,
 )
+from tcs.axes.profile import ProfileSolver
 from tcs.errors import ErrorNumber as E
 from tcs.errors import RequestRefused, TcsError
 
@@ -365,6 +366,51 @@ def test_abort_stops_smoothly_and_frees_the_queue():
     check_stream(out, AZ, cur)
     assert out[0][2] == (E.TRAJ_STOP,) and out[-1][1].velocity == 0.0
     assert fo.end_reason == "aborted"
+
+
+@pytest.mark.parametrize("bridged", ["held", "extrapolated"])
+@pytest.mark.parametrize("ending", ["at rest", "moving"])
+def test_a_gap_across_the_paths_end_still_ends_where_the_path_does(bridged, ending):
+    """A late cycle that steps past the path's end (the control loop stalled 0.4 s; the drive
+    held its last setpoint or ran on at its speed, and the axis re-anchored on that demand)
+    still brings the axis to rest where the path's own stop from its end lands: its last
+    point when it ends at rest. Before, it stopped where the stale setpoint stood: 77″ off the
+    end of this path that ends at rest (16″ in CI's live sinusoid test), 0.3° short of where
+    the ramp's own stop lands."""
+    if ending == "at rest":        # one period of a 2° sinusoid over 20 s, ending at rest
+        f = lambda x: 2.0 * (1.0 - np.cos(2 * np.pi * np.clip(x, 0.0, 20.0) / 20.0))  # noqa: E731
+    else:                          # a 1°/s ramp that ends at speed
+        f = lambda x: 1.0 * x      # noqa: E731
+    q = queue_of(f, duration=20.0, spacing=1.0)
+    end_p, end_v, end_a = q.sample(q.end_time)
+    own_stop = ProfileSolver(DT).stop(Setpoint(end_p, end_v, end_a), max_velocity=AZ.max_velocity,
+                                      max_acceleration=AZ.max_acceleration,
+                                      max_jerk=AZ.max_jerk, discrete=False)
+    landing = own_stop.at_time(own_stop.duration)[0][0]
+    fo = follower_for(q, low_points_time=1.0)
+    cur = Setpoint(0.0)
+    fo.start(T0, cur)
+    k = 0
+    while T0 + (k + 1) * DT <= q.end_time - 0.3:
+        k += 1
+        cur = fo.step(T0 + k * DT, cur).setpoint
+    assert fo.state is FollowerState.FOLLOWING
+    gap = 40 * DT                                          # across the end (20 s)
+    if bridged == "extrapolated":
+        cur = Setpoint(cur.position + cur.velocity * gap, cur.velocity)
+    else:
+        cur = Setpoint(cur.position, cur.velocity, cur.acceleration)
+    t = T0 + k * DT + gap
+    first = fo.step(t, cur)
+    assert E.TRAJ_STOP in first.events
+    after = run(fo, first.setpoint, t_from=t)
+    check_stream(after, AZ, first.setpoint)
+    last = after[-1][1] if after else first.setpoint
+    assert last.velocity == 0.0 and fo.end_reason == "end"
+    assert abs(last.position - landing) < 1e-6, ((last.position - landing) / ARCSEC, landing)
+    if ending == "at rest":   # (within the axes' tolerance: the spline's one-sided last knot
+        # ends with a little velocity and acceleration, whose own stop runs on ~1″)
+        assert abs(last.position - f(20.0)) < 0.0005
 
 
 def test_path_starting_later_is_met_on_time():

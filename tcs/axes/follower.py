@@ -21,6 +21,9 @@ States::
     FOLLOWING     set_offset()                                          INTERCEPTING
     INTERCEPTING  path start more than lead_time ahead                  (pre-position, wait)
     any running   t beyond the last point            TRAJ_STOP 32       STOPPING
+                  (on or closing onto the path: to rest where the path's own stop from
+                  its last state lands, its last point if it ends at rest — also after a
+                  late cycle that stepped past the end; else a stop from where it is)
     any running   a setpoint would cross a limit     SOFTLIMIT 9, TRAJ_STOP 32  STOPPING
     any           abort()                                               STOPPING
     STOPPING      at rest                                               ENDED
@@ -311,7 +314,10 @@ class TrajectoryFollower:
         if end is None or t > end:
             events.append(ErrorNumber.TRAJ_STOP)
             self.end_reason = self.end_reason or "end"
-            self._begin_stop(t - dt, current, quick=False)
+            if end is not None and (state is FollowerState.FOLLOWING or self._plan_kind == "relative"):
+                self._finish(t - dt, current, end)
+            else:
+                self._begin_stop(t - dt, current, quick=False)
             sp = self._stop_step(t, current, dt, events)
             return FollowStep(sp, tuple(events))
 
@@ -515,6 +521,30 @@ class TrajectoryFollower:
         acc, jerk = (d.stop_acceleration, d.stop_jerk) if quick else (d.max_acceleration, d.max_jerk)
         traj = self._solver.stop(cur, max_velocity=max(d.max_velocity, abs(cur.velocity)),
                                  max_acceleration=acc, max_jerk=jerk, discrete=False)
+        self._state = FollowerState.STOPPING
+        self._plan, self._plan_t0, self._plan_kind = traj, t0, "stop"
+
+    def _finish(self, t0: float, cur: Setpoint, end: float) -> None:
+        """The path ended while the axis was on it (or closing onto it): come to rest where
+        the path's own stop from its last state lands — its last point when it ends at rest —
+        not where the last setpoint sent stands. They differ after a gap: a late cycle that
+        stepped past the end (the drive bridged the gap, the axis re-anchored on its demand)
+        would otherwise stop the axis the gap's worth of path short of the end (16″ at the end
+        of a sinusoid). A move to that landing from ``cur`` at ``t0`` within the axis dynamics;
+        the stop from ``cur`` if it cannot be planned."""
+        d = self.dynamics
+        p, v, a = self._ref(end)
+        try:
+            own = self._solver.stop(Setpoint(p, v, a), max_velocity=max(d.max_velocity, abs(v)),
+                                    max_acceleration=d.max_acceleration, max_jerk=d.max_jerk,
+                                    discrete=False)
+            landing = sample(own, own.duration)[0]
+            traj = self._solver.move(cur, landing, max_velocity=max(self._speed, abs(cur.velocity)),
+                                     max_acceleration=d.max_acceleration, max_jerk=d.max_jerk,
+                                     discrete=False)
+        except ValueError:
+            self._begin_stop(t0, cur, quick=False)
+            return
         self._state = FollowerState.STOPPING
         self._plan, self._plan_t0, self._plan_kind = traj, t0, "stop"
 
