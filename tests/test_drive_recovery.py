@@ -211,6 +211,39 @@ async def test_fault_of_one_mount_axis_stops_the_other_under_control(tmp_path):
         await svc.stop()
 
 
+async def test_an_acknowledge_while_the_drive_still_brakes_completes_once_it_stopped(tmp_path):
+    """ERROR_STATE=0 at once after a drive faulted at speed: the drive's fault reaction (a
+    ramp with its profile deceleration, 8°/s² here: ~3.8 s from 30°/s) outlasts the axis's
+    3 s for a reset; the acknowledge completes when the drive has stopped and reset, and
+    POWER=1 works. Before, the master raised the reset bit during the reaction, so there was
+    no rising edge in Fault, and the acknowledge failed after 3 s."""
+    svc = Service(fast_config(tmp_path, quick_stop_deceleration=8.0))
+    port = await svc.start()
+    c = await Client.connect(port)
+    zd_sim = svc.telescope.sims[2]
+    try:
+        await ready(c, "ZD")
+        lines = await c.set("ZD.TARGETPOS=-80")
+        assert done_ok(lines, "ZD.TARGETPOS"), lines
+        cmd = await c.start("ZD.TARGETPOS=80")
+        deadline = time.monotonic() + WAIT
+        while abs(zd_sim.velocity) < 30:
+            assert time.monotonic() < deadline
+            await asyncio.sleep(0.01)
+        zd_sim.inject_fault("following_error")
+        await c.until(cmd, WAIT)
+        assert zd_sim.state == "FAULT REACTION ACTIVE"
+        t0 = time.monotonic()
+        lines = await c.set("ZD.ERROR_STATE=0")
+        assert done_ok(lines, "ZD.ERROR_STATE"), lines
+        assert time.monotonic() - t0 > 1.0   # (it waited for the drive's stop)
+        assert zd_sim.state == "SWITCH ON DISABLED" and zd_sim.error_code == 0
+        await power_on_and_move(c, "ZD", 0.0)
+    finally:
+        await c.close()
+        await svc.stop()
+
+
 async def test_axis_waits_for_a_slow_drives_own_enable_timeout(tmp_path):
     """A drive configured with ``enable_timeout`` above the axis's 10 s (a commutation
     search): the axis's POWER waits at least the drive's own time-out plus a margin, so the

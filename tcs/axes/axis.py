@@ -1112,6 +1112,10 @@ class Axis(ModuleHealth):
             if self._settle:  # (homed, not yet on its port: referenced all the same)
                 self._settle, self.referenced = False, 1.0
             self.drive.disable()
+        if self._ack_pending and st.state is DriveState.FAULT_REACTION_ACTIVE and st.request_error is None:
+            # (the drive still brakes — its fault reaction — and resets once in Fault: the
+            # time-out counts from there; the driver bounds the reaction itself)
+            self._ack_since = now
         if self._ack_pending and now - self._ack_since > ACK_TIMEOUT:
             self._ack_pending = False
             self._resolve("acknowledge", st.request_error or TcsError(

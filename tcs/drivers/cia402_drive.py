@@ -163,6 +163,10 @@ class Cia402Drive:
         self._bus_fault: TcsError | None = None
         quick = section.quick_stop_deceleration or section.max_acceleration
         self.stop_timeout = abs(section.max_velocity) / max(abs(quick), 1e-9) + 1.0
+        # the longest a fault reaction (0x605E: a ramp with 0x6084 or 0x6085) may brake before
+        # a fault reset asked meanwhile is given up
+        slowest = min(abs(quick), abs(section.max_acceleration)) or abs(quick)
+        self.reaction_timeout = abs(section.max_velocity) / max(slowest, 1e-9) + 1.0
         # the longest an enable (mode switch by SDO, then enable_timeout) or a disable (quick
         # stop to standstill first) may take before this driver itself reports it failed
         sdo = (section.sdo_timeout or can.sdo_timeout) * (section.sdo_retries + 1)
@@ -210,6 +214,7 @@ class Cia402Drive:
         self._mode_job: Job | None = None
         self._reset_phase = 0
         self._reset_since = 0.0
+        self._reset_asked = 0.0
         self._reached_enabled = False
         self._hold = 0
         self._cw = 0
@@ -741,8 +746,11 @@ class Cia402Drive:
         self._offline_since = None
 
         # --- fault reset: 0x0000 one cycle, then 0x0080 until Fault is left (15) ----------
+        # (asked during the fault reaction, while the drive still brakes and ignores it:
+        # 0x0000 until the drive is in Fault, so that bit 7 rises there — the reset acts on
+        # its rising edge only; the time-out counts from Fault, the reaction has its own)
         if reset and state in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
-            self._reset_phase, self._reset_since = 1, now
+            self._reset_phase, self._reset_since, self._reset_asked = 1, now, now
         elif reset:
             self._emcy = None  # nothing to reset: forget the last warning
         if reset:
@@ -755,6 +763,15 @@ class Cia402Drive:
             if state not in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
                 self._reset_phase = 0
                 self._emcy = None
+            elif state is DriveState.FAULT_REACTION_ACTIVE:
+                if now - self._reset_asked > self.reaction_timeout:
+                    self._reset_phase = 0
+                    self._request_error = HardwareError(
+                        self.device, f"fault reset not done: the drive's fault reaction did not end "
+                                     f"within {self.reaction_timeout:.1f} s")
+                else:
+                    cw = sm.DISABLE_VOLTAGE
+                    self._reset_phase, self._reset_since = 1, now
             elif now - self._reset_since > self.section.fault_reset_timeout:
                 self._reset_phase = 0
                 self._request_error = HardwareError(self.device, "fault reset did not clear the fault")

@@ -133,6 +133,37 @@ def test_emcy_decoded_into_a_numbered_error(can_channel, kind, code, number, tex
         assert rig.status("az").fault is None
 
 
+def test_a_fault_reset_during_the_fault_reaction_takes_effect_when_it_ends(can_channel):
+    """ERROR_STATE=0 as soon as a drive faulted while moving: the drive brakes first (fault
+    reaction, 0x605E = 1: a 2 s ramp here, longer than the reset's 1 s time-out), ignoring a
+    reset meanwhile, and resets on a rising edge of bit 7 once in Fault. Before, the master
+    raised bit 7 during the reaction and held it, so there was no edge in Fault, and the reset
+    failed ("fault reset did not clear the fault") — every acknowledgement of a fault at speed."""
+    section = dict(max_acceleration=1.0, max_velocity=4.0)
+    with Rig(can_channel, {"az": AxisSpec(1, section=section)}) as rig:
+        assert rig.boot_and_start() == {}
+        rig.enable("az")
+        drive = rig.drive("az")
+        state = {"x": rig.status("az").position, "v": 0.0}
+
+        def ramp(cycle):  # up to 2 units/s at 1 unit/s², well inside the drive's limits
+            dt = rig.can.sync_period
+            state["v"] = min(2.0, state["v"] + 1.0 * dt)
+            state["x"] += state["v"] * dt
+            drive.set_setpoint(state["x"])
+        rig.cycle_hooks.append(ramp)
+        rig.wait(lambda: state["v"] >= 2.0 and abs(rig.status("az").velocity) > 1.8, what="cruising")
+        rig.sims["az"].inject_fault("following_error")
+        rig.wait_state("az", DriveState.FAULT_REACTION_ACTIVE)
+        rig.cycle_hooks.clear()
+        drive.fault_reset()
+        rig.wait_state("az", DriveState.SWITCH_ON_DISABLED, timeout=10.0)
+        status = rig.status("az")
+        assert status.fault is None and status.request_error is None, status.request_error
+        wait_cycles(rig, 10)
+        assert rig.status("az").state is DriveState.SWITCH_ON_DISABLED  # never re-enabled by itself
+
+
 def test_fault_reset_without_fault_changes_nothing(can_channel):
     with Rig(can_channel, {"az": AxisSpec(1)}) as rig:
         assert rig.boot_and_start() == {}
