@@ -690,9 +690,11 @@ class TelescopeDevice(Device):
         Axis 1 of an alt-az mount is **altitude** (ASCOM): a positive rate raises the
         telescope — towards the zenith (ZD 0) on the side the tube is (normal or reverse
         orientation), where altitude has its end — and a negative rate lowers it down to the
-        horizon limit (``[pointing] min_altitude`` on the encoder ZD, the limit SlewToAltAz
-        keeps), never below. Every other axis: a positive rate increases the axis position, to
-        its software limit (a wrapping axis is not folded modulo 360°)."""
+        horizon limit (``[pointing] min_altitude``, the limit SlewToAltAz keeps), never below.
+        Both ends are judged on ``CURRPOS`` (the drive position less the axis ``OFFSET``) and
+        returned as drive positions (``OFFSET`` + the bound). Every other axis: a positive rate
+        increases the axis position, to its software limit (a wrapping axis is not folded
+        modulo 360°)."""
         p = self.telescope.pointing
         if n == 1 and p is not None and p.mount == "AZ-ZD" and axis is p.axis2:
             zd = axis.real_position - axis.offset
