@@ -217,7 +217,7 @@ async def test_an_acknowledge_while_the_drive_still_brakes_completes_once_it_sto
     3 s for a reset; the acknowledge completes when the drive has stopped and reset, and
     POWER=1 works. Before, the master raised the reset bit during the reaction, so there was
     no rising edge in Fault, and the acknowledge failed after 3 s."""
-    svc = Service(fast_config(tmp_path, quick_stop_deceleration=8.0))
+    svc = Service(fast_config(tmp_path, quick_stop_deceleration=4.0))
     port = await svc.start()
     c = await Client.connect(port)
     zd_sim = svc.telescope.sims[2]
