@@ -7,8 +7,9 @@ the RPDO of the same cycle, so a multi-step path (Switch on disabled -> Ready to
 Operation enabled) takes one cycle per hop and nothing ever waits.
 
 Fault reset is not in the table: it is a one-shot request handled by the driver (0x0000 for a
-cycle, then 0x0080 — the rising edge of bit 7 — until the drive leaves Fault, transition 15),
-and it always ends in Switch on disabled.
+cycle, then 0x0080 — the rising edge of bit 7 — until the drive leaves Fault, transition 15;
+asked during the fault reaction, 0x0000 until the drive is in Fault, which ignores a reset
+before), and it always ends in Switch on disabled.
 """
 
 from __future__ import annotations
