@@ -213,7 +213,7 @@ async def test_fault_of_one_mount_axis_stops_the_other_under_control(tmp_path):
 
 async def test_an_acknowledge_while_the_drive_still_brakes_completes_once_it_stopped(tmp_path):
     """ERROR_STATE=0 at once after a drive faulted at speed: the drive's fault reaction (a
-    ramp with its profile deceleration, 8°/s² here: ~3.8 s from 30°/s) outlasts the axis's
+    ramp with its quick-stop deceleration, 4°/s² here: ~7.5 s from 30°/s) outlasts the axis's
     3 s for a reset; the acknowledge completes when the drive has stopped and reset, and
     POWER=1 works. Before, the master raised the reset bit during the reaction, so there was
     no rising edge in Fault, and the acknowledge failed after 3 s."""
