@@ -32,6 +32,9 @@ from tcs.sim.cia402_drive import SimDrive, SimDriveParams
 SIM_IDENTITY = (0xABC, 0x00402001, 0x00010000, 1)
 SCALE = 10000.0   # increments per unit, sims and drives alike
 SLOWDOWN = int(os.environ.get("TCS_TEST_SLOWDOWN", "1"))  # see the module docstring
+#: s per SDO answer: the service's default ([can] sdo_timeout), one retry — 0.3 s (twice) ran out
+#: once in CI while a drive was remapped in a loaded suite run ("No SDO response received")
+SDO_TIMEOUT = 0.5
 
 
 def drive_section(node_id: int, **overrides) -> DriveSection:
@@ -75,7 +78,7 @@ class Rig:
         self.can = CanSection(interface=self.channel["interface"], channel=self.channel["channel"],
                               sync_period=sync_period * SLOWDOWN,
                               heartbeat_period=heartbeat_period * SLOWDOWN,
-                              boot_timeout=boot_timeout * SLOWDOWN, sdo_timeout=0.3 * SLOWDOWN,
+                              boot_timeout=boot_timeout * SLOWDOWN, sdo_timeout=SDO_TIMEOUT * SLOWDOWN,
                               options=options or {},
                               realtime_priority=realtime_priority,
                               idle_sync_period=idle_sync_period * SLOWDOWN)
