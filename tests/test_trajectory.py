@@ -373,10 +373,12 @@ def test_abort_stops_smoothly_and_frees_the_queue():
 def test_a_gap_across_the_paths_end_still_ends_where_the_path_does(bridged, ending):
     """A late cycle that steps past the path's end (the control loop stalled 0.4 s; the drive
     held its last setpoint or ran on at its speed, and the axis re-anchored on that demand)
-    still brings the axis to rest where the path's own stop from its end lands: its last
-    point when it ends at rest. Before, it stopped where the stale setpoint stood: 77″ off the
-    end of this path that ends at rest (16″ in CI's live sinusoid test), 0.3° short of where
-    the ramp's own stop lands."""
+    still brings the axis to rest where the path's own stop from its end lands — its last
+    point when it ends at rest, settled on from either side — unless a path that ends moving
+    was run past that by the drive: then it stops from there, never moving back (a reversal
+    at the end of a 50°/s path broke the deceleration limit in test_motion_safety). Before,
+    it stopped where the stale setpoint stood: 77″ off the end of this path that ends at rest
+    (16″ in CI's live sinusoid test), 0.3° short of where the ramp's own stop lands."""
     if ending == "at rest":        # one period of a 2° sinusoid over 20 s, ending at rest
         f = lambda x: 2.0 * (1.0 - np.cos(2 * np.pi * np.clip(x, 0.0, 20.0) / 20.0))  # noqa: E731
     else:                          # a 1°/s ramp that ends at speed
@@ -407,6 +409,14 @@ def test_a_gap_across_the_paths_end_still_ends_where_the_path_does(bridged, endi
     check_stream(after, AZ, first.setpoint)
     last = after[-1][1] if after else first.setpoint
     assert last.velocity == 0.0 and fo.end_reason == "end"
+    if ending == "moving":       # never back against the way it ran
+        assert min(sp.velocity for _, sp, _, _ in after) >= 0.0
+        if bridged == "extrapolated":   # (run on past where the path's own stop lands)
+            own = ProfileSolver(DT).stop(cur, max_velocity=AZ.max_velocity,
+                                         max_acceleration=AZ.max_acceleration,
+                                         max_jerk=AZ.max_jerk, discrete=False)
+            landing = own.at_time(own.duration)[0][0]
+            assert cur.position > end_p
     assert abs(last.position - landing) < 1e-6, ((last.position - landing) / ARCSEC, landing)
     if ending == "at rest":   # (within the axes' tolerance: the spline's one-sided last knot
         # ends with a little velocity and acceleration, whose own stop runs on ~1″)

@@ -77,7 +77,7 @@ import math
 from typing import NamedTuple
 
 from tcs.axes.limits import LimitGuard, SoftLimits
-from tcs.axes.profile import (AxisDynamics, ProfileSolver, Setpoint, checked_speed, sample,
+from tcs.axes.profile import (AxisDynamics, ProfileSolver, Setpoint, checked_speed, extrema, sample,
                               theoretical_minimum_time)
 from tcs.axes.trajectory import TrajectoryQueue
 from tcs.errors import ErrorNumber, RangeRefused, TcsError
@@ -530,8 +530,11 @@ class TrajectoryFollower:
         not where the last setpoint sent stands. They differ after a gap: a late cycle that
         stepped past the end (the drive bridged the gap, the axis re-anchored on its demand)
         would otherwise stop the axis the gap's worth of path short of the end (16″ at the end
-        of a sinusoid). A move to that landing from ``cur`` at ``t0`` within the axis dynamics;
-        the stop from ``cur`` if it cannot be planned."""
+        of a sinusoid). A move to that landing from ``cur`` at ``t0`` within the axis dynamics,
+        if the path ends at rest (the landing is its last point, settled on from either side)
+        or the landing lies beyond every point a stop from ``cur`` passes (the way it moves):
+        else, or if it cannot be planned, the stop from ``cur`` — a path that ends moving is
+        never moved back to."""
         d = self.dynamics
         p, v, a = self._ref(end)
         try:
@@ -539,6 +542,26 @@ class TrajectoryFollower:
                                     max_acceleration=d.max_acceleration, max_jerk=d.max_jerk,
                                     discrete=False)
             landing = sample(own, own.duration)[0]
+            mine = self._solver.stop(cur, max_velocity=max(d.max_velocity, abs(cur.velocity)),
+                                     max_acceleration=d.max_acceleration, max_jerk=d.max_jerk,
+                                     discrete=False)
+            lo, hi = extrema(mine)
+            way = sample(mine, mine.duration)[0] - cur.position
+            # (beyond every point the stop from ``cur`` passes, the way it goes; from rest,
+            # either way: a new move. A path that ends at rest — its own stop within the
+            # on-path threshold of its last point — is settled on that point from either side:
+            # an extrapolating drive may have run past it during the gap)
+            if abs(landing - p) <= self.good_threshold:
+                beyond = True
+            elif way > 0.0:
+                beyond = landing >= hi
+            elif way < 0.0:
+                beyond = landing <= lo
+            else:
+                beyond = cur.velocity == 0.0 and cur.acceleration == 0.0
+            if not beyond:
+                self._begin_stop(t0, cur, quick=False)
+                return
             traj = self._solver.move(cur, landing, max_velocity=max(self._speed, abs(cur.velocity)),
                                      max_acceleration=d.max_acceleration, max_jerk=d.max_jerk,
                                      discrete=False)
