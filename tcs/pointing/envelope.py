@@ -81,6 +81,10 @@ __all__ = ["Envelope", "EnvelopeError", "Judgement", "Route", "sun_icrs", "move_
 
 #: degrees between the samples of a predicted slew (along the faster axis)
 STEP = 0.25
+#: s an axis told to stop (STOP, MoveAxis rate 0) may run on at its speed before its stop
+#: starts, as the other axis's running move is judged again (at least 5 control cycles): the
+#: control loop takes the stop at its next cycle, from its setpoint, ahead of the reading
+STOP_LEAD = 0.1
 _SUN_GRID = 300.0         # s between the Sun directions that are interpolated (1.25° apart:
 #                           the chord of linear interpolation is within 0.004° of the arc)
 _TOL = 1e-6
@@ -663,29 +667,48 @@ class Envelope:
     def stopping(self, axis) -> None:
         """``axis`` was told to stop (STOP, MoveAxis rate 0): the other axis's running
         move_toward was bounded on the pair's path with this one moving on; judged again with
-        this one stopping where it does, and its end brought nearer when that path would
-        enter the envelope (never further)."""
+        this one stopping where it does — from its reading, and from it run on at its speed for
+        :data:`STOP_LEAD` (the stop starts from the setpoint when the loop takes it), the nearer
+        bound — and its end brought nearer when that path would enter the envelope (never
+        further)."""
         other = self._other(axis)
         if other is None:
             return
         ut1 = self.utc() + self.ut1_utc()
         state = self._state(axis)
         dyn = axis.dynamics
-        stop = _SOLVER.stop(state, max_velocity=max(dyn.max_velocity, abs(state.velocity)),
-                            max_acceleration=dyn.stop_acceleration, max_jerk=dyn.stop_jerk,
-                            discrete=False)
-        rest = float(stop.at_time(stop.duration)[0][0])
-        self._approved[id(axis)] = (ut1, stop, rest, None, None)
+
+        def stop_from(start: Setpoint):
+            stop = _SOLVER.stop(start, max_velocity=max(dyn.max_velocity, abs(start.velocity)),
+                                max_acceleration=dyn.stop_acceleration, max_jerk=dyn.stop_jerk,
+                                discrete=False)
+            return stop, float(stop.at_time(stop.duration)[0][0])
+
+        # (the stop starts where the axis's setpoint is when the control loop takes it: a cycle
+        # or more later, ahead of the reading by the drive's lag — on a busy host more: judged
+        # both from the reading and from it run on at its speed for the lead, the nearer bound)
+        lead = abs(state.velocity) * max(STOP_LEAD, 5.0 * float(getattr(axis, "dt", 0.01)))
+        ahead = Setpoint(state.position + math.copysign(lead, state.velocity), state.velocity, 0.0)
         record = self._approved.get(id(other))
-        if record is None or record[4] is None or not other.motion_state & 1:
+        starts = (state, ahead) if lead > 0.0 else (state,)
+        bounds = []
+        for start in starts[::-1]:
+            stop, rest = stop_from(start)
+            self._approved[id(axis)] = (ut1, stop, rest, None, None)   # (the reading's, last)
+            if record is None or record[4] is None or not other.motion_state & 1:
+                continue
+            _t0, _traj_o, goal, speed, (direction, sky) = record
+            if abs(other.target_position + other.offset - goal) > 1e-6:
+                continue
+            try:
+                bounds.append(self._jog_bound(other, axis, direction, ut1, sky, speed))
+            except EnvelopeError:
+                bounds.append(float(other.real_position))   # stop it now
+        if not bounds:
             return
         _t0, _traj_o, goal, speed, (direction, sky) = record
-        if abs(other.target_position + other.offset - goal) > 1e-6:
-            return
-        try:
-            bound = self._jog_bound(other, axis, direction, ut1, sky, speed)
-        except EnvelopeError:
-            bound = float(other.real_position)   # stop it now
+        limited = [b for b in bounds if b is not None]
+        bound = (min(limited) if direction > 0 else max(limited)) if limited else None
         if bound is not None and (goal - bound) * direction > 1e-9:
             self.moving(other, bound, speed, direction, sky)
             other.limit_move(bound)
