@@ -542,15 +542,16 @@ class TrajectoryFollower:
                                     max_acceleration=d.max_acceleration, max_jerk=d.max_jerk,
                                     discrete=False)
             landing = sample(own, own.duration)[0]
-            mine = self._solver.stop(cur, max_velocity=max(d.max_velocity, abs(cur.velocity)),
+            # (the stop from ``cur``: what _begin_stop plans, and the plan unless the landing
+            # is beyond every point it passes, the way it goes — from rest, either way: a new
+            # move. A path that ends at rest — its own stop within the on-path threshold of its
+            # last point — is settled on that point from either side: an extrapolating drive
+            # may have run past it during the gap)
+            traj = self._solver.stop(cur, max_velocity=max(d.max_velocity, abs(cur.velocity)),
                                      max_acceleration=d.max_acceleration, max_jerk=d.max_jerk,
                                      discrete=False)
-            lo, hi = extrema(mine)
-            way = sample(mine, mine.duration)[0] - cur.position
-            # (beyond every point the stop from ``cur`` passes, the way it goes; from rest,
-            # either way: a new move. A path that ends at rest — its own stop within the
-            # on-path threshold of its last point — is settled on that point from either side:
-            # an extrapolating drive may have run past it during the gap)
+            lo, hi = extrema(traj)
+            way = sample(traj, traj.duration)[0] - cur.position
             if abs(landing - p) <= self.good_threshold:
                 beyond = True
             elif way > 0.0:
@@ -559,12 +560,10 @@ class TrajectoryFollower:
                 beyond = landing <= lo
             else:
                 beyond = cur.velocity == 0.0 and cur.acceleration == 0.0
-            if not beyond:
-                self._begin_stop(t0, cur, quick=False)
-                return
-            traj = self._solver.move(cur, landing, max_velocity=max(self._speed, abs(cur.velocity)),
-                                     max_acceleration=d.max_acceleration, max_jerk=d.max_jerk,
-                                     discrete=False)
+            if beyond:
+                traj = self._solver.move(cur, landing, max_velocity=max(self._speed, abs(cur.velocity)),
+                                         max_acceleration=d.max_acceleration, max_jerk=d.max_jerk,
+                                         discrete=False)
         except ValueError:
             self._begin_stop(t0, cur, quick=False)
             return

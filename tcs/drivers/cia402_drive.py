@@ -165,7 +165,7 @@ class Cia402Drive:
         self.stop_timeout = abs(section.max_velocity) / max(abs(quick), 1e-9) + 1.0
         # the longest a fault reaction (0x605E: a ramp with 0x6084 or 0x6085) may brake before
         # a fault reset asked meanwhile is given up
-        slowest = min(abs(quick), abs(section.max_acceleration)) or abs(quick)
+        slowest = min(abs(quick), section.max_acceleration)   # (max_acceleration > 0: checked)
         self.reaction_timeout = abs(section.max_velocity) / max(slowest, 1e-9) + 1.0
         # the longest an enable (mode switch by SDO, then enable_timeout) or a disable (quick
         # stop to standstill first) may take before this driver itself reports it failed

@@ -678,35 +678,35 @@ class Envelope:
         state = self._state(axis)
         dyn = axis.dynamics
 
-        def stop_from(start: Setpoint):
+        def approve_stop(start: Setpoint) -> None:
             stop = _SOLVER.stop(start, max_velocity=max(dyn.max_velocity, abs(start.velocity)),
                                 max_acceleration=dyn.stop_acceleration, max_jerk=dyn.stop_jerk,
                                 discrete=False)
-            return stop, float(stop.at_time(stop.duration)[0][0])
+            self._approved[id(axis)] = (ut1, stop, float(stop.at_time(stop.duration)[0][0]), None, None)
 
-        # (the stop starts where the axis's setpoint is when the control loop takes it: a cycle
-        # or more later, ahead of the reading by the drive's lag — on a busy host more: judged
-        # both from the reading and from it run on at its speed for the lead, the nearer bound)
-        lead = abs(state.velocity) * max(STOP_LEAD, 5.0 * float(getattr(axis, "dt", 0.01)))
-        ahead = Setpoint(state.position + math.copysign(lead, state.velocity), state.velocity, 0.0)
-        record = self._approved.get(id(other))
-        starts = (state, ahead) if lead > 0.0 else (state,)
-        bounds = []
-        for start in starts[::-1]:
-            stop, rest = stop_from(start)
-            self._approved[id(axis)] = (ut1, stop, rest, None, None)   # (the reading's, last)
-            if record is None or record[4] is None or not other.motion_state & 1:
-                continue
-            _t0, _traj_o, goal, speed, (direction, sky) = record
-            if abs(other.target_position + other.offset - goal) > 1e-6:
-                continue
+        def bound_of_other() -> float | None:
             try:
-                bounds.append(self._jog_bound(other, axis, direction, ut1, sky, speed))
+                return self._jog_bound(other, axis, direction, ut1, sky, speed)
             except EnvelopeError:
-                bounds.append(float(other.real_position))   # stop it now
-        if not bounds:
+                return float(other.real_position)   # stop it now
+
+        record = self._approved.get(id(other))
+        if record is None or record[4] is None or not other.motion_state & 1 \
+                or abs(other.target_position + other.offset - record[2]) > 1e-6:
+            approve_stop(state)
             return
         _t0, _traj_o, goal, speed, (direction, sky) = record
+        # (the stop starts where the axis's setpoint is when the control loop takes it: a cycle
+        # or more later, ahead of the reading by the drive's lag — on a busy host more: judged
+        # both from it run on at its speed for the lead and from the reading, the nearer bound;
+        # the reading's stop stays approved)
+        lead = abs(state.velocity) * max(STOP_LEAD, 5.0 * float(getattr(axis, "dt", 0.01)))
+        bounds = []
+        if lead > 0.0:
+            approve_stop(Setpoint(state.position + math.copysign(lead, state.velocity), state.velocity, 0.0))
+            bounds.append(bound_of_other())
+        approve_stop(state)
+        bounds.append(bound_of_other())
         limited = [b for b in bounds if b is not None]
         bound = (min(limited) if direction > 0 else max(limited)) if limited else None
         if bound is not None and (goal - bound) * direction > 1e-9:
