@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 import pytest
-from ruckig import InputParameter, Ruckig, Trajectory
+from ruckig import ControlInterface, InputParameter, Ruckig, Trajectory
 
 from tcs.axes.limits import SoftLimits
 from tcs.axes.motion import MotionPlanner
@@ -262,6 +262,34 @@ def one_axis(x0, x1, dyn, speed=None):
     return (lambda t: np.interp(t, grid, pos)), traj.duration
 
 
+def ruckig_move(x0, x1, dyn, speed=None):
+    """One axis from rest at ``x0`` to rest at ``x1``: ruckig's Trajectory."""
+    inp = InputParameter(1)
+    inp.current_position, inp.target_position = [x0], [x1]
+    inp.max_velocity = [speed or dyn.max_velocity]
+    inp.max_acceleration, inp.max_jerk = [dyn.max_acceleration], [dyn.max_jerk]
+    traj = Trajectory(1)
+    Ruckig(1, 0.01).calculate(inp, traj)
+    return traj
+
+
+def braking(traj, t, dyn):
+    """The axis on ``traj`` braking from ``t`` (s from its start) with its normal deceleration:
+    a function of the time from ``t`` (held at rest after)."""
+    p, v, a = (x[0] for x in traj.at_time(min(t, traj.duration)))
+    if t >= traj.duration:
+        return lambda s: np.full(np.shape(s), p)
+    inp = InputParameter(1)
+    inp.control_interface = ControlInterface.Velocity
+    inp.current_position, inp.current_velocity, inp.current_acceleration = [p], [v], [a]
+    inp.target_velocity, inp.target_acceleration = [0.0], [0.0]
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = [dyn.max_velocity], [dyn.max_acceleration], [dyn.max_jerk]
+    stop = Trajectory(1)
+    Ruckig(1, 0.01).calculate(inp, stop)
+    return lambda s: np.array([stop.at_time(min(max(float(x), 0.0), stop.duration))[0][0]
+                               for x in np.atleast_1d(s)])
+
+
 def daytime(rng):
     t = rng.uniform(T2020, T2040)
     return math.floor(t / 86400.0) * 86400.0 + 13.2 * 3600.0 + rng.uniform(-3.0, 3.0) * 3600.0
@@ -379,11 +407,13 @@ def test_random_moveaxis_pairs_never_enter_the_envelope():
     the other starts a move of its own; :func:`pair_bound` bounds the second on the pair's
     simultaneous path. Re-simulated with ruckig — the second starting on time or 0.1 s late —
     the two axes together never enter the cone, go below the horizon table or into the
-    keep-out; bounded and free second moves both occur."""
+    keep-out; bounded and free second moves both occur. And both axes braking from random
+    points of the pair's path (a client stops one, the other is bounded again; a stall; a lost
+    link), either one up to 0.25 s after the other, stay out too."""
     rng = np.random.default_rng(39004)
     env = envelope()
     which = dict(horizon=True, sun=True, keepouts=True)
-    counts = {"free": 0, "bounded": 0, "refused": 0}
+    counts = {"free": 0, "bounded": 0, "refused": 0, "braked": 0}
     dyn = (AZ, ZD)
     for _ in range(120):
         t = daytime(rng)
@@ -402,7 +432,8 @@ def test_random_moveaxis_pairs_never_enter_the_envelope():
         speed_b = rng.uniform(0.3, 1.0) * dyn[b].max_velocity
         try:
             g = pair_bound(env, t, Setpoint(start[b]), dyn[b], direction, end_b, speed_b,
-                           lambda x: path_a(np.asarray(x) - t), t + dur_a, b == 0, which)
+                           lambda x: path_a(np.asarray(x) - t), t + dur_a, b == 0, which,
+                           other_dyn=dyn[a])
         except EnvelopeError:
             counts["refused"] += 1
             continue
@@ -415,6 +446,21 @@ def test_random_moveaxis_pairs_never_enter_the_envelope():
             a1, a2 = (pa, pb) if a == 0 else (pb, pa)
             sun, low, keep = violations(a1, a2, t + times)
             assert not (sun.any() or low.any() or keep.any()), (start, a, goal_a, goal_b, late)
+        traj_a = ruckig_move(start[a], goal_a, dyn[a], speed_a)
+        traj_b = ruckig_move(start[b], goal_b, dyn[b], speed_b)
+        for _brake in range(6):
+            when = rng.uniform(0.0, max(dur_a, traj_b.duration))
+            late = rng.uniform(0.0, 0.25)
+            d_a, d_b = (late, 0.0) if rng.random() < 0.5 else (0.0, late)
+            stop_a, stop_b = braking(traj_a, when + d_a, dyn[a]), braking(traj_b, when + d_b, dyn[b])
+            s = np.arange(0.0, late + 4.0, 0.02)
+            pa = np.where(s < d_a, path_a(when + s), stop_a(s - d_a))
+            pb_path = np.array([traj_b.at_time(min(when + x, traj_b.duration))[0][0] for x in s])
+            pb = np.where(s < d_b, pb_path, stop_b(s - d_b))
+            a1, a2 = (pa, pb) if a == 0 else (pb, pa)
+            sun, low, keep = violations(a1, a2, t + when + s)
+            counts["braked"] += 1
+            assert not (sun.any() or low.any() or keep.any()), (start, a, goal_a, goal_b, when, d_a, d_b)
     assert counts["free"] > 10 and counts["bounded"] > 10, counts
 
 

@@ -82,9 +82,10 @@ __all__ = ["Envelope", "EnvelopeError", "Judgement", "Route", "sun_icrs", "move_
 #: degrees between the samples of a predicted slew (along the faster axis)
 STEP = 0.25
 #: s an axis told to stop (STOP, MoveAxis rate 0) may run on at its speed before its stop
-#: starts, as the other axis's running move is judged again (at least 5 control cycles): the
-#: control loop takes the stop at its next cycle, from its setpoint, ahead of the reading
-STOP_LEAD = 0.1
+#: starts, as the other axis's running move is judged again (each but 0 at least 5 control
+#: cycles; the nearest bound): the control loop takes the stop at its next cycle, from its
+#: setpoint, ahead of the reading — on a busy host later. :data:`BRAKE_DELAYS` covers them.
+STOP_LEADS = (0.0, 0.1, 0.25)
 _SUN_GRID = 300.0         # s between the Sun directions that are interpolated (1.25° apart:
 #                           the chord of linear interpolation is within 0.004° of the arc)
 _TOL = 1e-6
@@ -165,6 +166,45 @@ def _evaluate(traj, times: np.ndarray) -> np.ndarray:
     k = np.clip(np.searchsorted(cum, tt, side="right") - 1, 0, 6)
     d = tt - cum[k]
     return p[k] + v[k] * d + a[k] * d * d / 2.0 + j[k] * d ** 3 / 6.0
+
+
+def _evaluate_many(trajs, times: np.ndarray) -> np.ndarray:
+    """Positions of many 1-DoF ruckig trajectories, row ``i`` of ``times`` on ``trajs[i]``
+    (vectorised over them; as :func:`_evaluate`)."""
+    k = len(trajs)
+    cum = np.zeros((k, 8))
+    p, v, a, j = (np.zeros((k, 7)) for _ in range(4))
+    slow = []
+    for i, traj in enumerate(trajs):
+        prof = traj.profiles[0][0]
+        if prof.brake.duration > 0.0 or len(traj.profiles[0]) != 1:
+            slow.append(i)
+            continue
+        cum[i, 1:] = np.cumsum(prof.t)
+        p[i], v[i], a[i], j[i] = prof.p[:7], prof.v[:7], prof.a[:7], prof.j[:7]
+    tt = np.clip(times, 0.0, cum[:, -1:])
+    phase = np.clip((tt[:, :, None] >= cum[:, None, 1:]).sum(axis=2), 0, 6)
+    rows = np.arange(k)[:, None]
+    d = tt - cum[rows, phase]
+    out = p[rows, phase] + v[rows, phase] * d + a[rows, phase] * d * d / 2.0 + j[rows, phase] * d ** 3 / 6.0
+    for i in slow:
+        out[i] = _evaluate(trajs[i], times[i])
+    return out
+
+
+def _states(traj, times: np.ndarray):
+    """(positions, velocities, accelerations) of a 1-DoF ruckig trajectory at ``times``."""
+    prof = traj.profiles[0][0]
+    if prof.brake.duration > 0.0 or len(traj.profiles[0]) != 1:
+        pva = [traj.at_time(min(max(float(t), 0.0), traj.duration)) for t in times]
+        return tuple(np.array([x[i][0] for x in pva]) for i in range(3))
+    cum = np.concatenate(([0.0], np.cumsum(prof.t)))
+    p, v, a, j = (np.asarray(x, float) for x in (prof.p, prof.v, prof.a, prof.j))
+    tt = np.clip(times, 0.0, cum[-1])
+    k = np.clip(np.searchsorted(cum, tt, side="right") - 1, 0, 6)
+    d = tt - cum[k]
+    return (p[k] + v[k] * d + a[k] * d * d / 2.0 + j[k] * d ** 3 / 6.0,
+            v[k] + a[k] * d + j[k] * d * d / 2.0, a[k] + j[k] * d)
 
 
 _SOLVER = ProfileSolver(0.01)
@@ -646,7 +686,8 @@ class Envelope:
         """:func:`pair_bound` of a move of ``axis`` while the other axis moves."""
         try:
             return pair_bound(self, ut1, self._state(axis), axis.dynamics, direction, end, speed,
-                              other_path, other_end, axis is self.axes[0], which)
+                              other_path, other_end, axis is self.axes[0], which,
+                              other_dyn=self._other(axis).dynamics)
         except EnvelopeError as exc:
             raise EnvelopeError(f"{axis.module_name}: moving {'up' if direction > 0 else 'down'} "
                                 f"while {self._other(axis).module_name} moves would enter "
@@ -668,9 +709,9 @@ class Envelope:
         """``axis`` was told to stop (STOP, MoveAxis rate 0): the other axis's running
         move_toward was bounded on the pair's path with this one moving on; judged again with
         this one stopping where it does — from its reading, and from it run on at its speed for
-        :data:`STOP_LEAD` (the stop starts from the setpoint when the loop takes it), the nearer
-        bound — and its end brought nearer when that path would enter the envelope (never
-        further)."""
+        each of :data:`STOP_LEADS` (the stop starts from the setpoint when the loop takes it),
+        the nearest bound — and its end brought nearer when that path would enter the envelope
+        (never further)."""
         other = self._other(axis)
         if other is None:
             return
@@ -698,15 +739,17 @@ class Envelope:
         _t0, _traj_o, goal, speed, (direction, sky) = record
         # (the stop starts where the axis's setpoint is when the control loop takes it: a cycle
         # or more later, ahead of the reading by the drive's lag — on a busy host more: judged
-        # both from it run on at its speed for the lead and from the reading, the nearer bound;
-        # the reading's stop stays approved)
-        lead = abs(state.velocity) * max(STOP_LEAD, 5.0 * float(getattr(axis, "dt", 0.01)))
+        # from the reading and from it run on at its speed for each lead, the nearest bound;
+        # the reading's stop stays approved. The pair's path was bounded so that both axes can
+        # brake from any point of it with the stop that late: the nearest bound is a goal)
+        cycles = 5.0 * float(getattr(axis, "dt", 0.01))
         bounds = []
-        if lead > 0.0:
-            approve_stop(Setpoint(state.position + math.copysign(lead, state.velocity), state.velocity, 0.0))
+        for lead in STOP_LEADS[::-1]:
+            run = abs(state.velocity) * (max(lead, cycles) if lead > 0.0 else 0.0)
+            if lead > 0.0 and run <= 0.0:
+                continue
+            approve_stop(Setpoint(state.position + math.copysign(run, state.velocity), state.velocity, 0.0))
             bounds.append(bound_of_other())
-        approve_stop(state)
-        bounds.append(bound_of_other())
         limited = [b for b in bounds if b is not None]
         bound = (min(limited) if direction > 0 else max(limited)) if limited else None
         if bound is not None and (goal - bound) * direction > 1e-9:
@@ -752,19 +795,42 @@ PAIR_DELAYS = (0.0, 0.1, 0.25)
 #: axis and the Sun's direction is interpolated (0.004°); a bound at the border itself would
 #: graze it between samples (a 0.01° dip below a horizon table's corner was seen)
 PAIR_MARGIN = 0.05
+#: (this axis, the other) s by which each axis's braking may start late, as every point of a
+#: pair's path is judged with both axes braking from it: a stop told to one axis reaches the
+#: control loop a cycle or more later, and the other's move is bounded again only then (a
+#: stalled host: later still; past the drives' RPDO deadline both brake by themselves)
+BRAKE_DELAYS = (((0.0, 0.0),) + tuple((d, 0.0) for d in STOP_LEADS if d > 0.0)
+                + tuple((0.0, d) for d in STOP_LEADS if d > 0.0))
+#: at most this many points of a pair's path are judged for both axes braking from them (at
+#: least every STEP degrees of the faster axis below that)
+BRAKE_POINTS = 120
+_BRAKE_SAMPLES = 16       # samples of the two axes braking from one point of the path
+_FD = 0.02                # s: the finite differences that give the other axis's speed
+
+
+def _stop_of(p: float, v: float, a: float, dyn: AxisDynamics):
+    """The axis from (p, v, a) to rest with its normal deceleration and jerk (a quick stop
+    brakes harder: its path is part of this one)."""
+    a = max(-dyn.max_acceleration, min(dyn.max_acceleration, a))
+    return _SOLVER.stop(Setpoint(p, v, a), max_velocity=max(dyn.max_velocity, abs(v)),
+                        max_acceleration=dyn.max_acceleration, max_jerk=dyn.max_jerk, discrete=False)
 
 
 def pair_bound(env: Envelope, ut1: float, state: Setpoint, dyn: AxisDynamics, direction: int,
                end: float, speed: float, other_path: Callable, other_end: float, first: bool,
-               which: dict, delays=PAIR_DELAYS) -> float | None:
+               which: dict, delays=PAIR_DELAYS, *, other_dyn: AxisDynamics) -> float | None:
     """The bound of a move of one main axis (axis 1 when ``first``) from ``state`` towards
     ``end`` at ``speed`` while the other axis moves (``other_path``: UT1 times -> its predicted
-    positions, at rest after ``other_end``): the farthest rest position ``g`` such that the
-    two axes' simultaneous path — this axis on the profile the planner runs to rest at ``g``
-    (its own deceleration), the other on its own — stays out of the envelope, also when this
-    move starts up to ``delays`` late; None when ``end`` itself is good. The result is always
-    a ``g`` whose path was judged good (the bisection keeps the good end). Raises
-    :class:`EnvelopeError` (the border's words) when even braking now is not good."""
+    positions, at rest after ``other_end``; ``other_dyn`` its limits): the farthest rest
+    position ``g`` such that the two axes' simultaneous path — this axis on the profile the
+    planner runs to rest at ``g`` (its own deceleration), the other on its own — stays out of
+    the envelope, also when this move starts up to ``delays`` late, **and so does every way
+    both axes can brake from any point of it** (each with its normal deceleration, either one
+    starting up to :data:`BRAKE_DELAYS` later: a client stops one axis of the pair, the other
+    is bounded again then; a stalled master; a lost link) — None when ``end`` itself is good.
+    The result is always a ``g`` whose path was judged good (the bisection keeps the good
+    end). Raises :class:`EnvelopeError` (the border's words) when even braking now is not
+    good."""
     brake = _SOLVER.stop(state, max_velocity=max(dyn.max_velocity, abs(state.velocity)),
                          max_acceleration=dyn.max_acceleration, max_jerk=dyn.max_jerk,
                          discrete=False)
@@ -782,7 +848,67 @@ def pair_bound(env: Envelope, ut1: float, state: Setpoint, dyn: AxisDynamics, di
     alone, _w = env.margins(*((still, there) if first else (there, still)), probe - ut1_utc, **which)
     margin = max(0.0, min(PAIR_MARGIN, float(alone.min())))
 
-    def good(goal: float) -> bool:
+    # (both axes braking from points of the path: the points, every STEP degrees of the faster
+    # axis up to BRAKE_POINTS, to where the longest move to ``end`` and the other's both ended;
+    # the other's braking from each, at each of its delays, is the same for every goal)
+    longest = max(_traj(state, end, dyn, speed).duration, _traj(state, lo, dyn, speed).duration)
+    last = max(ut1 + longest, other_end)
+    k = int(min(BRAKE_POINTS, max(2, math.ceil((last - ut1) * vmax / STEP) + 1)))
+    points = np.linspace(ut1, last, k)
+    late = sorted({d for pair in BRAKE_DELAYS for d in pair})
+    reach = max(late) + 0.05
+    other_brakes = {}
+    for d in late:
+        s = points + d
+        p0, p1, p2 = other_path(s), other_path(s + _FD), other_path(s + 2 * _FD)
+        v = (-3.0 * p0 + 4.0 * p1 - p2) / (2 * _FD)
+        a = (p0 - 2.0 * p1 + p2) / (_FD * _FD)
+        other_brakes[d] = (p0, v, [_stop_of(float(x), float(y), float(z), other_dyn)
+                                   for x, y, z in zip(p0, v, a)])
+    fast = max(speed, abs(state.velocity))
+    span = reach + max(max(b.duration for _p, _v, bs in other_brakes.values() for b in bs),
+                       _stop_of(state.position, fast * direction, dyn.max_acceleration * direction, dyn).duration)
+    offsets = np.linspace(0.0, span, _BRAKE_SAMPLES)
+    grid = points[:, None] + offsets[None, :]          # UT1 of every braking sample
+    there_grid = other_path(grid.ravel()).reshape(grid.shape)
+    final = float(other_path(np.array([max(other_end, ut1)]))[0])
+    other_at = {}
+    for d, (p0, v, brakes) in other_brakes.items():
+        pos = _evaluate_many(brakes, np.broadcast_to(np.clip(offsets - d, 0.0, None), grid.shape))
+        # (a stop with the normal deceleration from a point of a move to rest goes no further
+        # than that move's end: its speed is known from differences only, held to the end)
+        ahead = np.sign(v) * (final - p0) > 0.0
+        pos = np.where((ahead & (v > 0))[:, None], np.minimum(pos, final), pos)
+        pos = np.where((ahead & (v < 0))[:, None], np.maximum(pos, final), pos)
+        other_at[d] = np.where(offsets[None, :] < d, there_grid, pos)
+
+    def brakes_clear(traj) -> bool:
+        own_grid = _evaluate(traj, (grid - ut1).ravel()).reshape(grid.shape)
+        own_at = {}
+        for d in late:
+            ps, vs, accs = _states(traj, points + d - ut1)
+            pos = np.repeat(ps[:, None], offsets.size, axis=1)   # (at rest: stays)
+            moving = np.flatnonzero((np.abs(vs) > 1e-12) | (np.abs(accs) > 1e-12))
+            if moving.size:
+                brakes = [_stop_of(float(ps[i]), float(vs[i]), float(accs[i]), dyn) for i in moving]
+                pos[moving] = _evaluate_many(brakes, np.broadcast_to(np.clip(offsets - d, 0.0, None),
+                                                                     (moving.size, offsets.size)))
+            own_at[d] = np.where(offsets[None, :] < d, own_grid, pos)
+        for d_own, d_other in BRAKE_DELAYS:
+            own, there = own_at[d_own], other_at[d_other]
+            a1, a2 = (own, there) if first else (there, own)
+            m, w = env.margins(a1.ravel(), a2.ravel(), grid.ravel() - ut1_utc, **which)
+            m = m.reshape(grid.shape)
+            # (from a point already inside a border — a pair leaving it — no deeper than there)
+            need = np.minimum(margin, m[:, :1])
+            bad = m < need - _TOL
+            if bad.any():
+                i = int(np.flatnonzero(bad.ravel())[0])
+                why[0] = env.describe(env.reason(w[i]), a1.ravel()[i], a2.ravel()[i])
+                return False
+        return True
+
+    def path_good(goal: float, brakes: bool = False) -> bool:
         traj = _traj(state, goal, dyn, speed)
         horizon = max(ut1 + traj.duration, other_end) + max(delays)
         n = max(2, int(math.ceil((horizon - ut1) * vmax / STEP)) + 1)
@@ -795,22 +921,32 @@ def pair_bound(env: Envelope, ut1: float, state: Setpoint, dyn: AxisDynamics, di
             if not j.ok:
                 why[0] = j.text
                 return False
-        return True
+        return brakes_clear(traj) if brakes else True
+
+    def good(goal: float) -> bool:
+        return path_good(goal, True)
+
+    def bisect(test, lo: float, hi: float) -> float:
+        for _ in range(24):
+            mid = 0.5 * (lo + hi)
+            if test(mid):
+                lo = mid
+            else:
+                hi = mid
+            if abs(hi - lo) < 1e-4:
+                break
+        return lo
 
     if good(end):
         return None
     if not good(lo):
         raise EnvelopeError(why[0])
-    hi = end
-    for _ in range(24):
-        mid = 0.5 * (lo + hi)
-        if good(mid):
-            lo = mid
-        else:
-            hi = mid
-        if abs(hi - lo) < 1e-4:
-            break
-    return lo
+    # (the bound on the pair's path first, cheap; both axes braking from its points judged
+    # at that bound, and only where they would enter, the bound on both from there: nearer)
+    bound = bisect(path_good, lo, end)
+    if abs(bound - lo) < 1e-12 or good(bound):
+        return bound
+    return bisect(good, lo, bound)
 
 
 def offset_path(path: Callable, ut1: float, end: float, old: float, new: float,
