@@ -1,5 +1,5 @@
 """The GPS module (spec §11) over TPL2 against the simulated NMEA receiver: the real service
-(``tests/hw_enclosure.toml``: a receiver at 10 Hz, loose after 0.5 s of silence, at a position
+(``tests/hw_enclosure.toml``: a receiver at 10 Hz, loose after 2 s of silence, at a position
 that is not the configured site) shared by the tests of this module, the receiver's faults
 injected on the service's loop. Every wait is for a value or an event line.
 """
