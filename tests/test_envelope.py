@@ -283,7 +283,8 @@ def braking(traj, t, dyn):
     inp.control_interface = ControlInterface.Velocity
     inp.current_position, inp.current_velocity, inp.current_acceleration = [p], [v], [a]
     inp.target_velocity, inp.target_acceleration = [0.0], [0.0]
-    inp.max_velocity, inp.max_acceleration, inp.max_jerk = [dyn.max_velocity], [dyn.max_acceleration], [dyn.max_jerk]
+    inp.max_velocity, inp.max_acceleration = [dyn.max_velocity], [dyn.max_acceleration]
+    inp.max_jerk = [dyn.max_jerk]
     stop = Trajectory(1)
     Ruckig(1, 0.01).calculate(inp, stop)
     return lambda s: np.array([stop.at_time(min(max(float(x), 0.0), stop.duration))[0][0]

@@ -49,8 +49,9 @@ engineering moves keep the software limits as before, no horizon); an OFFSET whi
 (:func:`offset_path`: the offset move and the queued path with it, all borders); a client
 TRAJECTORY run (the whole queued path, all borders); ``move_toward`` (Alpaca MoveAxis, jogs:
 the move is bounded to stop at the border — while the other axis moves, on the pair's
-simultaneous path, :func:`pair_bound`; when one axis of a pair is stopped, the other's running
-move is judged again and ``Axis.limit_move`` brings its end nearer); a homing search (each way
+simultaneous path and on both axes braking from every point of it, :func:`pair_bound`; when
+one axis of a pair is stopped, the other's running move is judged again and
+``Axis.limit_move`` brings its end nearer); a homing search (each way
 its method may sweep, at its search speed, the other axis where it stands, all borders: refused
 when a border is within its stopping distance, else the border where the axis halts the run). The other axis is
 predicted as it will move: its approved move (recorded here, jogs at their speed), its queued
@@ -611,7 +612,7 @@ class Envelope:
         self._approved[id(axis)] = (ut1, _traj(self._state(axis), target_mech, axis.dynamics, None),
                                     target_mech, None, None)
 
-    def _jog_bound(self, axis, other, direction: int, ut1: float, sky: bool, speed):
+    def _jog_bound(self, axis, other, direction: int, ut1: float, sky: bool, speed, brakes: bool = True):
         sec = axis.section
         here = float(axis.real_position)
         end = float(sec.max if direction > 0 else sec.min)
@@ -626,7 +627,7 @@ class Envelope:
         probe = np.linspace(ut1, max(other_end, ut1), 50)
         still = float(other.real_position)
         if other_end > ut1 + 1e-3 and np.ptp(np.append(other_path(probe), still)) > 1e-6:
-            return self._pair_bound(axis, direction, end, ut1, which, speed, other_path, other_end)
+            return self._pair_bound(axis, direction, end, ut1, which, speed, other_path, other_end, brakes)
         n = int(abs(end - here) / (STEP / 2)) + 2
         pos = np.linspace(here, end, n)
         times = ut1 + np.abs(pos - here) / speed   # when the jog gets there (at least)
@@ -682,12 +683,12 @@ class Envelope:
         return border, words
 
     def _pair_bound(self, axis, direction: int, end: float, ut1: float, which: dict, speed: float,
-                    other_path, other_end: float):
+                    other_path, other_end: float, brakes: bool = True):
         """:func:`pair_bound` of a move of ``axis`` while the other axis moves."""
         try:
             return pair_bound(self, ut1, self._state(axis), axis.dynamics, direction, end, speed,
                               other_path, other_end, axis is self.axes[0], which,
-                              other_dyn=self._other(axis).dynamics)
+                              other_dyn=self._other(axis).dynamics, brakes=brakes)
         except EnvelopeError as exc:
             raise EnvelopeError(f"{axis.module_name}: moving {'up' if direction > 0 else 'down'} "
                                 f"while {self._other(axis).module_name} moves would enter "
@@ -727,7 +728,10 @@ class Envelope:
 
         def bound_of_other() -> float | None:
             try:
-                return self._jog_bound(other, axis, direction, ut1, sky, speed)
+                # (the other axis's stop is under way: its path is a stop, and the move of this
+                # one to the bound, braking from anywhere, stays on it — fast, without judging
+                # both braking from every point: the new end must reach the loop soon)
+                return self._jog_bound(other, axis, direction, ut1, sky, speed, brakes=False)
             except EnvelopeError:
                 return float(other.real_position)   # stop it now
 
@@ -818,7 +822,8 @@ def _stop_of(p: float, v: float, a: float, dyn: AxisDynamics):
 
 def pair_bound(env: Envelope, ut1: float, state: Setpoint, dyn: AxisDynamics, direction: int,
                end: float, speed: float, other_path: Callable, other_end: float, first: bool,
-               which: dict, delays=PAIR_DELAYS, *, other_dyn: AxisDynamics) -> float | None:
+               which: dict, delays=PAIR_DELAYS, *, other_dyn: AxisDynamics,
+               brakes: bool = True) -> float | None:
     """The bound of a move of one main axis (axis 1 when ``first``) from ``state`` towards
     ``end`` at ``speed`` while the other axis moves (``other_path``: UT1 times -> its predicted
     positions, at rest after ``other_end``; ``other_dyn`` its limits): the farthest rest
@@ -827,7 +832,8 @@ def pair_bound(env: Envelope, ut1: float, state: Setpoint, dyn: AxisDynamics, di
     the envelope, also when this move starts up to ``delays`` late, **and so does every way
     both axes can brake from any point of it** (each with its normal deceleration, either one
     starting up to :data:`BRAKE_DELAYS` later: a client stops one axis of the pair, the other
-    is bounded again then; a stalled master; a lost link) — None when ``end`` itself is good.
+    is bounded again then; a stalled master; a lost link; ``brakes`` False: not judged) — None
+    when ``end`` itself is good.
     The result is always a ``g`` whose path was judged good (the bisection keeps the good
     end). Raises :class:`EnvelopeError` (the border's words) when even braking now is not
     good."""
@@ -851,36 +857,38 @@ def pair_bound(env: Envelope, ut1: float, state: Setpoint, dyn: AxisDynamics, di
     # (both axes braking from points of the path: the points, every STEP degrees of the faster
     # axis up to BRAKE_POINTS, to where the longest move to ``end`` and the other's both ended;
     # the other's braking from each, at each of its delays, is the same for every goal)
-    longest = max(_traj(state, end, dyn, speed).duration, _traj(state, lo, dyn, speed).duration)
-    last = max(ut1 + longest, other_end)
-    k = int(min(BRAKE_POINTS, max(2, math.ceil((last - ut1) * vmax / STEP) + 1)))
-    points = np.linspace(ut1, last, k)
-    late = sorted({d for pair in BRAKE_DELAYS for d in pair})
-    reach = max(late) + 0.05
-    other_brakes = {}
-    for d in late:
-        s = points + d
-        p0, p1, p2 = other_path(s), other_path(s + _FD), other_path(s + 2 * _FD)
-        v = (-3.0 * p0 + 4.0 * p1 - p2) / (2 * _FD)
-        a = (p0 - 2.0 * p1 + p2) / (_FD * _FD)
-        other_brakes[d] = (p0, v, [_stop_of(float(x), float(y), float(z), other_dyn)
-                                   for x, y, z in zip(p0, v, a)])
-    fast = max(speed, abs(state.velocity))
-    span = reach + max(max(b.duration for _p, _v, bs in other_brakes.values() for b in bs),
-                       _stop_of(state.position, fast * direction, dyn.max_acceleration * direction, dyn).duration)
-    offsets = np.linspace(0.0, span, _BRAKE_SAMPLES)
-    grid = points[:, None] + offsets[None, :]          # UT1 of every braking sample
-    there_grid = other_path(grid.ravel()).reshape(grid.shape)
-    final = float(other_path(np.array([max(other_end, ut1)]))[0])
-    other_at = {}
-    for d, (p0, v, brakes) in other_brakes.items():
-        pos = _evaluate_many(brakes, np.broadcast_to(np.clip(offsets - d, 0.0, None), grid.shape))
-        # (a stop with the normal deceleration from a point of a move to rest goes no further
-        # than that move's end: its speed is known from differences only, held to the end)
-        ahead = np.sign(v) * (final - p0) > 0.0
-        pos = np.where((ahead & (v > 0))[:, None], np.minimum(pos, final), pos)
-        pos = np.where((ahead & (v < 0))[:, None], np.maximum(pos, final), pos)
-        other_at[d] = np.where(offsets[None, :] < d, there_grid, pos)
+    if brakes:
+        longest = max(_traj(state, end, dyn, speed).duration, _traj(state, lo, dyn, speed).duration)
+        last = max(ut1 + longest, other_end)
+        k = int(min(BRAKE_POINTS, max(2, math.ceil((last - ut1) * vmax / STEP) + 1)))
+        points = np.linspace(ut1, last, k)
+        late = sorted({d for pair in BRAKE_DELAYS for d in pair})
+        reach = max(late) + 0.05
+        other_brakes = {}
+        for d in late:
+            s = points + d
+            p0, p1, p2 = other_path(s), other_path(s + _FD), other_path(s + 2 * _FD)
+            v = (-3.0 * p0 + 4.0 * p1 - p2) / (2 * _FD)
+            a = (p0 - 2.0 * p1 + p2) / (_FD * _FD)
+            other_brakes[d] = (p0, v, [_stop_of(float(x), float(y), float(z), other_dyn)
+                                       for x, y, z in zip(p0, v, a)])
+        fast = max(speed, abs(state.velocity))
+        span = reach + max(max(b.duration for _p, _v, bs in other_brakes.values() for b in bs),
+                           _stop_of(state.position, fast * direction, dyn.max_acceleration * direction,
+                                    dyn).duration)
+        offsets = np.linspace(0.0, span, _BRAKE_SAMPLES)
+        grid = points[:, None] + offsets[None, :]          # UT1 of every braking sample
+        there_grid = other_path(grid.ravel()).reshape(grid.shape)
+        final = float(other_path(np.array([max(other_end, ut1)]))[0])
+        other_at = {}
+        for d, (p0, v, stops) in other_brakes.items():
+            pos = _evaluate_many(stops, np.broadcast_to(np.clip(offsets - d, 0.0, None), grid.shape))
+            # (a stop with the normal deceleration from a point of a move to rest goes no further
+            # than that move's end: its speed is known from differences only, held to the end)
+            ahead = np.sign(v) * (final - p0) > 0.0
+            pos = np.where((ahead & (v > 0))[:, None], np.minimum(pos, final), pos)
+            pos = np.where((ahead & (v < 0))[:, None], np.maximum(pos, final), pos)
+            other_at[d] = np.where(offsets[None, :] < d, there_grid, pos)
 
     def brakes_clear(traj) -> bool:
         own_grid = _evaluate(traj, (grid - ut1).ravel()).reshape(grid.shape)
@@ -890,8 +898,8 @@ def pair_bound(env: Envelope, ut1: float, state: Setpoint, dyn: AxisDynamics, di
             pos = np.repeat(ps[:, None], offsets.size, axis=1)   # (at rest: stays)
             moving = np.flatnonzero((np.abs(vs) > 1e-12) | (np.abs(accs) > 1e-12))
             if moving.size:
-                brakes = [_stop_of(float(ps[i]), float(vs[i]), float(accs[i]), dyn) for i in moving]
-                pos[moving] = _evaluate_many(brakes, np.broadcast_to(np.clip(offsets - d, 0.0, None),
+                stops = [_stop_of(float(ps[i]), float(vs[i]), float(accs[i]), dyn) for i in moving]
+                pos[moving] = _evaluate_many(stops, np.broadcast_to(np.clip(offsets - d, 0.0, None),
                                                                      (moving.size, offsets.size)))
             own_at[d] = np.where(offsets[None, :] < d, own_grid, pos)
         for d_own, d_other in BRAKE_DELAYS:
@@ -924,7 +932,7 @@ def pair_bound(env: Envelope, ut1: float, state: Setpoint, dyn: AxisDynamics, di
         return brakes_clear(traj) if brakes else True
 
     def good(goal: float) -> bool:
-        return path_good(goal, True)
+        return path_good(goal, brakes)
 
     def bisect(test, lo: float, hi: float) -> float:
         for _ in range(24):
@@ -944,7 +952,7 @@ def pair_bound(env: Envelope, ut1: float, state: Setpoint, dyn: AxisDynamics, di
     # (the bound on the pair's path first, cheap; both axes braking from its points judged
     # at that bound, and only where they would enter, the bound on both from there: nearer)
     bound = bisect(path_good, lo, end)
-    if abs(bound - lo) < 1e-12 or good(bound):
+    if not brakes or abs(bound - lo) < 1e-12 or good(bound):
         return bound
     return bisect(good, lo, bound)
 
