@@ -248,20 +248,6 @@ def test_a_slew_that_cannot_avoid_the_sun_is_refused_with_a_clear_error():
 
 # ------------------------------------------- issue 39: the path the axes really take (randomized)
 
-def one_axis(x0, x1, dyn, speed=None):
-    """One axis from rest at ``x0`` to rest at ``x1`` with ruckig itself: a function of time
-    from the start (held at the ends) and the duration."""
-    inp = InputParameter(1)
-    inp.current_position, inp.target_position = [x0], [x1]
-    inp.max_velocity = [speed or dyn.max_velocity]
-    inp.max_acceleration, inp.max_jerk = [dyn.max_acceleration], [dyn.max_jerk]
-    traj = Trajectory(1)
-    Ruckig(1, 0.01).calculate(inp, traj)
-    grid = np.linspace(0.0, traj.duration, max(2, int(traj.duration / 0.01) + 1))
-    pos = np.array([traj.at_time(x)[0][0] for x in grid])
-    return (lambda t: np.interp(t, grid, pos)), traj.duration
-
-
 def ruckig_move(x0, x1, dyn, speed=None):
     """One axis from rest at ``x0`` to rest at ``x1``: ruckig's Trajectory."""
     inp = InputParameter(1)
@@ -271,6 +257,15 @@ def ruckig_move(x0, x1, dyn, speed=None):
     traj = Trajectory(1)
     Ruckig(1, 0.01).calculate(inp, traj)
     return traj
+
+
+def one_axis(x0, x1, dyn, speed=None):
+    """One axis from rest at ``x0`` to rest at ``x1`` with ruckig itself: a function of time
+    from the start (held at the ends) and the duration."""
+    traj = ruckig_move(x0, x1, dyn, speed)
+    grid = np.linspace(0.0, traj.duration, max(2, int(traj.duration / 0.01) + 1))
+    pos = np.array([traj.at_time(x)[0][0] for x in grid])
+    return (lambda t: np.interp(t, grid, pos)), traj.duration
 
 
 def braking(traj, t, dyn):
