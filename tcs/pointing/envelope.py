@@ -157,16 +157,7 @@ class Route:
 
 def _evaluate(traj, times: np.ndarray) -> np.ndarray:
     """Positions of a 1-DoF ruckig trajectory at ``times`` (vectorised over its 7 phases)."""
-    prof = traj.profiles[0][0]
-    duration = traj.duration
-    if prof.brake.duration > 0.0 or len(traj.profiles[0]) != 1:
-        return np.array([traj.at_time(min(float(t), duration))[0][0] for t in times])
-    cum = np.concatenate(([0.0], np.cumsum(prof.t)))
-    p, v, a, j = (np.asarray(x, float) for x in (prof.p, prof.v, prof.a, prof.j))
-    tt = np.clip(times, 0.0, cum[-1])
-    k = np.clip(np.searchsorted(cum, tt, side="right") - 1, 0, 6)
-    d = tt - cum[k]
-    return p[k] + v[k] * d + a[k] * d * d / 2.0 + j[k] * d ** 3 / 6.0
+    return _states(traj, times)[0]
 
 
 def _evaluate_many(trajs, times: np.ndarray) -> np.ndarray:
@@ -194,7 +185,8 @@ def _evaluate_many(trajs, times: np.ndarray) -> np.ndarray:
 
 
 def _states(traj, times: np.ndarray):
-    """(positions, velocities, accelerations) of a 1-DoF ruckig trajectory at ``times``."""
+    """(positions, velocities, accelerations) of a 1-DoF ruckig trajectory at ``times``
+    (held at its ends; vectorised over its 7 phases)."""
     prof = traj.profiles[0][0]
     if prof.brake.duration > 0.0 or len(traj.profiles[0]) != 1:
         pva = [traj.at_time(min(max(float(t), 0.0), traj.duration)) for t in times]
@@ -808,6 +800,7 @@ BRAKE_DELAYS = (((0.0, 0.0),) + tuple((d, 0.0) for d in STOP_LEADS if d > 0.0)
 #: at most this many points of a pair's path are judged for both axes braking from them (at
 #: least every STEP degrees of the faster axis below that)
 BRAKE_POINTS = 120
+_BRAKE_LATE = sorted({d for pair in BRAKE_DELAYS for d in pair})   # each delay once
 _BRAKE_SAMPLES = 16       # samples of the two axes braking from one point of the path
 _FD = 0.02                # s: the finite differences that give the other axis's speed
 
@@ -862,7 +855,7 @@ def pair_bound(env: Envelope, ut1: float, state: Setpoint, dyn: AxisDynamics, di
         last = max(ut1 + longest, other_end)
         k = int(min(BRAKE_POINTS, max(2, math.ceil((last - ut1) * vmax / STEP) + 1)))
         points = np.linspace(ut1, last, k)
-        late = sorted({d for pair in BRAKE_DELAYS for d in pair})
+        late = _BRAKE_LATE
         reach = max(late) + 0.05
         other_brakes = {}
         for d in late:
