@@ -496,7 +496,12 @@ async def test_manual_motion_track_modes_and_the_park_position(live):
         assert abs(zd0) + 10.0 < abs(zd1) < p.zd_limit - 5.0, (zd0, zd1)
         # track modes: lunar, custom, sidereal
         await asyncio.to_thread(setprop, port, f"{DEVICE}.TELESCOPE_TRACK_STATE.TRACK_ON=On")
-        await c.wait("POINTING.TRACK", lambda v: v != 0, WAIT)
+        try:
+            await c.wait("POINTING.TRACK", lambda v: v != 0, WAIT)
+        except AssertionError as exc:   # (say why: the device's Alert, its track switch)
+            dev = live.service.indi_server.devices[DEVICE]
+            raise AssertionError(f"{exc}; INDI: {dev.eq.state} {dev.eq.message!r}, track vector "
+                                 f"{dev.track_state.state}, failure {dev._slew_failed!r}") from None
         await asyncio.to_thread(setprop, port, f"{DEVICE}.TELESCOPE_TRACK_MODE.TRACK_LUNAR=On")
         await asyncio.to_thread(wait_expr, port, f'abs("{DEVICE}.TELESCOPE_TRACK_RATE.TRACK_RATE_RA"-15.041067)>0.01')
         # east among the stars: 0.15…1.1″ of RA/s (see the Alpaca test of lunar tracking)
